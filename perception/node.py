@@ -1,0 +1,167 @@
+"""Perception node: scene-matching fixes from camera frames, one per frame.
+
+Inputs
+  ``sensors/camera``    CameraFrame     (rgb8 or mono8, the configured size)
+  ``sensors/compass``   CompassSample   (newest before the frame is used for alignment)
+  ``sensors/baro``      BaroSample      (newest before the frame is used for scale)
+Outputs
+  ``perception/fix/<node_id>``   VisionFix  (one per frame; ``valid`` false when no match)
+  ``lockstep/ack/<node_id>``     LockstepAck (role camera, after the fix) when in lockstep
+  liveliness ``nodes/perception/<node_id>`` and, in lockstep, ``lockstep/member/camera/<node_id>``
+  ``info/<node_id>``, ``events/<node_id>``
+
+Frames of the wrong size, NaN headings/altitudes or undecodable bytes are dropped and counted
+(``stats``), logged, and the node keeps running. Work happens on a worker thread, so Zenoh's
+callback threads never block on matching.
+"""
+
+from __future__ import annotations
+
+import logging
+import math
+import queue
+import threading
+from collections import Counter
+from pathlib import Path
+
+import numpy as np
+
+from scenenav.bus import Bus, BusConfig
+from scenenav.contracts import (BaroSample, CameraFrame, CompassSample, Event, LockstepAck,
+                                LockstepRole, NodeInfo, Severity, VisionFix)
+from scenenav.keys import Keys
+
+log = logging.getLogger(__name__)
+
+
+def make_pipeline(world, method: str, assistant_map_path: str | None):
+    """The pure perception pipeline for a world and a false-match method."""
+    from perception.config import PerceptionConfig
+    from perception.decision import FalseMatchMethod
+    from perception.pipeline import PerceptionPipeline
+    m = FalseMatchMethod(method)
+    classify = None
+    amap = None
+    if m in (FalseMatchMethod.CNN, FalseMatchMethod.ASSISTANT_MAP):
+        from perception.cnn import MatchClassifier
+        clf = MatchClassifier.default()
+        classify = clf.predict_proba
+    if m == FalseMatchMethod.ASSISTANT_MAP or m == FalseMatchMethod.CNN:
+        from perception.assistant_map import AssistantMap
+        if assistant_map_path:
+            amap = AssistantMap.load(assistant_map_path)
+        else:
+            amap = AssistantMap.empty(world.width_px, world.height_px, world.m_per_px,
+                                      world_name=world.manifest.name)
+    return PerceptionPipeline(world.reference, world.m_per_px, m, PerceptionConfig(),
+                              classify=classify, assistant_map=amap)
+
+
+class PerceptionNode:
+    def __init__(self, world, bus_cfg: BusConfig, node_id: str, method: str,
+                 assistant_map_path: str | None = None, lockstep: bool = True,
+                 out_dir: Path | None = None, expected_size_px: tuple[int, int] = (200, 200)):
+        self.world = world
+        self.node_id = node_id
+        self.method = method
+        self.lockstep = lockstep
+        self.out_dir = out_dir
+        self.expected_size_px = expected_size_px
+        self.keys = Keys(bus_cfg.namespace)
+        self.pipeline = make_pipeline(world, method, assistant_map_path)
+        self.stats: Counter[str] = Counter()
+        self._heading: float | None = None
+        self._altitude: float | None = None
+        self._queue: queue.Queue = queue.Queue(maxsize=64)
+        self._stop = threading.Event()
+        self.bus = Bus(bus_cfg)
+        self._worker = threading.Thread(target=self._work, name="perception", daemon=True)
+        self._worker.start()
+        self.bus.subscribe(self.keys.compass, CompassSample, self._on_compass)
+        self.bus.subscribe(self.keys.baro, BaroSample, self._on_baro)
+        self.bus.subscribe(self.keys.camera, CameraFrame, self._on_frame)
+        # Announce only once subscribed, so nothing addressed to us is lost.
+        self.bus.declare_token(self.keys.node_alive("perception", node_id))
+        if lockstep:
+            self.bus.declare_token(self.keys.lockstep_member(LockstepRole.CAMERA, node_id))
+        self.bus.publish(self.keys.node_info(node_id), NodeInfo(0, node_id, "perception", method))
+        log.info("perception node %s up (method %s, lockstep %s)", node_id, method, lockstep)
+
+    def _on_compass(self, msg: CompassSample, _k: str) -> None:
+        self._heading = msg.heading_rad
+
+    def _on_baro(self, msg: BaroSample, _k: str) -> None:
+        self._altitude = msg.altitude_m
+
+    def _on_frame(self, msg: CameraFrame, _k: str) -> None:
+        self._queue.put((msg, self._heading, self._altitude))
+
+    def _drop(self, reason: str, msg: CameraFrame) -> None:
+        self.stats[f"dropped_{reason}"] += 1
+        n = self.stats[f"dropped_{reason}"]
+        if n <= 5 or n % 100 == 0:
+            log.warning("dropped frame %d (%s), %d so far", msg.seq, reason, n)
+            self.bus.publish(self.keys.events(self.node_id), Event(
+                msg.timestamp_us, self.node_id, int(Severity.WARNING),
+                f"dropped camera frame {msg.seq}: {reason}"))
+
+    def _work(self) -> None:
+        from perception.pipeline import BadInput
+        while not self._stop.is_set():
+            try:
+                item = self._queue.get(timeout=0.2)
+            except queue.Empty:
+                continue
+            msg, heading, altitude = item
+            try:
+                if (msg.width_px, msg.height_px) != self.expected_size_px:
+                    self._drop("wrong_size", msg)
+                elif heading is None or altitude is None:
+                    self._drop("no_compass_or_baro_yet", msg)
+                elif not (math.isfinite(heading) and math.isfinite(altitude)):
+                    self._drop("nan_sensor", msg)
+                else:
+                    try:
+                        res = self.pipeline.process(msg.pixels, heading, altitude,
+                                                    msg.timestamp_us * 1e-6)
+                    except BadInput as exc:
+                        self._drop(f"bad_input: {exc}", msg)
+                    else:
+                        self.bus.publish(self.keys.vision_fix(self.node_id),
+                                         self._fix_message(msg, res))
+                        self.stats["fixes"] += 1
+            except Exception:   # keep serving frames whatever one frame did
+                log.exception("frame %d failed", msg.seq)
+                self.stats["errors"] += 1
+            finally:
+                if self.lockstep:
+                    self.bus.publish(self.keys.lockstep_ack(self.node_id), LockstepAck(
+                        msg.timestamp_us, self.node_id, LockstepRole.CAMERA.value, msg.seq))
+
+    def _fix_message(self, msg: CameraFrame, r) -> VisionFix:
+        cov = np.asarray(r.covariance_m2, dtype=float).reshape(2, 2)
+        pc = tuple(float(x) for x in np.broadcast_to(np.asarray(r.p_classes, dtype=float), (4,)))
+        t = r.timings_ms
+        return VisionFix(
+            timestamp_us=msg.timestamp_us, frame_seq=msg.seq, node_id=self.node_id,
+            method=self.method, valid=bool(r.valid), accepted=bool(r.accepted),
+            position_xy_enu_m=(float(r.position_enu_m[0]), float(r.position_enu_m[1])),
+            covariance_xy_m2=(float(cov[0, 0]), float(cov[0, 1]), float(cov[1, 0]), float(cov[1, 1])),
+            p_true=float(r.p_true), p_classes=pc,
+            ncc_peak=float(r.metrics.get("peak", math.nan)),
+            ncc_psr=float(r.metrics.get("psr", math.nan)),
+            ncc_second_peak_ratio=float(r.metrics.get("second_peak_ratio", math.nan)),
+            time_align_ms=float(t.get("align", 0.0)), time_ncc_ms=float(t.get("ncc", 0.0)),
+            time_cnn_ms=float(t.get("cnn", 0.0)), time_lookup_ms=float(t.get("lookup", 0.0)),
+            time_total_ms=float(t.get("total", 0.0)))
+
+    def close(self) -> None:
+        self._stop.set()
+        self._worker.join(timeout=5)
+        if self.out_dir is not None and getattr(self.pipeline, "assistant_map", None) is not None:
+            try:
+                self.pipeline.assistant_map.save(Path(self.out_dir) / f"assistant_map_{self.node_id}.npz")
+            except OSError as exc:
+                log.warning("could not save the assistant map: %s", exc)
+        log.info("perception node %s stats: %s", self.node_id, dict(self.stats))
+        self.bus.close()

@@ -1,0 +1,148 @@
+"""The ``scenenav`` command: one subcommand per capability, each with its own --help.
+
+Errors in what the user gave (files, keys, values) print one line ``error: ...`` and exit 2.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import logging
+import sys
+from pathlib import Path
+
+from scenenav.errors import UserError
+
+log = logging.getLogger("scenenav")
+
+
+def _run(args: argparse.Namespace) -> int:
+    from scenenav.launcher import run
+    summary = run(args.scenario, args.out, tuple(args.set or ()), progress=not args.quiet)
+    from scenenav.evaluation import format_summary
+    print(format_summary(summary))
+    print(f"run folder: {args.out}")
+    return 0 if not summary.get("failed_nodes") else 1
+
+
+def _node(args: argparse.Namespace) -> int:
+    from scenenav.bus import BusConfig
+    from scenenav import nodes
+    run_dir = Path(args.run_dir) if getattr(args, "run_dir", None) else None
+    if args.kind == "sim":
+        bus = BusConfig(args.namespace, args.hub_port, listen_hub=True)
+        expect = tuple(x for x in (args.expect or "").split(",") if x)
+        return nodes.run_sim(run_dir, bus, expect)
+    bus = BusConfig(args.namespace, args.hub_port)
+    if args.kind == "recorder":
+        return nodes.run_recorder(run_dir, bus)
+    if args.kind == "perception":
+        return nodes.run_perception(run_dir, bus, args.method, args.node_id, args.world,
+                                    args.assistant_map, None if args.lockstep is None else args.lockstep == "on")
+    if args.kind == "autopilot":
+        from autopilot_bridge.node import run_autopilot_node
+        return run_autopilot_node(run_dir, bus, args)
+    raise UserError(f"unknown node kind {args.kind!r}")
+
+
+def _bench(args: argparse.Namespace) -> int:
+    if args.what == "sim":
+        from benchmarks.sim_bench import run_sim_bench
+        result = run_sim_bench(seconds=args.seconds, sizes=args.sizes)
+    else:
+        raise UserError(f"unknown benchmark {args.what!r}")
+    if args.json:
+        print(json.dumps(result, indent=2))
+    return 0
+
+
+def build_parser() -> argparse.ArgumentParser:
+    p = argparse.ArgumentParser(
+        prog="scenenav",
+        description="Software-in-the-loop stack for GPS-denied drone navigation by scene matching: "
+                    "a pybullet quadrotor over a textured city, Zenoh nodes, a MAVLink autopilot.",
+    )
+    p.add_argument("--log-level", default="WARNING",
+                   choices=["DEBUG", "INFO", "WARNING", "ERROR"], help="library log level (default WARNING)")
+    sub = p.add_subparsers(dest="command", metavar="COMMAND")
+    sub.required = True
+
+    r = sub.add_parser("run", help="fly a scenario headless and write its run folder",
+                       description="Start the simulator, recorder, perception (and autopilot) as child "
+                                   "processes, fly SCENARIO (YAML; defaults: a scripted loop over the "
+                                   "default world) and write RUN_DIR: summary.json, truth/fixes/estimates "
+                                   "CSV, trajectory.png, bus.mcap, one log per node. Ctrl-C stops every "
+                                   "node cleanly and still writes the summary.")
+    r.add_argument("scenario", nargs="?", help="scenario YAML (see docs/scenarios.md)")
+    r.add_argument("--out", required=True, metavar="RUN_DIR", help="run folder to create (must be new or empty)")
+    r.add_argument("--set", action="append", metavar="KEY=VALUE",
+                   help="override a scenario key, e.g. --set duration_s=30 --set perception.method=statistical")
+    r.add_argument("--quiet", action="store_true", help="no progress bar")
+    r.set_defaults(func=_run)
+
+    n = sub.add_parser("node", help="run one node of a run (the launcher uses this)",
+                       description="Run a single bus node. Normally started by `scenenav run` or "
+                                   "`scenenav sitl`; start one by hand to swap a node in a live run "
+                                   "(same --namespace and --hub-port as the run, see its run.json).")
+    n.add_argument("kind", choices=["sim", "recorder", "perception", "autopilot"])
+    n.add_argument("--namespace", required=True, help="key namespace of the run (run.json: namespace)")
+    n.add_argument("--hub-port", required=True, type=int, help="the simulator's Zenoh port (run.json: hub_port)")
+    n.add_argument("--run-dir", help="run folder (reads scenario.yaml from it)")
+    n.add_argument("--expect", help="sim only: comma list of nodes to wait for (recorder,tick,camera)")
+    n.add_argument("--method", choices=["cnn", "assistant-map", "statistical", "none"],
+                   help="perception only: false-match method (default: the scenario's)")
+    n.add_argument("--node-id", default="perception", help="perception only: node id on the bus")
+    n.add_argument("--world", help="perception only: world folder (default: the scenario's)")
+    n.add_argument("--assistant-map", help="perception only: assistant map .npz")
+    n.add_argument("--lockstep", choices=["on", "off"], help="perception only: answer each frame in lockstep")
+    n.set_defaults(func=_node)
+
+    b = sub.add_parser("bench", help="benchmarks that print figures (never part of the tests)",
+                       description="Benchmarks. Speed and accuracy targets live here, not in tests.")
+    bsub = b.add_subparsers(dest="what", metavar="WHAT")
+    bsub.required = True
+    bs = bsub.add_parser("sim", help="simulator real-time factor (lockstep, camera 10 Hz) vs world size")
+    bs.add_argument("--json", action="store_true", help="print the results as JSON")
+    bs.add_argument("--seconds", type=float, default=20.0, help="simulated seconds per measurement (default 20)")
+    bs.add_argument("--sizes", default="900x1000,2000x2000,8000x8000",
+                    help="world sizes WxH in px, comma separated (default 900x1000,2000x2000,8000x8000)")
+    bs.set_defaults(func=_bench)
+    _register_optional(sub, bsub)
+    return p
+
+
+def _register_optional(sub, bsub) -> None:
+    """Subcommands owned by the capability packages."""
+    from worlds.cli import register as reg_world
+    reg_world(sub)
+    for modname, regname in (("guidance.cli", "register"), ("perception.cli", "register")):
+        try:
+            mod = __import__(modname, fromlist=[regname])
+        except ImportError as exc:   # package not built yet in this checkout
+            log.debug("no %s: %s", modname, exc)
+            continue
+        getattr(mod, regname)(sub)
+    try:
+        from guidance.bench import register_bench
+        register_bench(bsub)
+    except ImportError as exc:
+        log.debug("no guidance bench: %s", exc)
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = build_parser()
+    args = parser.parse_args(argv)
+    logging.basicConfig(level=getattr(logging, args.log_level),
+                        format="%(asctime)s %(levelname)s %(name)s: %(message)s")
+    try:
+        return int(args.func(args) or 0)
+    except UserError as exc:
+        print(f"error: {exc}", file=sys.stderr)
+        return 2
+    except KeyboardInterrupt:
+        print("interrupted", file=sys.stderr)
+        return 130
+
+
+if __name__ == "__main__":
+    sys.exit(main())

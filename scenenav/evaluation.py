@@ -1,0 +1,211 @@
+"""Evaluation of a run folder: ``summary.json`` and the trajectory plot.
+
+Reads only files (truth.csv, fixes.csv, estimates.csv, status.csv, sim_stats.json), so it also
+works on a run that was interrupted. Definitions:
+
+* a fix's error is the horizontal distance between its position and the true position at the
+  fix's capture time (truth interpolated linearly);
+* a fix is *false* when it is valid and its error exceeds ``evaluation.false_fix_threshold_m``
+  (default 5 m); an invalid fix (no match computed) is neither true nor false;
+* ``rms_error_m`` / ``max_error_m`` are of the autopilot's own estimate against truth (horizontal),
+  null when the run had no autopilot; ``fix_rms_error_accepted_m`` is over accepted fixes.
+"""
+
+from __future__ import annotations
+
+import csv
+import json
+import logging
+import math
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+log = logging.getLogger(__name__)
+
+
+def read_csv(path: Path) -> dict[str, np.ndarray]:
+    """A CSV as columns; numeric columns as float arrays (empty cells -> NaN)."""
+    if not path.is_file():
+        return {}
+    with path.open(newline="", encoding="utf-8") as f:
+        rows = list(csv.reader(f))
+    if not rows:
+        return {}
+    header, body = rows[0], [r for r in rows[1:] if len(r) == len(rows[0])]
+    cols: dict[str, Any] = {}
+    for i, name in enumerate(header):
+        vals = [r[i] for r in body]
+        try:
+            cols[name] = np.array([float(v) if v != "" else math.nan for v in vals])
+        except ValueError:
+            cols[name] = np.array(vals, dtype=object)
+    return cols
+
+
+def _interp_truth(truth: dict, t: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    tt = truth["t_s"]
+    return np.interp(t, tt, truth["x_m"]), np.interp(t, tt, truth["y_m"])
+
+
+def fix_table(run_dir: Path, threshold_m: float) -> dict[str, np.ndarray]:
+    """fixes.csv joined with truth: error_m and is_false per fix."""
+    fixes = read_csv(run_dir / "fixes.csv")
+    truth = read_csv(run_dir / "truth.csv")
+    if not fixes or not truth or len(truth.get("t_s", [])) < 2 or len(fixes.get("t_s", [])) == 0:
+        return {}
+    tx, ty = _interp_truth(truth, fixes["t_s"])
+    err = np.hypot(fixes["x_m"] - tx, fixes["y_m"] - ty)
+    valid = fixes["valid"] > 0.5
+    fixes["error_m"] = np.where(valid, err, np.nan)
+    fixes["is_false"] = valid & (err > threshold_m)
+    fixes["truth_x_m"], fixes["truth_y_m"] = tx, ty
+    return fixes
+
+
+def fix_metrics(fx: dict[str, np.ndarray]) -> dict[str, Any]:
+    if not fx:
+        return {"fixes_total": 0, "fixes_valid": 0, "fixes_accepted": 0, "false_fixes": 0,
+                "false_fixes_rejected": 0, "true_fixes_rejected": 0, "fix_time_ms_median": None,
+                "fix_rms_error_accepted_m": None, "fix_rms_error_all_m": None}
+    valid = fx["valid"] > 0.5
+    acc = (fx["accepted"] > 0.5) & valid
+    false = fx["is_false"].astype(bool)
+    rejected = valid & ~acc
+    err = fx["error_m"]
+
+    def rms(mask):
+        return float(np.sqrt(np.mean(err[mask] ** 2))) if mask.any() else None
+    return {
+        "fixes_total": int(len(valid)),
+        "fixes_valid": int(valid.sum()),
+        "fixes_accepted": int(acc.sum()),
+        "false_fixes": int(false.sum()),
+        "false_fixes_rejected": int((false & rejected).sum()),
+        "true_fixes_rejected": int((~false & valid & rejected).sum()),
+        "fix_time_ms_median": float(np.nanmedian(fx["time_total_ms"])) if len(valid) else None,
+        "fix_rms_error_accepted_m": rms(acc),
+        "fix_rms_error_all_m": rms(valid),
+    }
+
+
+def estimate_metrics(run_dir: Path) -> dict[str, Any]:
+    est = read_csv(run_dir / "estimates.csv")
+    truth = read_csv(run_dir / "truth.csv")
+    if not est or not truth or len(est.get("t_s", [])) == 0 or len(truth.get("t_s", [])) < 2:
+        return {"rms_error_m": None, "max_error_m": None}
+    tx, ty = _interp_truth(truth, est["t_s"])
+    e = np.hypot(est["x_m"] - tx, est["y_m"] - ty)
+    return {"rms_error_m": float(np.sqrt(np.mean(e ** 2))), "max_error_m": float(np.max(e))}
+
+
+def evaluate_run(run_dir: Path, cfg, world, wall_time_s: float, interrupted: bool = False) -> dict:
+    run_dir = Path(run_dir)
+    fx = fix_table(run_dir, cfg.evaluation.false_fix_threshold_m)
+    summary: dict[str, Any] = {"scenario": cfg.name, "world": world.manifest.name}
+    summary.update(estimate_metrics(run_dir))
+    summary.update(fix_metrics(fx))
+    status = read_csv(run_dir / "status.csv")
+    sim_stats = {}
+    if (run_dir / "sim_stats.json").is_file():
+        sim_stats = json.loads((run_dir / "sim_stats.json").read_text())
+    end_reason = sim_stats.get("end_reason")
+    if status and len(status.get("t_s", [])):
+        mission_completed = bool(status["mission_complete"][-1] > 0.5)
+    else:
+        mission_completed = end_reason == "scripted route complete"
+    truth = read_csv(run_dir / "truth.csv")
+    summary.update({
+        "mission_completed": mission_completed,
+        "gps_used": bool(status["gps_used"].max() > 0.5) if status and len(status.get("t_s", [])) else False,
+        "sim_time_s": sim_stats.get("sim_time_s", float(truth["t_s"][-1]) if truth else 0.0),
+        "wall_time_s": round(wall_time_s, 3),
+        "real_time_factor": sim_stats.get("real_time_factor"),
+        "end_reason": end_reason if not interrupted else "interrupted",
+        "flight_mode": cfg.flight.mode.value,
+        "perception_method": cfg.perception.method if cfg.perception.enabled else None,
+        "false_fix_threshold_m": cfg.evaluation.false_fix_threshold_m,
+        "distance_flown_m": _distance(truth),
+    })
+    (run_dir / "summary.json").write_text(json.dumps(summary, indent=2))
+    try:
+        plot_run(run_dir, world, fx)
+    except Exception:  # a plot must never lose the summary
+        log.exception("could not draw trajectory.png")
+    return summary
+
+
+def _distance(truth: dict) -> float:
+    if not truth or len(truth.get("x_m", [])) < 2:
+        return 0.0
+    return float(np.sum(np.hypot(np.diff(truth["x_m"]), np.diff(truth["y_m"]))))
+
+
+def plot_run(run_dir: Path, world, fx: dict) -> None:
+    import matplotlib
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    truth = read_csv(run_dir / "truth.csv")
+    est = read_csv(run_dir / "estimates.csv")
+    m = world.manifest
+    half_w, half_h = m.width_px * m.m_per_px / 2, m.height_px * m.m_per_px / 2
+    fig, axes = plt.subplots(1, 2, figsize=(15, 7), gridspec_kw={"width_ratios": [1.1, 1]})
+    ax = axes[0]
+    step = max(1, max(m.width_px, m.height_px) // 1500)
+    ax.imshow(world.orthophoto[::step, ::step], extent=(-half_w, half_w, -half_h, half_h),
+              origin="upper", alpha=0.8)
+    if truth:
+        ax.plot(truth["x_m"], truth["y_m"], "k-", lw=1.5, label="truth")
+    if est and len(est.get("t_s", [])):
+        ax.plot(est["x_m"], est["y_m"], "b-", lw=1, label="autopilot estimate")
+    if fx:
+        valid = fx["valid"] > 0.5
+        acc = valid & (fx["accepted"] > 0.5)
+        rej = valid & ~acc
+        false = fx["is_false"].astype(bool)
+        ax.scatter(fx["x_m"][acc], fx["y_m"][acc], s=8, c="lime", label="accepted fix")
+        ax.scatter(fx["x_m"][rej], fx["y_m"][rej], s=14, c="red", marker="x", label="rejected fix")
+        ax.scatter(fx["x_m"][false], fx["y_m"][false], s=40, facecolors="none", edgecolors="orange",
+                   label="false fix (> threshold)")
+    ax.set_xlim(-half_w, half_w)
+    ax.set_ylim(-half_h, half_h)
+    ax.set_xlabel("x east (m)")
+    ax.set_ylabel("y north (m)")
+    ax.set_title(f"{m.name}: trajectory")
+    ax.legend(loc="upper right", fontsize=7)
+    ax2 = axes[1]
+    if fx:
+        ax2.plot(fx["t_s"], fx["error_m"], ".", ms=3, c="gray", label="fix error (all valid)")
+        acc = (fx["valid"] > 0.5) & (fx["accepted"] > 0.5)
+        ax2.plot(fx["t_s"][acc], fx["error_m"][acc], ".", ms=4, c="green", label="accepted")
+    if est and truth and len(est.get("t_s", [])):
+        tx, ty = _interp_truth(truth, est["t_s"])
+        ax2.plot(est["t_s"], np.hypot(est["x_m"] - tx, est["y_m"] - ty), "b-", lw=1,
+                 label="estimate error")
+    ax2.set_yscale("symlog", linthresh=1.0)
+    ax2.set_xlabel("time (s)")
+    ax2.set_ylabel("horizontal error (m)")
+    ax2.grid(True, alpha=0.3)
+    ax2.legend(fontsize=7)
+    fig.tight_layout()
+    fig.savefig(run_dir / "trajectory.png", dpi=90)
+    plt.close(fig)
+
+
+def format_summary(summary: dict) -> str:
+    keys = ["scenario", "world", "flight_mode", "perception_method", "sim_time_s", "wall_time_s",
+            "real_time_factor", "distance_flown_m", "fixes_total", "fixes_accepted", "false_fixes",
+            "false_fixes_rejected", "true_fixes_rejected", "fix_rms_error_accepted_m",
+            "fix_time_ms_median", "rms_error_m", "max_error_m", "mission_completed", "gps_used",
+            "end_reason"]
+    lines = ["summary:"]
+    for k in keys:
+        v = summary.get(k)
+        if isinstance(v, float):
+            v = f"{v:.3f}"
+        lines.append(f"  {k:26s} {v}")
+    if summary.get("failed_nodes"):
+        lines.append(f"  failed_nodes               {summary['failed_nodes']}")
+    return "\n".join(lines)

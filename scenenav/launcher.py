@@ -1,0 +1,173 @@
+"""``scenenav run``: start every node of a scenario as a child process, fly it, write the run folder.
+
+Children are started in their own process group so that Ctrl-C reaches only the launcher, which
+then stops them in order (simulator first, recorder last) with SIGINT, escalating to SIGTERM and
+SIGKILL after a grace period: no orphans, and the logs are closed properly.
+"""
+
+from __future__ import annotations
+
+import json
+import logging
+import os
+import signal
+import subprocess
+import sys
+import time
+import uuid
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import yaml
+
+from scenenav.bus import free_port
+from scenenav.errors import UserError
+from scenenav.scenario import FlightMode, ScenarioConfig, load_scenario, scenario_to_dict
+
+log = logging.getLogger(__name__)
+
+GRACE_S = 10.0
+
+
+@dataclass
+class Child:
+    name: str
+    proc: subprocess.Popen
+    log_file: object
+
+
+@dataclass
+class Launch:
+    run_dir: Path
+    namespace: str
+    hub_port: int
+    children: list[Child] = field(default_factory=list)
+
+    def spawn(self, name: str, args: list[str]) -> Child:
+        logs = self.run_dir / "logs"
+        logs.mkdir(parents=True, exist_ok=True)
+        f = (logs / f"{name}.log").open("ab")
+        cmd = [sys.executable, "-m", "scenenav.cli", "--log-level", "INFO", "node", *args,
+               "--namespace", self.namespace, "--hub-port", str(self.hub_port)]
+        proc = subprocess.Popen(cmd, stdout=f, stderr=subprocess.STDOUT, stdin=subprocess.DEVNULL,
+                                start_new_session=True)
+        child = Child(name, proc, f)
+        self.children.append(child)
+        log.info("started %s (pid %d)", name, proc.pid)
+        return child
+
+    def stop_all(self, order: list[str] | None = None) -> None:
+        names = order or [c.name for c in self.children]
+        for name in names:
+            for c in self.children:
+                if c.name == name:
+                    _stop(c)
+        for c in self.children:
+            _stop(c)
+            c.log_file.close()
+
+
+def _stop(c: Child) -> None:
+    if c.proc.poll() is not None:
+        return
+    for sig, wait in ((signal.SIGINT, GRACE_S), (signal.SIGTERM, 5.0), (signal.SIGKILL, 5.0)):
+        try:
+            c.proc.send_signal(sig)
+        except ProcessLookupError:
+            return
+        try:
+            c.proc.wait(wait)
+            return
+        except subprocess.TimeoutExpired:
+            log.warning("%s did not stop on %s", c.name, sig.name)
+
+
+def resolve_world(cfg: ScenarioConfig):
+    from scenenav.nodes import load_world_for
+    return load_world_for(cfg)
+
+
+def run(scenario_path: str | None, out_dir: str, overrides: tuple[str, ...] = (),
+        progress: bool = True) -> dict:
+    cfg = load_scenario(scenario_path, overrides)
+    world = resolve_world(cfg)          # fail early, with a one-line error, on a bad world
+    run_dir = Path(out_dir)
+    if run_dir.exists() and any(run_dir.iterdir()):
+        raise UserError(f"{run_dir}: run folder exists and is not empty (choose a new --out)")
+    run_dir.mkdir(parents=True, exist_ok=True)
+    (run_dir / "scenario.yaml").write_text(yaml.safe_dump(scenario_to_dict(cfg), sort_keys=False))
+    namespace = f"run-{uuid.uuid4().hex[:12]}"
+    launch = Launch(run_dir, namespace, free_port())
+    meta = {"scenario": scenario_path or "(defaults)", "namespace": namespace,
+            "hub_port": launch.hub_port, "world": world.manifest.name,
+            "started_utc": time.strftime("%Y-%m-%dT%H:%M:%SZ", time.gmtime())}
+    (run_dir / "run.json").write_text(json.dumps(meta, indent=2))
+
+    expect = ["recorder"]
+    interrupted = False
+    wall0 = time.time()
+    try:
+        launch.spawn("recorder", ["recorder", "--run-dir", str(run_dir)])
+        if cfg.perception.enabled:
+            launch.spawn("perception", ["perception", "--run-dir", str(run_dir),
+                                        "--node-id", "perception"])
+            if cfg.perception.lockstep:
+                expect.append("camera")
+        if cfg.flight.mode == FlightMode.AUTOPILOT:
+            launch.spawn("autopilot", ["autopilot", "--run-dir", str(run_dir)])
+            expect.append("tick")
+        sim = launch.spawn("sim", ["sim", "--run-dir", str(run_dir), "--expect", ",".join(expect)])
+        _wait_sim(sim, launch, cfg, progress)
+    except KeyboardInterrupt:
+        interrupted = True
+        log.warning("interrupted: stopping every node")
+    finally:
+        launch.stop_all(order=["sim", "autopilot", "perception", "recorder"])
+    wall = time.time() - wall0
+    from scenenav.evaluation import evaluate_run
+    summary = evaluate_run(run_dir, cfg, world, wall_time_s=wall, interrupted=interrupted)
+    failed = [c.name for c in launch.children if c.proc.returncode not in (0, None, -2, 130)]
+    if failed:
+        summary["failed_nodes"] = failed
+        (run_dir / "summary.json").write_text(json.dumps(summary, indent=2))
+    if interrupted:
+        raise KeyboardInterrupt
+    return summary
+
+
+def _wait_sim(sim: Child, launch: Launch, cfg: ScenarioConfig, progress: bool) -> None:
+    """Wait for the simulator to end; show progress from its log of simulated time."""
+    bar = None
+    if progress and sys.stderr.isatty():
+        from tqdm import tqdm
+        bar = tqdm(total=round(cfg.duration_s), unit="sim s", desc=cfg.name, leave=False)
+    while sim.proc.poll() is None:
+        for c in launch.children:
+            if c is not sim and c.proc.poll() is not None and c.proc.returncode != 0:
+                log.error("%s exited with code %s (see logs/%s.log)", c.name, c.proc.returncode, c.name)
+        time.sleep(0.25)
+        if bar is not None:
+            t = _sim_progress(launch.run_dir)
+            if t is not None:
+                bar.n = min(round(t), bar.total)
+                bar.refresh()
+    if bar is not None:
+        bar.close()
+    if sim.proc.returncode != 0:
+        log.error("simulator exited with code %s (see %s)", sim.proc.returncode,
+                  launch.run_dir / "logs" / "sim.log")
+
+
+def _sim_progress(run_dir: Path) -> float | None:
+    p = run_dir / "truth.csv"
+    try:
+        with p.open("rb") as f:
+            f.seek(max(0, p.stat().st_size - 400))
+            last = f.read().splitlines()[-1]
+        return float(last.split(b",")[0])
+    except (OSError, IndexError, ValueError):
+        return None
+
+
+def child_env() -> dict:
+    return dict(os.environ)

@@ -1,0 +1,128 @@
+"""Scenario configuration: one YAML file describes a whole run (schema in docs/scenarios.md).
+
+Every section is a frozen dataclass with units in its key names; unknown keys and out-of-range
+values are one-line errors naming the file and the key.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from dataclasses import dataclass, field
+from enum import Enum
+from pathlib import Path
+
+from scenenav.config import apply_overrides, check, load_config, load_yaml, to_dict
+from scenenav.contracts import ClockMode
+from sitl.config import SimConfig
+
+
+class FlightMode(str, Enum):
+    SCRIPTED = "scripted"     # kinematic path, no autopilot (logging runs, like the paper's flights)
+    AUTOPILOT = "autopilot"   # the MAVLink autopilot flies the route as a mission
+    IDLE = "idle"             # the vehicle waits on the ground for a ground station (scenenav sitl)
+
+
+@dataclass(frozen=True)
+class ClockConfig:
+    mode: ClockMode = ClockMode.LOCKSTEP
+    speed_factor: float = 1.0          # realtime mode: simulated seconds per wall second
+    tick_rate_hz: float = 100.0        # control tick (IMU, motor commands); physics sub-steps within
+    member_timeout_s: float = 30.0     # wall seconds to wait for one lockstep answer before going on
+    startup_timeout_s: float = 120.0   # wall seconds to wait for the expected nodes to appear
+
+    def __post_init__(self) -> None:
+        check(self.speed_factor > 0, "clock.speed_factor", self.speed_factor, "a positive number")
+        check(10.0 <= self.tick_rate_hz <= 1000.0, "clock.tick_rate_hz", self.tick_rate_hz,
+              "10 to 1000 Hz")
+        check(self.member_timeout_s > 0, "clock.member_timeout_s", self.member_timeout_s, "> 0 s")
+        check(self.startup_timeout_s > 0, "clock.startup_timeout_s", self.startup_timeout_s, "> 0 s")
+
+
+DEFAULT_ROUTE = ((-150.0, -180.0), (150.0, -180.0), (150.0, 180.0), (-150.0, 180.0), (-150.0, -180.0))
+
+
+@dataclass(frozen=True)
+class FlightConfig:
+    mode: FlightMode = FlightMode.SCRIPTED
+    route_enu_m: tuple[tuple[float, float], ...] = DEFAULT_ROUTE
+    altitude_m: float = 100.0
+    speed_m_s: float = 10.0
+    turn_radius_m: float = 30.0
+    start_enu_m: tuple[float, float] = (0.0, 0.0)   # autopilot/idle: take-off point on the ground
+    start_heading_deg: float = 0.0                   # compass, clockwise from north
+
+    def __post_init__(self) -> None:
+        check(len(self.route_enu_m) >= 2 or self.mode == FlightMode.IDLE, "flight.route_enu_m",
+              self.route_enu_m, "at least two [x, y] waypoints in metres")
+        check(5.0 <= self.altitude_m <= 1000.0, "flight.altitude_m", self.altitude_m, "5 to 1000 m")
+        check(0.5 <= self.speed_m_s <= 30.0, "flight.speed_m_s", self.speed_m_s, "0.5 to 30 m/s")
+        check(self.turn_radius_m >= 0, "flight.turn_radius_m", self.turn_radius_m, ">= 0 m")
+
+
+@dataclass(frozen=True)
+class PerceptionNodeConfig:
+    enabled: bool = True
+    method: str = "none"               # cnn | assistant-map | statistical | none
+    assistant_map: str = ""            # .npz for method assistant-map (empty: built online)
+    lockstep: bool = True              # the simulator waits for this node's answer to each frame
+
+    def __post_init__(self) -> None:
+        check(self.method in ("cnn", "assistant-map", "statistical", "none"), "perception.method",
+              self.method, "one of cnn, assistant-map, statistical, none")
+
+
+@dataclass(frozen=True)
+class RecorderConfig:
+    camera_every_n: int = 10           # every n-th camera frame goes to the MCAP log (0: none)
+    truth_every_n_ticks: int = 5       # truth.csv decimation (1: every control tick)
+
+    def __post_init__(self) -> None:
+        check(self.camera_every_n >= 0, "recorder.camera_every_n", self.camera_every_n, ">= 0")
+        check(self.truth_every_n_ticks >= 1, "recorder.truth_every_n_ticks",
+              self.truth_every_n_ticks, ">= 1")
+
+
+@dataclass(frozen=True)
+class EvaluationConfig:
+    false_fix_threshold_m: float = 5.0  # a fix whose error exceeds this is false
+
+    def __post_init__(self) -> None:
+        check(self.false_fix_threshold_m > 0, "evaluation.false_fix_threshold_m",
+              self.false_fix_threshold_m, "> 0 m")
+
+
+@dataclass(frozen=True)
+class ScenarioConfig:
+    name: str = "default"
+    seed: int = 0
+    world: str = "default"             # a world folder, or "default" (generated on first use)
+    duration_s: float = 90.0           # simulated seconds at most
+    clock: ClockConfig = field(default_factory=ClockConfig)
+    sim: SimConfig = field(default_factory=SimConfig)
+    flight: FlightConfig = field(default_factory=FlightConfig)
+    perception: PerceptionNodeConfig = field(default_factory=PerceptionNodeConfig)
+    recorder: RecorderConfig = field(default_factory=RecorderConfig)
+    evaluation: EvaluationConfig = field(default_factory=EvaluationConfig)
+
+    def __post_init__(self) -> None:
+        check(self.duration_s > 0, "duration_s", self.duration_s, "a positive number of seconds")
+        check(self.seed >= 0, "seed", self.seed, "a non-negative integer")
+
+
+def load_scenario(path: str | Path | None, overrides: tuple[str, ...] = ()) -> ScenarioConfig:
+    """Load a scenario YAML (None: all defaults) and apply ``key=value`` overrides."""
+    data = load_yaml(path) if path else {}
+    source = str(path) if path else "scenario"
+    if overrides:
+        data = apply_overrides(data, list(overrides))
+        source += " (with --set overrides)"
+    return load_config(ScenarioConfig, data, source)
+
+
+def scenario_to_dict(cfg: ScenarioConfig) -> dict:
+    return to_dict(cfg)
+
+
+def replace(cfg, **changes):
+    """dataclasses.replace for nested frozen configs (re-runs the range checks)."""
+    return dataclasses.replace(cfg, **changes)

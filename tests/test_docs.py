@@ -1,0 +1,24 @@
+"""docs/interfaces.md must name every message, field and key of the contracts."""
+
+import dataclasses
+from pathlib import Path
+
+from scenenav import contracts
+from scenenav.keys import Keys, key_types
+
+DOC = (Path(__file__).resolve().parents[1] / "docs" / "interfaces.md").read_text()
+
+
+def test_every_message_and_field_documented():
+    for cls in contracts.MESSAGE_TYPES:
+        assert f"### {cls.__name__} (version {cls.VERSION})" in DOC, cls.__name__
+        for f in dataclasses.fields(cls):
+            if f.name != "pixels":
+                assert f"`{f.name}`" in DOC, f"{cls.__name__}.{f.name}"
+
+
+def test_every_key_documented():
+    k = Keys("ns")
+    for key in key_types(k):
+        tail = key[len(k.root) + 1:].replace("*", "<id>")
+        assert f"`{tail}`" in DOC, tail
