@@ -17,11 +17,12 @@ callback threads never block on matching.
 
 from __future__ import annotations
 
+import bisect
 import logging
 import math
 import queue
 import threading
-from collections import Counter
+from collections import Counter, deque
 from pathlib import Path
 
 import numpy as np
@@ -70,8 +71,11 @@ class PerceptionNode:
         self.keys = Keys(bus_cfg.namespace)
         self.pipeline = make_pipeline(world, method, assistant_map_path)
         self.stats: Counter[str] = Counter()
-        self._heading: float | None = None
-        self._altitude: float | None = None
+        # (timestamp_us, value) of recent compass and baro samples: frames arrive after a camera
+        # latency, so alignment uses the samples taken at or just before the capture time.
+        self._headings: deque[tuple[int, float]] = deque(maxlen=200)
+        self._altitudes: deque[tuple[int, float]] = deque(maxlen=200)
+        self._sensor_lock = threading.Lock()
         self._queue: queue.Queue = queue.Queue(maxsize=64)
         self._stop = threading.Event()
         self.bus = Bus(bus_cfg)
@@ -88,13 +92,27 @@ class PerceptionNode:
         log.info("perception node %s up (method %s, lockstep %s)", node_id, method, lockstep)
 
     def _on_compass(self, msg: CompassSample, _k: str) -> None:
-        self._heading = msg.heading_rad
+        with self._sensor_lock:
+            self._headings.append((msg.timestamp_us, msg.heading_rad))
 
     def _on_baro(self, msg: BaroSample, _k: str) -> None:
-        self._altitude = msg.altitude_m
+        with self._sensor_lock:
+            self._altitudes.append((msg.timestamp_us, msg.altitude_m))
+
+    @staticmethod
+    def _at(history, t_us: int) -> float | None:
+        """The newest sample taken at or before ``t_us`` (the oldest one if all are later)."""
+        if not history:
+            return None
+        times = [t for t, _ in history]
+        i = bisect.bisect_right(times, t_us) - 1
+        return history[max(i, 0)][1]
 
     def _on_frame(self, msg: CameraFrame, _k: str) -> None:
-        self._queue.put((msg, self._heading, self._altitude))
+        with self._sensor_lock:
+            heading = self._at(self._headings, msg.timestamp_us)
+            altitude = self._at(self._altitudes, msg.timestamp_us)
+        self._queue.put((msg, heading, altitude))
 
     def _drop(self, reason: str, msg: CameraFrame) -> None:
         self.stats[f"dropped_{reason}"] += 1

@@ -47,7 +47,7 @@ def _node(args: argparse.Namespace) -> int:
 
 def _bench(args: argparse.Namespace) -> int:
     if args.what == "sim":
-        from benchmarks.sim_bench import run_sim_bench
+        from scenenav.bench_sim import run_sim_bench
         result = run_sim_bench(seconds=args.seconds, sizes=args.sizes)
     else:
         raise UserError(f"unknown benchmark {args.what!r}")
@@ -113,9 +113,8 @@ def build_parser() -> argparse.ArgumentParser:
 
 def _register_optional(sub, bsub) -> None:
     """Subcommands owned by the capability packages."""
-    from worlds.cli import register as reg_world
-    reg_world(sub)
-    for modname, regname in (("guidance.cli", "register"), ("perception.cli", "register")):
+    for modname, regname in (("worlds.cli", "register"), ("guidance.cli", "register"),
+                             ("perception.cli", "register")):
         try:
             mod = __import__(modname, fromlist=[regname])
         except ImportError as exc:   # package not built yet in this checkout

@@ -31,11 +31,11 @@ class ClockConfig:
     startup_timeout_s: float = 120.0   # wall seconds to wait for the expected nodes to appear
 
     def __post_init__(self) -> None:
-        check(self.speed_factor > 0, "clock.speed_factor", self.speed_factor, "a positive number")
-        check(10.0 <= self.tick_rate_hz <= 1000.0, "clock.tick_rate_hz", self.tick_rate_hz,
+        check(self.speed_factor > 0, "speed_factor", self.speed_factor, "a positive number")
+        check(10.0 <= self.tick_rate_hz <= 1000.0, "tick_rate_hz", self.tick_rate_hz,
               "10 to 1000 Hz")
-        check(self.member_timeout_s > 0, "clock.member_timeout_s", self.member_timeout_s, "> 0 s")
-        check(self.startup_timeout_s > 0, "clock.startup_timeout_s", self.startup_timeout_s, "> 0 s")
+        check(self.member_timeout_s > 0, "member_timeout_s", self.member_timeout_s, "> 0 s")
+        check(self.startup_timeout_s > 0, "startup_timeout_s", self.startup_timeout_s, "> 0 s")
 
 
 DEFAULT_ROUTE = ((-150.0, -180.0), (150.0, -180.0), (150.0, 180.0), (-150.0, 180.0), (-150.0, -180.0))
@@ -52,11 +52,11 @@ class FlightConfig:
     start_heading_deg: float = 0.0                   # compass, clockwise from north
 
     def __post_init__(self) -> None:
-        check(len(self.route_enu_m) >= 2 or self.mode == FlightMode.IDLE, "flight.route_enu_m",
+        check(len(self.route_enu_m) >= 2 or self.mode == FlightMode.IDLE, "route_enu_m",
               self.route_enu_m, "at least two [x, y] waypoints in metres")
-        check(5.0 <= self.altitude_m <= 1000.0, "flight.altitude_m", self.altitude_m, "5 to 1000 m")
-        check(0.5 <= self.speed_m_s <= 30.0, "flight.speed_m_s", self.speed_m_s, "0.5 to 30 m/s")
-        check(self.turn_radius_m >= 0, "flight.turn_radius_m", self.turn_radius_m, ">= 0 m")
+        check(5.0 <= self.altitude_m <= 1000.0, "altitude_m", self.altitude_m, "5 to 1000 m")
+        check(0.5 <= self.speed_m_s <= 30.0, "speed_m_s", self.speed_m_s, "0.5 to 30 m/s")
+        check(self.turn_radius_m >= 0, "turn_radius_m", self.turn_radius_m, ">= 0 m")
 
 
 @dataclass(frozen=True)
@@ -67,7 +67,7 @@ class PerceptionNodeConfig:
     lockstep: bool = True              # the simulator waits for this node's answer to each frame
 
     def __post_init__(self) -> None:
-        check(self.method in ("cnn", "assistant-map", "statistical", "none"), "perception.method",
+        check(self.method in ("cnn", "assistant-map", "statistical", "none"), "method",
               self.method, "one of cnn, assistant-map, statistical, none")
 
 
@@ -77,8 +77,8 @@ class RecorderConfig:
     truth_every_n_ticks: int = 5       # truth.csv decimation (1: every control tick)
 
     def __post_init__(self) -> None:
-        check(self.camera_every_n >= 0, "recorder.camera_every_n", self.camera_every_n, ">= 0")
-        check(self.truth_every_n_ticks >= 1, "recorder.truth_every_n_ticks",
+        check(self.camera_every_n >= 0, "camera_every_n", self.camera_every_n, ">= 0")
+        check(self.truth_every_n_ticks >= 1, "truth_every_n_ticks",
               self.truth_every_n_ticks, ">= 1")
 
 
@@ -87,7 +87,7 @@ class EvaluationConfig:
     false_fix_threshold_m: float = 5.0  # a fix whose error exceeds this is false
 
     def __post_init__(self) -> None:
-        check(self.false_fix_threshold_m > 0, "evaluation.false_fix_threshold_m",
+        check(self.false_fix_threshold_m > 0, "false_fix_threshold_m",
               self.false_fix_threshold_m, "> 0 m")
 
 

@@ -85,8 +85,8 @@ class _Rates:
 
 class SimulatorNode:
     def __init__(self, scenario: ScenarioConfig, world, bus_cfg: BusConfig):
-        from sitl.camera import GroundCamera
         from sitl.physics import PhysicsWorld
+        from sitl.render_worker import CameraPipeline
         from sitl.sensors import BaroModel, CameraEffects, CompassModel, GpsModel, ImuModel
         from sitl.vehicle import VehicleParams
 
@@ -98,7 +98,8 @@ class SimulatorNode:
         streams = [np.random.default_rng(s) for s in root.spawn(7)]
         self.params = VehicleParams()
         self.physics = PhysicsWorld(self.params, sim, streams[0])
-        self.camera = GroundCamera(self.physics.client_id, world.orthophoto, world.m_per_px, sim.camera)
+        self.camera = CameraPipeline(world.orthophoto, world.m_per_px, sim.camera)
+        self.camera_latency_ticks = int(round(sim.camera.latency_s * clock_rate_hz(scenario)))
         self.imu = ImuModel(sim.imu, streams[1])
         self.baro = BaroModel(sim.baro, streams[2])
         self.compass = CompassModel(sim.compass, streams[3])
@@ -200,6 +201,8 @@ class SimulatorNode:
         gyro_sum[:] = state.angular_velocity_flu_rad_s
         n_sum = 1
         camera_seq = -1
+        capture_seq = -1
+        pending: list[tuple[int, int, int]] = []   # (publish tick, frame seq, capture time us)
         camera_acked = -1
         wall0 = time.perf_counter()
         reason = "duration reached"
@@ -224,24 +227,31 @@ class SimulatorNode:
             tp = time.perf_counter()
             self._publish_sensors(tick, t_us, state, accel_sum / n_sum, gyro_sum / n_sum)
             if self.rate_camera.due(tick):
+                capture_seq += 1
+                self.camera.request(capture_seq, state.position_enu_m, state.q_wxyz)
+                pending.append((tick + self.camera_latency_ticks, capture_seq, t_us))
+            frame_out = bool(pending) and pending[0][0] == tick
+            render_s = 0.0
+            if frame_out:
+                _, camera_seq, t_capture_us = pending.pop(0)
                 tr = time.perf_counter()
-                image = self.effects.apply(self.camera.render(state.position_enu_m, state.q_wxyz))
-                self.stats["time_render_s"] += time.perf_counter() - tr
-                camera_seq += 1
+                image = self.effects.apply(self.camera.result(camera_seq))
+                render_s = time.perf_counter() - tr
+                self.stats["time_render_s"] += render_s
                 self.barrier.published(LockstepRole.CAMERA, camera_seq)
                 cam = self.cfg.sim.camera
                 self.bus.publish(self.keys.camera, CameraFrame(
-                    t_us, camera_seq, image.shape[1], image.shape[0], ImageEncoding.RGB8.value,
-                    cam.fov_deg, cam.mount.value, image))
+                    t_capture_us, camera_seq, image.shape[1], image.shape[0],
+                    ImageEncoding.RGB8.value, cam.fov_deg, cam.mount.value, image))
                 self.stats["camera_frames"] += 1
             self.barrier.published(LockstepRole.TICK, tick)
             self.bus.publish(self.keys.clock, ClockTick(
                 t_us, tick, self.tick_us, camera_acked, clock.mode.value, RunState.RUNNING.value))
-            self.stats["time_publish_s"] += time.perf_counter() - tp
+            self.stats["time_publish_s"] += time.perf_counter() - tp - render_s
 
             tw = time.perf_counter()
             late = self.barrier.wait(LockstepRole.TICK, tick, answer_timeout)
-            if self.rate_camera.due(tick):
+            if frame_out:
                 late += self.barrier.wait(LockstepRole.CAMERA, camera_seq, answer_timeout)
                 camera_acked = camera_seq
             if late and lockstep:
@@ -295,7 +305,7 @@ class SimulatorNode:
             t_us, tuple(pos), tuple(np.asarray(state.velocity_enu_m_s, dtype=float)),
             tuple(np.asarray(state.q_wxyz, dtype=float)),
             tuple(np.asarray(state.angular_velocity_flu_rad_s, dtype=float)), heading))
-        acc, gyr = self.imu.sample(accel_mean, gyro_mean)
+        acc, gyr = self.imu.sample(accel_mean, gyro_mean, 1.0 / self.tick_rate_hz)
         self.bus.publish(keys.imu, ImuSample(t_us, tick, 1.0 / self.tick_rate_hz,
                                              tuple(map(float, acc)), tuple(map(float, gyr))))
         if self.rate_baro.due(tick):
@@ -313,7 +323,12 @@ class SimulatorNode:
 
     def close(self) -> None:
         self.bus.close()
+        self.camera.close()
         self.physics.close()
+
+
+def clock_rate_hz(scenario: ScenarioConfig) -> float:
+    return scenario.clock.tick_rate_hz
 
 
 def install_stop_handlers(stop) -> None:

@@ -1,0 +1,261 @@
+"""Configuration of the autopilot's pure algorithms: navigation filter, controllers, mixer, guidance.
+
+Every config is a frozen dataclass whose field names carry their unit; range checks raise
+``scenenav.config.ConfigError`` through ``scenenav.config.check``. Where a value mirrors an ArduPilot
+parameter the comment names it, with the ArduPilot default converted to SI units (ArduPilot stores many
+of these in cm, cm/s or centidegrees). The node maps ArduPilot parameter names onto these fields; the
+full table is in ``docs/autopilot-control.md``.
+
+Units used in names: ``_m``, ``_m_s`` (m/s), ``_m_s2`` (m/s^2), ``_rad``, ``_rad_s`` (rad/s), ``_deg``,
+``_deg_s``, ``_s``, ``_hz``; ``_1_s`` and ``_1_s2`` are gains in 1/s and 1/s^2; ``_unitless`` is a
+dimensionless gain; ``_per_rt_hz`` marks a continuous-time noise spectral density (unit per sqrt(Hz)).
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+from enum import IntEnum
+
+from scenenav.config import check
+
+
+class PositionSource(IntEnum):
+    """Horizontal position source of the navigation filter; values are ArduPilot's EK3_SRC1_POSXY."""
+
+    NONE = 0
+    GPS = 3
+    EXTNAV = 6
+
+
+class YawBehaviour(IntEnum):
+    """Heading during waypoint following; values are ArduPilot's WP_YAW_BEHAVIOR (subset)."""
+
+    NEVER_CHANGE = 0
+    FACE_NEXT_WAYPOINT = 1
+
+
+def _positive(value: float) -> bool:
+    return math.isfinite(value) and value > 0.0
+
+
+def _non_negative(value: float) -> bool:
+    return math.isfinite(value) and value >= 0.0
+
+
+@dataclass(frozen=True)
+class EkfConfig:
+    """Navigation filter (15-state error-state EKF) noise, gates and limits."""
+
+    # --- process noise: continuous-time spectral densities (variance added per predict = density^2 * dt)
+    # Gyro white noise; ArduPilot EK3_GYRO_P_NSE is the per-step equivalent (0.015 rad/s).
+    gyro_noise_rad_s_per_rt_hz: float = 0.001
+    # Accelerometer white noise; ArduPilot EK3_ACC_P_NSE is the per-step equivalent (0.35 m/s^2).
+    accel_noise_m_s2_per_rt_hz: float = 0.02
+    # Gyro bias random walk; ArduPilot EK3_GBIAS_P_NSE (0.001 rad/s^2) per step.
+    gyro_bias_noise_rad_s2_per_rt_hz: float = 1.0e-4
+    # Accelerometer bias random walk; ArduPilot EK3_ABIAS_P_NSE (0.02 m/s^3) per step.
+    accel_bias_noise_m_s3_per_rt_hz: float = 2.0e-3
+
+    # --- measurement noise (floors; the caller's own std/covariance is used when larger)
+    baro_noise_m: float = 0.4               # EK3_ALT_M_NSE (ArduPilot default 2 m; our baro ~0.3 m)
+    compass_noise_rad: float = 0.03         # EK3_YAW_M_NSE (ArduPilot default 0.5 rad)
+    gps_position_noise_min_m: float = 0.3   # EK3_POSNE_M_NSE (0.5 m) used as a floor
+    gps_velocity_noise_min_m_s: float = 0.1  # EK3_VELNE_M_NSE (0.3 m/s) used as a floor
+    vision_position_noise_min_m: float = 0.3  # floor on sqrt of each vision covariance diagonal
+
+    # --- innovation gates, in standard deviations (ArduPilot *_I_GATE is in percent of an SD: 500 = 5 SD)
+    position_gate_sd: float = 5.0   # EK3_POS_I_GATE 500
+    velocity_gate_sd: float = 5.0   # EK3_VEL_I_GATE 500
+    height_gate_sd: float = 5.0     # EK3_HGT_I_GATE 500
+    heading_gate_sd: float = 3.0    # EK3_YAW_I_GATE 300
+    # When every fix of the selected position source has been rejected for this long, the position is
+    # reset to the source (a reported jump); same for the barometer height.
+    position_reject_timeout_s: float = 5.0
+    height_reject_timeout_s: float = 5.0
+    heading_reject_timeout_s: float = 5.0
+    velocity_reject_timeout_s: float = 2.0
+
+    # --- initial uncertainty (1 sigma)
+    initial_position_std_m: float = 0.5       # when a position (home or GPS) is given at initialise
+    unknown_position_std_m: float = 1000.0    # when none is given
+    initial_velocity_std_m_s: float = 0.2
+    initial_tilt_std_rad: float = 0.02
+    initial_heading_std_rad: float = 0.05
+    initial_gyro_bias_std_rad_s: float = 0.01
+    initial_accel_bias_std_m_s2: float = 0.2
+
+    # --- limits and health
+    max_gyro_bias_rad_s: float = 0.2
+    max_accel_bias_m_s2: float = 2.0
+    max_position_std_m: float = 1.0e4         # variance clamp: dead reckoning stops growing here
+    max_velocity_std_m_s: float = 100.0
+    velocity_ok_max_std_m_s: float = 2.0      # velocity_ok() threshold (horizontal 1-sigma)
+    healthy_max_tilt_std_rad: float = 0.1     # is_healthy() threshold on the tilt 1-sigma
+    position_ok_max_std_m: float = 10.0       # position_ok() threshold (horizontal 1-sigma)
+
+    position_source: PositionSource = PositionSource.GPS   # EK3_SRC1_POSXY
+    gravity_m_s2: float = 9.80665             # standard gravity (CGPM 1901)
+
+    def __post_init__(self) -> None:
+        for name in ("gyro_noise_rad_s_per_rt_hz", "accel_noise_m_s2_per_rt_hz",
+                     "gyro_bias_noise_rad_s2_per_rt_hz", "accel_bias_noise_m_s3_per_rt_hz",
+                     "baro_noise_m", "compass_noise_rad", "gps_position_noise_min_m",
+                     "gps_velocity_noise_min_m_s", "vision_position_noise_min_m",
+                     "initial_position_std_m", "unknown_position_std_m", "initial_velocity_std_m_s",
+                     "initial_tilt_std_rad", "initial_heading_std_rad", "initial_gyro_bias_std_rad_s",
+                     "initial_accel_bias_std_m_s2", "max_gyro_bias_rad_s", "max_accel_bias_m_s2",
+                     "max_position_std_m", "max_velocity_std_m_s", "velocity_ok_max_std_m_s",
+                     "healthy_max_tilt_std_rad", "position_ok_max_std_m", "gravity_m_s2",
+                     "position_reject_timeout_s", "height_reject_timeout_s", "heading_reject_timeout_s",
+                     "velocity_reject_timeout_s"):
+            value = getattr(self, name)
+            check(_positive(value), name, value, "a positive number")
+        for name in ("position_gate_sd", "velocity_gate_sd", "height_gate_sd", "heading_gate_sd"):
+            value = getattr(self, name)
+            check(math.isfinite(value) and 1.0 <= value <= 100.0, name, value,
+                  "a gate between 1 and 100 standard deviations")
+        check(self.position_source in (PositionSource.GPS, PositionSource.EXTNAV, PositionSource.NONE),
+              "position_source", self.position_source, "0 (none), 3 (GPS) or 6 (EXTNAV)")
+
+
+@dataclass(frozen=True)
+class ControlConfig:
+    """Cascaded position / velocity / attitude / rate controller gains and limits.
+
+    The rate loop outputs an angular-acceleration demand that is multiplied by the vehicle inertia, so the
+    gains are physical (1/s) rather than ArduPilot's throttle-normalised ATC_RAT_* values.
+    """
+
+    # --- horizontal position and velocity (PSC_*)
+    pos_xy_p_1_s: float = 1.0            # PSC_POSXY_P: velocity (m/s) per metre of error
+    vel_xy_p_1_s: float = 2.0            # PSC_VELXY_P: acceleration (m/s^2) per m/s of error
+    vel_xy_i_1_s2: float = 1.0           # PSC_VELXY_I: acceleration per (m/s * s) of integrated error
+    vel_xy_d_unitless: float = 0.25      # PSC_VELXY_D (0.5): acceleration per (m/s^2) of error rate
+    vel_xy_imax_m_s2: float = 4.0        # PSC_VELXY_IMAX (1000 cm/s^2, reduced)
+    vel_xy_d_filter_hz: float = 5.0      # PSC_VELXY_FLTD
+    max_speed_xy_m_s: float = 10.0       # WPNAV_SPEED (1000 cm/s); also LOIT_SPEED cap of corrections
+    max_accel_xy_m_s2: float = 5.0       # horizontal acceleration cap (further limited by the lean angle)
+    # --- vertical position and velocity
+    pos_z_p_1_s: float = 1.0             # PSC_POSZ_P
+    vel_z_p_1_s: float = 5.0             # PSC_VELZ_P
+    vel_z_i_1_s2: float = 2.0            # integral on vertical velocity (ArduPilot: PSC_ACCZ_I on accel)
+    vel_z_imax_m_s2: float = 5.0         # vertical integrator limit
+    max_climb_m_s: float = 2.5           # PILOT_SPEED_UP / WPNAV_SPEED_UP (250 cm/s)
+    max_descent_m_s: float = 1.5         # PILOT_SPEED_DN / WPNAV_SPEED_DN (150 cm/s)
+    max_accel_z_m_s2: float = 2.5        # PSC_ACCZ limit used by the vertical sqrt controller
+    # --- attitude (ATC_*)
+    max_lean_angle_deg: float = 30.0     # ANGLE_MAX (3000 cdeg)
+    ang_rp_p_1_s: float = 4.5            # ATC_ANG_RLL_P / ATC_ANG_PIT_P: rad/s per rad of error
+    ang_yaw_p_1_s: float = 4.5           # ATC_ANG_YAW_P
+    max_rate_rp_deg_s: float = 200.0     # ATC_RATE_R_MAX / ATC_RATE_P_MAX
+    max_rate_yaw_deg_s: float = 60.0     # ATC_RATE_Y_MAX; also the heading-target slew (ATC_SLEW_YAW)
+    # --- body rate PID: output is angular acceleration (rad/s^2), multiplied by the inertia
+    rate_rp_p_1_s: float = 14.0          # (rad/s^2) per (rad/s)
+    rate_rp_i_1_s2: float = 10.0         # (rad/s^2) per rad of integrated rate error
+    rate_rp_d_unitless: float = 0.1      # (rad/s^2) per (rad/s^2)
+    rate_rp_imax_rad_s2: float = 10.0
+    rate_yaw_p_1_s: float = 6.0
+    rate_yaw_i_1_s2: float = 2.0
+    rate_yaw_imax_rad_s2: float = 3.0
+    rate_d_filter_hz: float = 20.0       # ATC_RAT_*_FLTD
+    # --- thrust
+    thrust_max_fraction: float = 0.95    # collective thrust cap as a fraction of the vehicle's max thrust
+    thrust_min_fraction: float = 0.05    # collective thrust floor in flight (MOT_SPIN_MIN-like)
+    max_tilt_compensation_deg: float = 60.0  # 1/cos(tilt) thrust boost stops growing past this tilt
+    # --- landing / takeoff detection (ArduCopter land detector)
+    land_detect_thrust_fraction: float = 0.8     # thrust demand below this fraction of hover thrust...
+    land_detect_max_speed_z_m_s: float = 0.25    # ...and vertical speed below this...
+    land_detect_max_speed_xy_m_s: float = 1.0    # ...and horizontal speed below this...
+    land_detect_time_s: float = 1.0              # ...for this long (LAND_DETECTOR_TRIGGER_SEC)
+    takeoff_min_climb_m_s: float = 0.5           # a climb target above this leaves the landed state
+
+    def __post_init__(self) -> None:
+        for name in ("pos_xy_p_1_s", "vel_xy_p_1_s", "max_speed_xy_m_s", "max_accel_xy_m_s2",
+                     "pos_z_p_1_s", "vel_z_p_1_s", "max_climb_m_s", "max_descent_m_s",
+                     "max_accel_z_m_s2", "ang_rp_p_1_s", "ang_yaw_p_1_s", "max_rate_rp_deg_s",
+                     "max_rate_yaw_deg_s", "rate_rp_p_1_s", "rate_yaw_p_1_s", "rate_d_filter_hz",
+                     "vel_xy_d_filter_hz", "land_detect_max_speed_z_m_s", "land_detect_max_speed_xy_m_s",
+                     "land_detect_time_s", "takeoff_min_climb_m_s"):
+            value = getattr(self, name)
+            check(_positive(value), name, value, "a positive number")
+        for name in ("vel_xy_i_1_s2", "vel_xy_d_unitless", "vel_xy_imax_m_s2", "vel_z_i_1_s2",
+                     "vel_z_imax_m_s2", "rate_rp_i_1_s2", "rate_rp_d_unitless", "rate_rp_imax_rad_s2",
+                     "rate_yaw_i_1_s2", "rate_yaw_imax_rad_s2"):
+            value = getattr(self, name)
+            check(_non_negative(value), name, value, "a number >= 0")
+        check(math.isfinite(self.max_lean_angle_deg) and 5.0 <= self.max_lean_angle_deg <= 70.0,
+              "max_lean_angle_deg", self.max_lean_angle_deg, "an angle between 5 and 70 degrees")
+        check(math.isfinite(self.max_tilt_compensation_deg) and 0.0 <= self.max_tilt_compensation_deg < 80.0,
+              "max_tilt_compensation_deg", self.max_tilt_compensation_deg, "an angle in [0, 80) degrees")
+        check(0.0 < self.thrust_max_fraction <= 1.0, "thrust_max_fraction", self.thrust_max_fraction,
+              "a fraction in (0, 1]")
+        check(0.0 <= self.thrust_min_fraction < self.thrust_max_fraction, "thrust_min_fraction",
+              self.thrust_min_fraction, "a fraction in [0, thrust_max_fraction)")
+        check(0.0 < self.land_detect_thrust_fraction < 1.0, "land_detect_thrust_fraction",
+              self.land_detect_thrust_fraction, "a fraction in (0, 1)")
+
+    @property
+    def max_lean_angle_rad(self) -> float:
+        return math.radians(self.max_lean_angle_deg)
+
+
+@dataclass(frozen=True)
+class MixerConfig:
+    """Quad-X mixer output range (normalised rotor-speed commands)."""
+
+    min_command: float = 0.0   # command floor while armed (MOT_SPIN_MIN-like, as a rotor-speed fraction)
+    max_command: float = 1.0   # command ceiling
+
+    def __post_init__(self) -> None:
+        check(0.0 <= self.min_command < 1.0, "min_command", self.min_command, "a fraction in [0, 1)")
+        check(self.min_command < self.max_command <= 1.0, "max_command", self.max_command,
+              "a fraction in (min_command, 1]")
+
+
+@dataclass(frozen=True)
+class GuidanceConfig:
+    """Waypoint following, takeoff, RTL and LAND (WPNAV_*, RTL_*, LAND_*)."""
+
+    wp_speed_m_s: float = 10.0          # WPNAV_SPEED (1000 cm/s)
+    wp_speed_up_m_s: float = 2.5        # WPNAV_SPEED_UP (250 cm/s)
+    wp_speed_down_m_s: float = 1.5      # WPNAV_SPEED_DN (150 cm/s)
+    wp_accel_m_s2: float = 2.5          # WPNAV_ACCEL (250 cm/s^2)
+    wp_accel_z_m_s2: float = 1.0        # WPNAV_ACCEL_Z (100 cm/s^2)
+    wp_radius_m: float = 2.0            # WPNAV_RADIUS (200 cm)
+    wp_leash_m: float = 5.0             # how far the target may run ahead of the vehicle along the track
+    yaw_behaviour: YawBehaviour = YawBehaviour.FACE_NEXT_WAYPOINT   # WP_YAW_BEHAVIOR
+    min_yaw_leg_m: float = 5.0          # legs shorter than this (horizontally) keep the current heading
+    takeoff_speed_m_s: float = 2.5      # PILOT_SPEED_UP / WPNAV_SPEED_UP for takeoff climbs
+    takeoff_radius_m: float = 0.5       # takeoff complete within this distance of the target altitude
+    rtl_alt_m: float = 15.0             # RTL_ALT (1500 cm), above home
+    rtl_loiter_s: float = 5.0           # RTL_LOIT_TIME (5000 ms)
+    land_speed_m_s: float = 0.5         # LAND_SPEED (50 cm/s), final descent
+    land_speed_high_m_s: float = 0.0    # LAND_SPEED_HIGH (0: use wp_speed_down_m_s)
+    land_alt_low_m: float = 10.0        # LAND_ALT_LOW (1000 cm): switch to land_speed_m_s below this
+
+    def __post_init__(self) -> None:
+        for name in ("wp_speed_m_s", "wp_speed_up_m_s", "wp_speed_down_m_s", "wp_accel_m_s2",
+                     "wp_accel_z_m_s2", "wp_radius_m", "wp_leash_m", "takeoff_speed_m_s",
+                     "takeoff_radius_m", "land_speed_m_s"):
+            value = getattr(self, name)
+            check(_positive(value), name, value, "a positive number")
+        for name in ("min_yaw_leg_m", "rtl_alt_m", "rtl_loiter_s", "land_speed_high_m_s", "land_alt_low_m"):
+            value = getattr(self, name)
+            check(_non_negative(value), name, value, "a number >= 0")
+        check(self.wp_speed_m_s <= 50.0, "wp_speed_m_s", self.wp_speed_m_s, "at most 50 m/s")
+
+
+@dataclass(frozen=True)
+class AutopilotAlgorithmsConfig:
+    """Everything the pure autopilot algorithms need, for the node to embed in its own config."""
+
+    ekf: EkfConfig = field(default_factory=EkfConfig)
+    control: ControlConfig = field(default_factory=ControlConfig)
+    mixer: MixerConfig = field(default_factory=MixerConfig)
+    guidance: GuidanceConfig = field(default_factory=GuidanceConfig)
+    control_rate_hz: float = 100.0      # controller / IMU tick rate
+
+    def __post_init__(self) -> None:
+        check(_positive(self.control_rate_hz) and self.control_rate_hz <= 2000.0, "control_rate_hz",
+              self.control_rate_hz, "a rate in (0, 2000] Hz")

@@ -1,0 +1,674 @@
+"""Navigation filter: a 15-state error-state extended Kalman filter (ESKF) for the autopilot.
+
+Nominal state (kept outside the covariance): position p (ENU m), velocity v (ENU m/s), attitude q_wxyz
+(body FLU -> world ENU), gyro bias b_g (rad/s, FLU), accelerometer bias b_a (m/s^2, FLU).
+
+Error state (15, the covariance ``P``; order used by ``covariance()``):
+
+    0:3   dp      position error, ENU m
+    3:6   dv      velocity error, ENU m/s
+    6:9   dtheta  attitude error as a small rotation vector in the *world* frame: q_true = Exp(dtheta) * q
+    9:12  db_g    gyro bias error, rad/s
+    12:15 db_a    accel bias error, m/s^2
+
+Prediction (every IMU tick, tick-averaged specific force f and rate w):
+    q <- q * Exp((w - b_g) dt)
+    v <- v + (R_mid (f - b_a) + g) dt,   p <- p + v dt + 1/2 a dt^2   (R_mid: attitude at mid-tick)
+    P <- F P F^T + Q with the continuous-time noise densities of ``EkfConfig`` (Q = density^2 * dt).
+Error dynamics:  d(dp) = dv;  d(dv) = -[R f]x dtheta - R db_a;  d(dtheta) = -R db_g;  biases random walks.
+
+Fusion (all sequential, standard EKF update, P symmetrised): barometer -> p_z (the barometer's offset to
+ENU z is fixed at ``initialise``); compass heading -> yaw; GPS position -> p_xy (height comes from the
+barometer, ArduPilot's EK3_SRC1_POSZ = baro); GPS velocity -> v (3-D); vision fix -> p_xy. After each
+update the error is injected into the nominal state and reset to zero; the covariance reset Jacobian
+(I - [dtheta/2]x) is taken as identity, which is accurate for the small corrections of a healthy filter.
+
+Gating: with innovation nu and innovation covariance S, the normalised innovation squared NIS = nu' S^-1 nu
+is compared with gate^2 (gate in standard deviations, like ArduPilot's *_I_GATE / 100); the reported
+``test_ratio`` = NIS / gate^2 and a measurement is fused only when test_ratio <= 1.
+
+Position source (ArduPilot EK3_SRC1_POSXY): only the selected source's horizontal position is fused; the
+other source's fixes are evaluated (innovation and test ratio are returned, for monitoring) but not used.
+GPS velocity is fused only while GPS is the position source. Switching source does not reset anything:
+the new source's fixes enter through the same gated update, so the estimate moves towards them at the
+rate the covariances allow (continuous, no step). Only if every fix of the selected source is rejected
+for ``position_reject_timeout_s`` is the horizontal position reset onto the source (a step); each such
+reset increments ``position_reset_count`` and records ``last_position_reset_m`` (the xy jump) so that the
+node can shift its position targets, like ArduPilot's EKF xy-reset handling. The barometer height and the
+compass heading have the same rejection-timeout reset (``height_reset_count``, ``heading_reset_count``).
+GPS velocity too (``velocity_reset_count``, GPS source only): the velocity is set to GPS and the tilt
+uncertainty is re-opened, because persistently rejected velocities usually mean a wrong tilt.
+
+Dead reckoning: with no position fixes the position covariance grows through the velocity and attitude
+uncertainty (and is clamped at ``max_position_std_m``); ``position_ok()`` turns false when the horizontal
+standard deviation exceeds ``position_ok_max_std_m``.
+
+Delayed fixes: ``fuse_gps_position`` and ``fuse_vision_position`` take the fix's age; the fix is moved
+forward by the estimated velocity times the age and its covariance grows by the velocity covariance times
+age^2 (no state buffer / delayed-horizon fusion).
+"""
+
+from __future__ import annotations
+
+import logging
+import math
+from dataclasses import dataclass
+
+import numpy as np
+
+from autopilot_bridge.config import EkfConfig, PositionSource
+
+logger = logging.getLogger(__name__)
+
+__all__ = ["NavFilter", "NavState", "FusionResult", "PositionSource", "quat_multiply", "quat_conjugate",
+           "quat_from_rotation_vector", "quat_to_rotation_matrix", "quat_rotate", "quat_from_euler_zyx",
+           "quat_from_aviation_euler", "heading_from_quat", "NUM_ERROR_STATES"]
+
+NUM_ERROR_STATES = 15
+_POS = slice(0, 3)
+_VEL = slice(3, 6)
+_ATT = slice(6, 9)
+_BG = slice(9, 12)
+_BA = slice(12, 15)
+_TWO_PI = 2.0 * math.pi
+
+
+# --------------------------------------------------------------------------------------------------
+# Quaternion helpers (Hamilton, w x y z; R(q) rotates body vectors into the world frame). Plain floats
+# are used because for 4-vectors they are several times faster than numpy calls.
+
+def quat_multiply(a, b) -> tuple[float, float, float, float]:
+    """Hamilton product a * b (R(a * b) = R(a) R(b))."""
+    aw, ax, ay, az = a
+    bw, bx, by, bz = b
+    return (aw * bw - ax * bx - ay * by - az * bz,
+            aw * bx + ax * bw + ay * bz - az * by,
+            aw * by - ax * bz + ay * bw + az * bx,
+            aw * bz + ax * by - ay * bx + az * bw)
+
+
+def quat_conjugate(q) -> tuple[float, float, float, float]:
+    return (q[0], -q[1], -q[2], -q[3])
+
+
+def quat_normalise(q) -> tuple[float, float, float, float]:
+    n = math.sqrt(q[0] * q[0] + q[1] * q[1] + q[2] * q[2] + q[3] * q[3])
+    if q[0] < 0.0:
+        n = -n  # keep w >= 0 (same rotation)
+    return (q[0] / n, q[1] / n, q[2] / n, q[3] / n)
+
+
+def quat_from_rotation_vector(rx: float, ry: float, rz: float) -> tuple[float, float, float, float]:
+    """Exp map: rotation vector (axis * angle, rad) -> unit quaternion."""
+    angle = math.sqrt(rx * rx + ry * ry + rz * rz)
+    if angle < 1e-9:
+        return quat_normalise((1.0, 0.5 * rx, 0.5 * ry, 0.5 * rz))
+    s = math.sin(0.5 * angle) / angle
+    return (math.cos(0.5 * angle), rx * s, ry * s, rz * s)
+
+
+def quat_to_rotation_vector(q) -> tuple[float, float, float]:
+    """Log map: unit quaternion -> rotation vector (rad), angle in [0, pi]."""
+    w, x, y, z = q
+    if w < 0.0:
+        w, x, y, z = -w, -x, -y, -z
+    s = math.sqrt(x * x + y * y + z * z)
+    if s < 1e-9:
+        return (2.0 * x, 2.0 * y, 2.0 * z)
+    angle = 2.0 * math.atan2(s, w)
+    k = angle / s
+    return (x * k, y * k, z * k)
+
+
+def quat_to_rotation_matrix(q) -> np.ndarray:
+    """3x3 rotation matrix (body -> world) of a unit quaternion."""
+    w, x, y, z = q
+    xx, yy, zz = x * x, y * y, z * z
+    xy, xz, yz = x * y, x * z, y * z
+    wx, wy, wz = w * x, w * y, w * z
+    return np.array([[1.0 - 2.0 * (yy + zz), 2.0 * (xy - wz), 2.0 * (xz + wy)],
+                     [2.0 * (xy + wz), 1.0 - 2.0 * (xx + zz), 2.0 * (yz - wx)],
+                     [2.0 * (xz - wy), 2.0 * (yz + wx), 1.0 - 2.0 * (xx + yy)]])
+
+
+def quat_rotate(q, v) -> tuple[float, float, float]:
+    """Rotate the 3-vector v by q (body -> world for the attitude quaternion)."""
+    w, x, y, z = q
+    vx, vy, vz = v
+    # t = 2 * (q_vec x v); v' = v + w t + q_vec x t
+    tx = 2.0 * (y * vz - z * vy)
+    ty = 2.0 * (z * vx - x * vz)
+    tz = 2.0 * (x * vy - y * vx)
+    return (vx + w * tx + (y * tz - z * ty),
+            vy + w * ty + (z * tx - x * tz),
+            vz + w * tz + (x * ty - y * tx))
+
+
+def quat_from_euler_zyx(yaw_rad: float, pitch_rad: float, roll_rad: float) -> tuple[float, float, float, float]:
+    """q = Rz(yaw) Ry(pitch) Rx(roll) about the world-ENU / body-FLU axes (yaw CCW from east).
+
+    FLU signs: positive roll (about forward x) lowers the right side; positive pitch (about left y) lowers
+    the nose.
+    """
+    cy, sy = math.cos(0.5 * yaw_rad), math.sin(0.5 * yaw_rad)
+    cp, sp = math.cos(0.5 * pitch_rad), math.sin(0.5 * pitch_rad)
+    cr, sr = math.cos(0.5 * roll_rad), math.sin(0.5 * roll_rad)
+    return (cr * cp * cy + sr * sp * sy,
+            sr * cp * cy - cr * sp * sy,
+            cr * sp * cy + sr * cp * sy,
+            cr * cp * sy - sr * sp * cy)
+
+
+def quat_from_aviation_euler(roll_rad: float, pitch_rad: float, heading_rad: float) -> tuple[float, float, float, float]:
+    """Aviation Euler angles -> q_wxyz (body FLU -> world ENU).
+
+    roll: positive = right wing down; pitch: positive = nose up; heading: compass, clockwise from north.
+    """
+    return quat_from_euler_zyx(0.5 * math.pi - heading_rad, -pitch_rad, roll_rad)
+
+
+def aviation_euler_from_quat(q) -> tuple[float, float, float]:
+    """q_wxyz -> (roll, pitch, heading) in the aviation convention of ``quat_from_aviation_euler``."""
+    w, x, y, z = q
+    roll = math.atan2(2.0 * (w * x + y * z), 1.0 - 2.0 * (x * x + y * y))
+    sin_pitch_flu = max(-1.0, min(1.0, 2.0 * (w * y - z * x)))
+    pitch_flu = math.asin(sin_pitch_flu)
+    yaw = math.atan2(2.0 * (w * z + x * y), 1.0 - 2.0 * (y * y + z * z))
+    return roll, -pitch_flu, (0.5 * math.pi - yaw) % _TWO_PI
+
+
+def heading_from_quat(q) -> float:
+    """Compass heading (clockwise from north, [0, 2 pi)) of the body x axis."""
+    w, x, y, z = q
+    yaw = math.atan2(2.0 * (w * z + x * y), 1.0 - 2.0 * (y * y + z * z))
+    return (0.5 * math.pi - yaw) % _TWO_PI
+
+
+def _wrap_pi(angle: float) -> float:
+    return (angle + math.pi) % _TWO_PI - math.pi
+
+
+# --------------------------------------------------------------------------------------------------
+
+@dataclass(frozen=True)
+class FusionResult:
+    """Outcome of one measurement fusion.
+
+    ``innovation`` = measurement - prediction (before the update); ``test_ratio`` = NIS / gate^2 (<= 1
+    passes the gate). ``accepted`` is true when the measurement changed the state (fused, or a reset);
+    ``reset`` marks a rejection-timeout reset onto the measurement.
+    """
+
+    accepted: bool
+    innovation: np.ndarray
+    test_ratio: float
+    reset: bool = False
+
+
+@dataclass(frozen=True)
+class NavState:
+    """Navigation solution handed to the controllers (arrays are copies)."""
+
+    position_enu_m: np.ndarray      # (3,)
+    velocity_enu_m_s: np.ndarray    # (3,)
+    q_wxyz: np.ndarray              # (4,) body FLU -> world ENU
+    gyro_bias: np.ndarray           # (3,) rad/s, body FLU
+    accel_bias: np.ndarray          # (3,) m/s^2, body FLU
+    position_std_m: np.ndarray      # (3,) 1-sigma
+    velocity_std_m_s: np.ndarray    # (3,) 1-sigma
+    heading_rad: float              # compass, clockwise from north, [0, 2 pi)
+
+
+class NavFilter:
+    """15-state error-state EKF; see the module docstring for the model and the conventions."""
+
+    def __init__(self, cfg: EkfConfig | None = None) -> None:
+        self._cfg = cfg if cfg is not None else EkfConfig()
+        c = self._cfg
+        self._g = c.gravity_m_s2
+        self._source = c.position_source
+        self._p = [0.0, 0.0, 0.0]
+        self._v = [0.0, 0.0, 0.0]
+        self._q = (1.0, 0.0, 0.0, 0.0)
+        self._bg = [0.0, 0.0, 0.0]
+        self._ba = [0.0, 0.0, 0.0]
+        self._P = np.zeros((NUM_ERROR_STATES, NUM_ERROR_STATES))
+        self._F = np.eye(NUM_ERROR_STATES)
+        self._q_density = np.array([0.0] * 3 + [c.accel_noise_m_s2_per_rt_hz ** 2] * 3
+                                   + [c.gyro_noise_rad_s_per_rt_hz ** 2] * 3
+                                   + [c.gyro_bias_noise_rad_s2_per_rt_hz ** 2] * 3
+                                   + [c.accel_bias_noise_m_s3_per_rt_hz ** 2] * 3)
+        self._diag = np.arange(NUM_ERROR_STATES)
+        self._max_pos_var = c.max_position_std_m ** 2
+        self._max_vel_var = c.max_velocity_std_m_s ** 2
+        self._baro_offset_m = 0.0
+        self._time_s = 0.0
+        self._pos_last_ok_s = 0.0
+        self._hgt_last_ok_s = 0.0
+        self._hdg_last_ok_s = 0.0
+        self._vel_last_ok_s = 0.0
+        self._heading_reset_count = 0
+        self._velocity_reset_count = 0
+        self._position_reset_count = 0
+        self._last_position_reset_m = np.zeros(2)
+        self._height_reset_count = 0
+        self.aligned = False
+
+    # ------------------------------------------------------------------ setup
+    @property
+    def config(self) -> EkfConfig:
+        return self._cfg
+
+    def initialise(self, accel_flu_m_s2, heading_rad: float, baro_alt_m: float, *,
+                   gyro_flu_rad_s=None, position_enu_m=None, gps_position_enu_m=None) -> None:
+        """Align at rest: roll/pitch from the specific force, heading from the compass, height reference
+        from the barometer, horizontal position from ``position_enu_m`` (a known home), else GPS, else the
+        origin with ``unknown_position_std_m``. Pass averages of about a second of samples at rest;
+        ``gyro_flu_rad_s`` (the average rate at rest) seeds the gyro bias.
+
+        Height: the barometer altitude is taken as ENU z (offset 0) unless ``position_enu_m`` is given, in
+        which case the offset is set so that the filter's z equals ``position_enu_m[2]``. GPS height is
+        never used (height source = barometer).
+        """
+        c = self._cfg
+        fx, fy, fz = (float(a) for a in accel_flu_m_s2)
+        if not all(math.isfinite(a) for a in (fx, fy, fz, heading_rad, baro_alt_m)):
+            raise ValueError("NavFilter.initialise: non-finite accel, heading or baro sample")
+        if math.sqrt(fx * fx + fy * fy + fz * fz) < 0.5 * self._g:
+            raise ValueError("NavFilter.initialise: specific force far below gravity; is the vehicle at rest?")
+        roll = math.atan2(fy, fz)
+        pitch = math.atan2(-fx, math.sqrt(fy * fy + fz * fz))   # FLU pitch (positive = nose down)
+        yaw = 0.5 * math.pi - float(heading_rad)
+        self._q = quat_normalise(quat_from_euler_zyx(yaw, pitch, roll))
+
+        pos_std = c.initial_position_std_m
+        pz = float(baro_alt_m)
+        if position_enu_m is not None:
+            px, py, pz = (float(a) for a in position_enu_m)
+        elif gps_position_enu_m is not None:
+            px, py = (float(a) for a in list(gps_position_enu_m)[:2])
+        else:
+            px, py = 0.0, 0.0
+            pos_std = c.unknown_position_std_m
+        self._p = [px, py, pz]
+        self._v = [0.0, 0.0, 0.0]
+        self._baro_offset_m = float(baro_alt_m) - pz
+        self._bg = [float(a) for a in gyro_flu_rad_s] if gyro_flu_rad_s is not None else [0.0, 0.0, 0.0]
+        self._clamp_biases()
+        self._ba = [0.0, 0.0, 0.0]
+
+        variances = ([pos_std ** 2] * 2 + [c.baro_noise_m ** 2]
+                     + [c.initial_velocity_std_m_s ** 2] * 3
+                     + [c.initial_tilt_std_rad ** 2] * 2 + [c.initial_heading_std_rad ** 2]
+                     + [c.initial_gyro_bias_std_rad_s ** 2] * 3
+                     + [c.initial_accel_bias_std_m_s2 ** 2] * 3)
+        self._P = np.diag(np.array(variances, dtype=float))
+        self._time_s = 0.0
+        self._pos_last_ok_s = 0.0
+        self._hgt_last_ok_s = 0.0
+        self._hdg_last_ok_s = 0.0
+        self._vel_last_ok_s = 0.0
+        self.aligned = True
+        logger.info("NavFilter aligned: roll %.2f deg, pitch %.2f deg, heading %.1f deg, position (%.1f, %.1f, %.1f) m"
+                    " +- %.1f m, source %s", math.degrees(roll), math.degrees(-pitch),
+                    math.degrees(heading_rad % _TWO_PI), px, py, pz, pos_std, self._source.name)
+
+    # ------------------------------------------------------------------ source selection
+    @property
+    def position_source(self) -> PositionSource:
+        return self._source
+
+    def set_position_source(self, source: PositionSource) -> None:
+        """Select the horizontal position source (EK3_SRC1_POSXY); takes effect on the next fix, no reset."""
+        source = PositionSource(source)
+        if source == self._source:
+            return
+        logger.info("NavFilter position source %s -> %s", self._source.name, source.name)
+        self._source = source
+        # The new source gets the full rejection timeout before any reset onto it.
+        self._pos_last_ok_s = self._time_s
+        self._vel_last_ok_s = self._time_s
+
+    # ------------------------------------------------------------------ prediction
+    def predict(self, accel_flu_m_s2, gyro_flu_rad_s, dt_s: float) -> None:
+        """Propagate with one IMU tick: tick-averaged specific force (m/s^2) and body rate (rad/s), FLU."""
+        if not self.aligned:
+            raise RuntimeError("NavFilter.predict called before initialise")
+        dt = float(dt_s)
+        if not (0.0 < dt < 1.0):
+            logger.warning("NavFilter.predict: ignoring dt_s = %r", dt_s)
+            return
+        bg, ba = self._bg, self._ba
+        wx = float(gyro_flu_rad_s[0]) - bg[0]
+        wy = float(gyro_flu_rad_s[1]) - bg[1]
+        wz = float(gyro_flu_rad_s[2]) - bg[2]
+        ax = float(accel_flu_m_s2[0]) - ba[0]
+        ay = float(accel_flu_m_s2[1]) - ba[1]
+        az = float(accel_flu_m_s2[2]) - ba[2]
+        if not math.isfinite(wx + wy + wz + ax + ay + az):
+            logger.warning("NavFilter.predict: ignoring a non-finite IMU sample")
+            return
+        half = quat_from_rotation_vector(0.5 * dt * wx, 0.5 * dt * wy, 0.5 * dt * wz)
+        q_mid = quat_multiply(self._q, half)
+        self._q = quat_normalise(quat_multiply(q_mid, half))
+        rot = quat_to_rotation_matrix(q_mid)
+        r = rot.tolist()
+        fx = r[0][0] * ax + r[0][1] * ay + r[0][2] * az
+        fy = r[1][0] * ax + r[1][1] * ay + r[1][2] * az
+        fz = r[2][0] * ax + r[2][1] * ay + r[2][2] * az
+        acc = (fx, fy, fz - self._g)
+        p, v = self._p, self._v
+        half_dt2 = 0.5 * dt * dt
+        for i in range(3):
+            p[i] += v[i] * dt + acc[i] * half_dt2
+            v[i] += acc[i] * dt
+
+        F = self._F
+        F[0, 3] = F[1, 4] = F[2, 5] = dt
+        # d(dv)/d(dtheta) = -[f_world]x
+        F[3, 7] = fz * dt
+        F[3, 8] = -fy * dt
+        F[4, 6] = -fz * dt
+        F[4, 8] = fx * dt
+        F[5, 6] = fy * dt
+        F[5, 7] = -fx * dt
+        neg_rdt = rot * (-dt)
+        F[3:6, 12:15] = neg_rdt
+        F[6:9, 9:12] = neg_rdt
+        P = F @ self._P @ F.T
+        P[self._diag, self._diag] += self._q_density * dt
+        P += P.T
+        P *= 0.5
+        self._P = P
+        if P[0, 0] > self._max_pos_var or P[1, 1] > self._max_pos_var or P[2, 2] > self._max_pos_var:
+            self._clamp_variance(range(0, 3), self._max_pos_var)
+        if P[3, 3] > self._max_vel_var or P[4, 4] > self._max_vel_var or P[5, 5] > self._max_vel_var:
+            self._clamp_variance(range(3, 6), self._max_vel_var)
+        self._time_s += dt
+
+    def _clamp_variance(self, indices, max_var: float) -> None:
+        """Scale row/column i so that P[i, i] <= max_var (D P D keeps P positive semi-definite)."""
+        P = self._P
+        for i in indices:
+            if P[i, i] > max_var:
+                s = math.sqrt(max_var / P[i, i])
+                P[i, :] *= s
+                P[:, i] *= s
+
+    # ------------------------------------------------------------------ fusion core
+    def _update(self, innovation: np.ndarray, H: np.ndarray, R: np.ndarray, gate_sd: float,
+                apply: bool = True) -> FusionResult:
+        """Gated EKF update with measurement Jacobian H (m x 15) and noise covariance R (m x m)."""
+        P = self._P
+        PHt = P @ H.T
+        S = H @ PHt + R
+        try:
+            S_inv = np.linalg.inv(S)
+        except np.linalg.LinAlgError:
+            logger.warning("NavFilter: singular innovation covariance; measurement skipped")
+            return FusionResult(False, innovation, float("inf"))
+        nis = float(innovation @ S_inv @ innovation)
+        ratio = nis / (gate_sd * gate_sd)
+        if not apply or not math.isfinite(ratio) or ratio > 1.0:
+            return FusionResult(False, innovation, ratio)
+        K = PHt @ S_inv
+        dx = K @ innovation
+        P = P - K @ PHt.T
+        P += P.T
+        P *= 0.5
+        # Guard against round-off driving a variance negative.
+        d = P[self._diag, self._diag]
+        if np.any(d < 1e-12):
+            P[self._diag, self._diag] = np.maximum(d, 1e-12)
+        self._P = P
+        self._inject(dx)
+        return FusionResult(True, innovation, ratio)
+
+    def _inject(self, dx: np.ndarray) -> None:
+        d = dx.tolist()
+        for i in range(3):
+            self._p[i] += d[i]
+            self._v[i] += d[3 + i]
+            self._bg[i] += d[9 + i]
+            self._ba[i] += d[12 + i]
+        self._q = quat_normalise(quat_multiply(quat_from_rotation_vector(d[6], d[7], d[8]), self._q))
+        self._clamp_biases()
+
+    def _clamp_biases(self) -> None:
+        mg, ma = self._cfg.max_gyro_bias_rad_s, self._cfg.max_accel_bias_m_s2
+        self._bg = [min(max(b, -mg), mg) for b in self._bg]
+        self._ba = [min(max(b, -ma), ma) for b in self._ba]
+
+    def _require_aligned(self, what: str) -> None:
+        if not self.aligned:
+            raise RuntimeError(f"NavFilter.{what} called before initialise")
+
+    # ------------------------------------------------------------------ measurements
+    def fuse_baro(self, alt_m: float) -> FusionResult:
+        """Barometric altitude (m, same reference as at initialise) -> z."""
+        self._require_aligned("fuse_baro")
+        c = self._cfg
+        innov = np.array([float(alt_m) - self._baro_offset_m - self._p[2]])
+        H = np.zeros((1, NUM_ERROR_STATES))
+        H[0, 2] = 1.0
+        R = np.array([[c.baro_noise_m ** 2]])
+        result = self._update(innov, H, R, c.height_gate_sd)
+        if result.accepted:
+            self._hgt_last_ok_s = self._time_s
+        elif self._time_s - self._hgt_last_ok_s > c.height_reject_timeout_s and math.isfinite(float(innov[0])):
+            self._reset_axes([2], np.array([self._p[2] + float(innov[0])]), R)
+            self._height_reset_count += 1
+            self._hgt_last_ok_s = self._time_s
+            logger.warning("NavFilter: height reset to the barometer (jump %.2f m)", float(innov[0]))
+            return FusionResult(True, innov, result.test_ratio, reset=True)
+        return result
+
+    def fuse_compass(self, heading_rad: float) -> FusionResult:
+        """Compass heading (clockwise from north, rad) -> yaw."""
+        self._require_aligned("fuse_compass")
+        c = self._cfg
+        innov = np.array([_wrap_pi(float(heading_rad) - heading_from_quat(self._q))])
+        # Body x axis in the world (a, b, c); d(yaw) = dtheta_z - (a c dtheta_x + b c dtheta_y)/(a^2+b^2);
+        # heading = pi/2 - yaw.
+        a, b, cz = quat_rotate(self._q, (1.0, 0.0, 0.0))
+        h2 = max(a * a + b * b, 1e-6)
+        H = np.zeros((1, NUM_ERROR_STATES))
+        H[0, 6] = a * cz / h2
+        H[0, 7] = b * cz / h2
+        H[0, 8] = -1.0
+        R = np.array([[c.compass_noise_rad ** 2]])
+        result = self._update(innov, H, R, c.heading_gate_sd)
+        if result.accepted:
+            self._hdg_last_ok_s = self._time_s
+        elif self._time_s - self._hdg_last_ok_s > c.heading_reject_timeout_s and math.isfinite(float(innov[0])):
+            # Rotate the attitude about world z onto the compass (heading = pi/2 - yaw, so yaw -= innov)
+            # and restart the heading uncertainty from the compass noise.
+            self._q = quat_normalise(quat_multiply(quat_from_rotation_vector(0.0, 0.0, -float(innov[0])), self._q))
+            P = self._P
+            P[8, :] = 0.0
+            P[:, 8] = 0.0
+            P[8, 8] = c.compass_noise_rad ** 2 + c.initial_heading_std_rad ** 2
+            self._heading_reset_count += 1
+            self._hdg_last_ok_s = self._time_s
+            logger.warning("NavFilter: heading reset to the compass (jump %.1f deg)", math.degrees(float(innov[0])))
+            return FusionResult(True, innov, result.test_ratio, reset=True)
+        return result
+
+    def fuse_gps_position(self, pos_enu_m, std_m, age_s: float = 0.0) -> FusionResult:
+        """GPS position (ENU m, the node converts lat/lon); only x, y are fused (height from the baro).
+
+        ``std_m``: horizontal 1-sigma (scalar, or per-axis; the first two entries are used).
+        Fused only when GPS is the position source; otherwise the result reports the innovation only.
+        """
+        self._require_aligned("fuse_gps_position")
+        std = np.atleast_1d(np.asarray(std_m, dtype=float))
+        sx = float(std[0])
+        sy = float(std[1]) if std.size > 1 else sx
+        floor = self._cfg.gps_position_noise_min_m
+        R = np.diag([max(sx, floor) ** 2, max(sy, floor) ** 2])
+        return self._fuse_horizontal_position(np.asarray(pos_enu_m, dtype=float)[:2], R, float(age_s),
+                                              PositionSource.GPS)
+
+    def fuse_gps_velocity(self, vel_enu_m_s, std_m_s) -> FusionResult:
+        """GPS velocity (ENU m/s, 3-D); fused only while GPS is the position source."""
+        self._require_aligned("fuse_gps_velocity")
+        c = self._cfg
+        std = np.broadcast_to(np.atleast_1d(np.asarray(std_m_s, dtype=float)), (3,))
+        R = np.diag(np.maximum(std, c.gps_velocity_noise_min_m_s) ** 2)
+        vel = np.asarray(vel_enu_m_s, dtype=float)[:3]
+        innov = vel - np.array(self._v)
+        H = np.zeros((3, NUM_ERROR_STATES))
+        H[0, 3] = H[1, 4] = H[2, 5] = 1.0
+        selected = self._source == PositionSource.GPS
+        result = self._update(innov, H, R, c.velocity_gate_sd, apply=selected)
+        if not selected:
+            return result
+        if result.accepted:
+            self._vel_last_ok_s = self._time_s
+        elif self._time_s - self._vel_last_ok_s > c.velocity_reject_timeout_s and np.all(np.isfinite(innov)):
+            # A velocity the filter keeps rejecting usually means a wrong tilt (biases drift slowly): reset
+            # the velocity onto GPS and re-open the tilt uncertainty so that the tilt is re-learnt (the
+            # accel-bias uncertainty is left alone, else at rest the error splits between the two).
+            P = self._P
+            for i in range(3):
+                self._v[i] = float(vel[i])
+            for i in (3, 4, 5, 6, 7):
+                P[i, :] = 0.0
+                P[:, i] = 0.0
+            for k, i in enumerate((3, 4, 5)):
+                P[i, i] = R[k, k]
+            P[6, 6] = P[7, 7] = (4.0 * c.initial_tilt_std_rad) ** 2
+            self._velocity_reset_count += 1
+            self._vel_last_ok_s = self._time_s
+            logger.warning("NavFilter: velocity reset to GPS (jump %.2f, %.2f, %.2f m/s)", *innov.tolist())
+            return FusionResult(True, innov, result.test_ratio, reset=True)
+        return result
+
+    def fuse_vision_position(self, xy_enu_m, cov_2x2_m2, age_s: float = 0.0) -> FusionResult:
+        """Vision (scene-matching) fix: x, y (ENU m) with its 2x2 covariance (m^2).
+
+        Fused only when EXTNAV is the position source; otherwise the result reports the innovation only.
+        """
+        self._require_aligned("fuse_vision_position")
+        cov = np.asarray(cov_2x2_m2, dtype=float).reshape(2, 2)
+        R = 0.5 * (cov + cov.T)
+        floor2 = self._cfg.vision_position_noise_min_m ** 2
+        R[0, 0] = max(R[0, 0], floor2)
+        R[1, 1] = max(R[1, 1], floor2)
+        return self._fuse_horizontal_position(np.asarray(xy_enu_m, dtype=float)[:2], R, float(age_s),
+                                              PositionSource.EXTNAV)
+
+    def _fuse_horizontal_position(self, xy: np.ndarray, R: np.ndarray, age_s: float,
+                                  source: PositionSource) -> FusionResult:
+        c = self._cfg
+        if age_s > 0.0:
+            # Move the old fix forward with the estimated velocity; account for the velocity uncertainty.
+            xy = xy + np.array(self._v[:2]) * age_s
+            R = R + self._P[3:5, 3:5] * (age_s * age_s)
+        innov = xy - np.array(self._p[:2])
+        if not np.all(np.isfinite(innov)):
+            return FusionResult(False, innov, float("inf"))
+        H = np.zeros((2, NUM_ERROR_STATES))
+        H[0, 0] = H[1, 1] = 1.0
+        selected = self._source == source
+        result = self._update(innov, H, R, c.position_gate_sd, apply=selected)
+        if not selected:
+            return result
+        if result.accepted:
+            self._pos_last_ok_s = self._time_s
+            return result
+        if self._time_s - self._pos_last_ok_s > c.position_reject_timeout_s:
+            self._reset_axes([0, 1], xy, R)
+            self._position_reset_count += 1
+            self._last_position_reset_m = innov.copy()
+            self._pos_last_ok_s = self._time_s
+            logger.warning("NavFilter: horizontal position reset to %s (jump %.1f m, %.1f m)", source.name,
+                           float(innov[0]), float(innov[1]))
+            return FusionResult(True, innov, result.test_ratio, reset=True)
+        return result
+
+    def _reset_axes(self, axes: list[int], values: np.ndarray, R: np.ndarray) -> None:
+        """Set position axes to a measurement: decorrelate them and give them the measurement variance."""
+        P = self._P
+        for k, i in enumerate(axes):
+            self._p[i] = float(values[k])
+            P[i, :] = 0.0
+            P[:, i] = 0.0
+        for k, i in enumerate(axes):
+            for m, j in enumerate(axes):
+                P[i, j] = R[k, m]
+
+    # ------------------------------------------------------------------ outputs
+    def state(self) -> NavState:
+        d = np.sqrt(np.maximum(self._P[self._diag, self._diag], 0.0))
+        return NavState(position_enu_m=np.array(self._p), velocity_enu_m_s=np.array(self._v),
+                        q_wxyz=np.array(self._q), gyro_bias=np.array(self._bg), accel_bias=np.array(self._ba),
+                        position_std_m=d[0:3].copy(), velocity_std_m_s=d[3:6].copy(),
+                        heading_rad=heading_from_quat(self._q))
+
+    def position_std_m(self) -> np.ndarray:
+        """1-sigma position uncertainty (x, y, z), m."""
+        return np.sqrt(np.maximum(self._P[[0, 1, 2], [0, 1, 2]], 0.0))
+
+    def covariance(self) -> np.ndarray:
+        """Copy of the 15x15 error-state covariance (order: dp, dv, dtheta_world, db_g, db_a)."""
+        return self._P.copy()
+
+    def attitude_std_rad(self) -> np.ndarray:
+        """1-sigma attitude error about the world x, y, z axes (z is the heading uncertainty), rad."""
+        return np.sqrt(np.maximum(self._P[[6, 7, 8], [6, 7, 8]], 0.0))
+
+    def is_healthy(self) -> bool:
+        """Aligned, finite, and the tilt uncertainty within ``healthy_max_tilt_std_rad``: the attitude is
+        usable (STABILIZE / ALT_HOLD). Position and velocity quality: ``position_ok()``, ``velocity_ok()``."""
+        if not self.aligned:
+            return False
+        values = self._p + self._v + list(self._q)
+        if not all(math.isfinite(x) for x in values) or not np.all(np.isfinite(self._P)):
+            return False
+        tilt_std = math.sqrt(max(self._P[6, 6] + self._P[7, 7], 0.0))
+        return tilt_std <= self._cfg.healthy_max_tilt_std_rad
+
+    def velocity_ok(self) -> bool:
+        """Horizontal velocity good enough for velocity control (1-sigma <= velocity_ok_max_std_m_s)."""
+        if not self.is_healthy():
+            return False
+        P = self._P
+        return math.sqrt(max(P[3, 3], P[4, 4])) <= self._cfg.velocity_ok_max_std_m_s
+
+    def position_ok(self) -> bool:
+        """Horizontal position good enough for position control (1-sigma <= position_ok_max_std_m)."""
+        if not self.is_healthy():
+            return False
+        P = self._P
+        return math.sqrt(max(P[0, 0], P[1, 1])) <= self._cfg.position_ok_max_std_m
+
+    @property
+    def time_s(self) -> float:
+        """Filter time: the sum of the predict steps since initialise."""
+        return self._time_s
+
+    @property
+    def baro_offset_m(self) -> float:
+        return self._baro_offset_m
+
+    @property
+    def position_reset_count(self) -> int:
+        return self._position_reset_count
+
+    @property
+    def last_position_reset_m(self) -> np.ndarray:
+        """xy jump (m) of the latest horizontal position reset (zero if none)."""
+        return self._last_position_reset_m.copy()
+
+    @property
+    def height_reset_count(self) -> int:
+        return self._height_reset_count
+
+    @property
+    def heading_reset_count(self) -> int:
+        return self._heading_reset_count
+
+    @property
+    def velocity_reset_count(self) -> int:
+        return self._velocity_reset_count

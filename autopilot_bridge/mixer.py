@@ -1,0 +1,156 @@
+"""Quad-X mixer for the Iris layout of ``sitl/vehicle.py``: (collective thrust, body torques) -> 4 motor commands.
+
+Physics (body FLU, rotor i at (x_i, y_i), thrust T_i along body +z, spin direction d_i = +1 CCW / -1 CW):
+
+    collective  T   = sum T_i
+    roll        t_x = sum  y_i * T_i          (r x F with F = (0, 0, T_i): x-component  y_i * T_i)
+    pitch       t_y = sum -x_i * T_i          (y-component -x_i * T_i)
+    yaw         t_z = sum -d_i * c * T_i      (rotor reaction torque, c = moment_constant_m)
+
+So a positive roll torque (about body +x, forward) needs more thrust on the left rotors (y > 0): the left
+side rises and the right wing goes down. A positive pitch torque (about body +y, left) needs more thrust
+on the back rotors: the nose goes down. A positive yaw torque (counter-clockwise seen from above) needs
+more thrust on the clockwise rotors (rotor_2, rotor_3), whose reaction torque is counter-clockwise.
+
+The 4x4 allocation matrix is inverted exactly (the Iris arms are slightly asymmetric: front rotors at
+|y| = 0.22 m, back rotors at |y| = 0.20 m); with zero torques the four thrusts are equal.
+
+Commands are normalised rotor speeds: command = omega / max_rotor_speed, thrust = k * omega^2, hence
+command_i = sqrt(T_i / k) / omega_max.
+
+Saturation priority (rotor thrust limits [k (min_command w_max)^2, k (max_command w_max)^2]):
+1. roll/pitch: if the roll/pitch thrust differences alone span more than the available range, they are
+   scaled down together (keeping the torque direction); flag ``roll_pitch``.
+2. thrust: the common collective offset is moved (down, or up) just enough for roll/pitch to fit;
+   flags ``thrust_upper`` / ``thrust_lower``.
+3. yaw: the yaw thrust differences are scaled by the largest factor in [0, 1] that still fits; flag ``yaw``.
+The limit flags are fed back to the controllers for anti-windup.
+"""
+
+from __future__ import annotations
+
+import logging
+import math
+from dataclasses import dataclass
+
+import numpy as np
+
+from autopilot_bridge.config import MixerConfig
+from sitl.vehicle import VehicleParams
+
+logger = logging.getLogger(__name__)
+
+NUM_ROTORS = 4
+
+
+@dataclass(frozen=True)
+class MixerLimits:
+    """Which demands the mixer could not meet on the last call (for controller anti-windup)."""
+
+    roll_pitch: bool = False
+    thrust_upper: bool = False
+    thrust_lower: bool = False
+    yaw: bool = False
+
+    @property
+    def any(self) -> bool:
+        return self.roll_pitch or self.thrust_upper or self.thrust_lower or self.yaw
+
+
+@dataclass(frozen=True)
+class MixerOutput:
+    """Motor commands (rotor-speed fractions, rotor order of sitl/vehicle.py) and what they achieve."""
+
+    commands: np.ndarray            # (4,) in [min_command, max_command]
+    rotor_thrusts_n: np.ndarray     # (4,) steady-state thrust of each rotor at its command
+    thrust_n: float                 # collective thrust achieved
+    torque_flu_n_m: np.ndarray      # (3,) body torque achieved
+    limits: MixerLimits
+
+
+class QuadXMixer:
+    """Allocates collective thrust and body torques to the four Iris rotors."""
+
+    def __init__(self, vehicle: VehicleParams | None = None, cfg: MixerConfig | None = None) -> None:
+        self._vehicle = vehicle if vehicle is not None else VehicleParams()
+        self._cfg = cfg if cfg is not None else MixerConfig()
+        v = self._vehicle
+        if len(v.rotor_positions_flu_m) != NUM_ROTORS or len(v.rotor_directions) != NUM_ROTORS:
+            raise ValueError("QuadXMixer needs exactly four rotors")
+        xs = np.array([p[0] for p in v.rotor_positions_flu_m], dtype=float)
+        ys = np.array([p[1] for p in v.rotor_positions_flu_m], dtype=float)
+        dirs = np.array([int(d) for d in v.rotor_directions], dtype=float)
+        # Rows: collective thrust, roll torque, pitch torque, yaw torque; columns: rotor thrusts.
+        self._allocation = np.vstack([np.ones(NUM_ROTORS), ys, -xs, -dirs * v.moment_constant_m])
+        self._inverse = np.linalg.inv(self._allocation)
+        self._k = v.motor_constant_n_per_rad2_s2
+        self._w_max = v.max_rotor_speed_rad_s
+        self._t_min = self._k * (self._cfg.min_command * self._w_max) ** 2
+        self._t_max = self._k * (self._cfg.max_command * self._w_max) ** 2
+
+    @property
+    def allocation_matrix(self) -> np.ndarray:
+        """4x4 matrix mapping rotor thrusts (N) to [thrust N, roll, pitch, yaw torque N m]."""
+        return self._allocation.copy()
+
+    @property
+    def rotor_thrust_limits_n(self) -> tuple[float, float]:
+        return self._t_min, self._t_max
+
+    @property
+    def hover_command(self) -> float:
+        """Command of each rotor when the four together carry the vehicle's weight."""
+        return self._vehicle.hover_rotor_speed_rad_s / self._w_max
+
+    def command_for_thrust(self, rotor_thrust_n: float) -> float:
+        """Normalised command that makes one rotor produce ``rotor_thrust_n`` in steady state."""
+        return math.sqrt(max(rotor_thrust_n, 0.0) / self._k) / self._w_max
+
+    def mix(self, thrust_n: float, torque_flu_n_m) -> MixerOutput:
+        """Collective thrust (N, along body +z) and body torques (N m, FLU) -> motor commands."""
+        tx, ty, tz = (float(torque_flu_n_m[0]), float(torque_flu_n_m[1]), float(torque_flu_n_m[2]))
+        inv = self._inverse
+        t_min, t_max = self._t_min, self._t_max
+        span = t_max - t_min
+        base = inv[:, 0] * float(thrust_n)          # equal thrusts for a pure collective demand
+        base_level = float(np.mean(base))
+        rp = inv[:, 1] * tx + inv[:, 2] * ty
+        yaw = inv[:, 3] * tz
+
+        roll_pitch_limited = False
+        rp_range = float(rp.max() - rp.min())
+        if rp_range > span:
+            rp = rp * (span / rp_range)
+            roll_pitch_limited = True
+
+        # Collective level that lets roll/pitch fit.
+        lo = t_min - float(rp.min())
+        hi = t_max - float(rp.max())
+        thrust_upper = thrust_lower = False
+        level = base_level
+        if level > hi:
+            level = hi
+            thrust_upper = True
+        if level < lo:
+            level = lo
+            thrust_lower = True
+        partial = level + rp
+
+        # Largest yaw scale in [0, 1] that keeps every rotor within its limits.
+        scale = 1.0
+        for i in range(NUM_ROTORS):
+            y = float(yaw[i])
+            if y > 1e-12:
+                scale = min(scale, (t_max - partial[i]) / y)
+            elif y < -1e-12:
+                scale = min(scale, (t_min - partial[i]) / y)
+        scale = max(scale, 0.0)
+        yaw_limited = scale < 1.0 - 1e-9
+        thrusts = np.clip(partial + scale * yaw, t_min, t_max)
+
+        commands = np.sqrt(thrusts / self._k) / self._w_max
+        achieved = self._allocation @ thrusts
+        limits = MixerLimits(roll_pitch=roll_pitch_limited, thrust_upper=thrust_upper,
+                             thrust_lower=thrust_lower, yaw=yaw_limited)
+        return MixerOutput(commands=commands, rotor_thrusts_n=thrusts, thrust_n=float(achieved[0]),
+                           torque_flu_n_m=achieved[1:].copy(), limits=limits)

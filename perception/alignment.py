@@ -1,0 +1,197 @@
+"""Align a nadir camera capture with the north-up reference map (paper section 3).
+
+The camera image has its top towards the drone's forward direction and its right towards the drone's
+right, so at heading 0 (north) it is the north-up map crop. A ground point at compass bearing ``b``
+appears at angle ``b - heading`` clockwise from image-up. Rotating the image clockwise (on screen) by
+the heading therefore makes it north-up; in (u right, v down) pixel coordinates that is the matrix
+``[[cos h, -sin h], [sin h, cos h]]``.
+
+The camera ground sampling distance is ``footprint / width`` with ``footprint = 2 h tan(fov / 2)``
+(``fov`` is the horizontal field of view, pixels are square), and the template is resampled by
+``scale = camera_m_per_px / map_m_per_px``. Rotation and scale are one affine transform applied with a
+single ``cv2.warpAffine`` (bilinear); the image centre (the nadir point) maps exactly to the template
+centre, so the matched template centre is the drone's horizontal position.
+
+Only the sensor values passed in are used (heading from the compass, altitude from the barometer).
+"""
+
+from __future__ import annotations
+
+import logging
+import math
+from dataclasses import dataclass
+
+import cv2
+import numpy as np
+
+from perception.config import CropMode
+
+log = logging.getLogger(__name__)
+
+_U8_TO_UNIT = np.float32(1.0 / 255.0)
+_MIN_IMAGE_PX = 8
+_RGB_CHANNELS = 3
+_RGBA_CHANNELS = 4
+
+
+class BadInput(ValueError):
+    """A sensor message the pipeline cannot use (bad image shape/dtype, NaN heading, altitude <= 0).
+
+    The perception node counts and drops these; they are never a program error.
+    """
+
+
+class TemplateTooLarge(ValueError):
+    """The aligned template would exceed ``max_template_px`` (e.g. flying too high for the map)."""
+
+
+@dataclass(frozen=True)
+class AlignedCapture:
+    """A capture rotated north-up and resampled to the reference map resolution.
+
+    ``template``: float32 (n, m) grey levels in [0, 1]. ``mask``: bool, same shape, True where the
+    template holds camera pixels (all True for ``CropMode.INSCRIBED_SQUARE``). ``scale``: template
+    pixels per camera pixel. ``gray``: the capture as grey float32 in [0, 1], not rotated (the CNN
+    input). The template centre (continuous coordinates (m/2, n/2)) is the nadir point.
+    """
+
+    template: np.ndarray
+    mask: np.ndarray
+    scale: float
+    camera_m_per_px: float
+    footprint_m: float
+    heading_rad: float
+    altitude_m: float
+    gray: np.ndarray
+
+    @property
+    def side_px(self) -> int:
+        """Smaller side of the template in map pixels."""
+        return int(min(self.template.shape))
+
+    @property
+    def mask_is_full(self) -> bool:
+        """True when every template pixel is valid (no mask needed in matching)."""
+        return bool(self.mask.all())
+
+
+def footprint_m(altitude_m: float, fov_deg: float) -> float:
+    """Ground width seen by a nadir camera: 2 h tan(fov / 2)."""
+    return 2.0 * altitude_m * math.tan(math.radians(fov_deg) / 2.0)
+
+
+def to_gray_float32(image: np.ndarray) -> np.ndarray:
+    """uint8/float32 grey or RGB(A) image -> float32 grey in [0, 1] (one conversion, no extra copies).
+
+    RGB uses the ITU-R BT.601 luma weights of ``cv2.COLOR_RGB2GRAY``. Raises BadInput on anything
+    else (wrong rank, channel count or dtype).
+    """
+    if not isinstance(image, np.ndarray):
+        raise BadInput(f"image: expected a numpy array, got {type(image).__name__}")
+    if image.dtype not in (np.uint8, np.float32):
+        raise BadInput(f"image dtype {image.dtype}: expected uint8 (0..255) or float32 (0..1)")
+    if image.ndim == 3 and image.shape[2] == 1:
+        image = image[:, :, 0]
+    if image.ndim == 3:
+        if image.shape[2] == _RGB_CHANNELS:
+            gray = cv2.cvtColor(image, cv2.COLOR_RGB2GRAY)
+        elif image.shape[2] == _RGBA_CHANNELS:
+            gray = cv2.cvtColor(image, cv2.COLOR_RGBA2GRAY)
+        else:
+            raise BadInput(f"image shape {image.shape}: expected (H, W), (H, W, 3) or (H, W, 4)")
+    elif image.ndim == 2:
+        gray = image
+    else:
+        raise BadInput(f"image shape {image.shape}: expected (H, W), (H, W, 3) or (H, W, 4)")
+    if min(gray.shape) < _MIN_IMAGE_PX:
+        raise BadInput(f"image shape {image.shape}: expected at least {_MIN_IMAGE_PX} px per side")
+    if gray.dtype == np.uint8:
+        out = np.empty(gray.shape, dtype=np.float32)
+        np.multiply(gray, _U8_TO_UNIT, out=out, casting="unsafe")
+        return out
+    if not np.all(np.isfinite(gray)):
+        raise BadInput("image: float32 image contains NaN or inf")
+    return np.ascontiguousarray(gray, dtype=np.float32)
+
+
+def _check_sensor(name: str, value: float) -> float:
+    try:
+        v = float(value)
+    except (TypeError, ValueError):
+        raise BadInput(f"{name} = {value!r}: expected a finite number") from None
+    if not math.isfinite(v):
+        raise BadInput(f"{name} = {value!r}: expected a finite number")
+    return v
+
+
+def align_capture(image: np.ndarray, heading_rad: float, altitude_m: float, fov_deg: float,
+                  map_m_per_px: float, crop_mode: CropMode = CropMode.INSCRIBED_SQUARE,
+                  max_template_px: tuple[int, int] | None = None) -> AlignedCapture:
+    """Grey, rotate north-up and scale a capture to the map resolution with one warpAffine.
+
+    ``crop_mode`` INSCRIBED_SQUARE (default) returns the largest axis-aligned square inside the
+    rotated image, side ``scale * min(W, H) / (|cos h| + |sin h|)`` (the full image at multiples of
+    90 degrees, 1/sqrt(2) of it at 45 degrees) and an all-True mask; MASKED_BOUNDS returns the whole
+    rotated image's bounding box with a mask of valid pixels (eroded by one pixel).
+    Raises BadInput for a bad image, a non-finite heading, or an altitude that is not > 0, and
+    TemplateTooLarge (before any resampling) when the template would be wider or taller than
+    ``max_template_px`` = (width, height), e.g. the reference map's size.
+    """
+    heading = _check_sensor("heading_rad", heading_rad)
+    altitude = _check_sensor("altitude_m", altitude_m)
+    if altitude <= 0.0:
+        raise BadInput(f"altitude_m = {altitude_m!r}: expected > 0 (metres above ground)")
+    fov = _check_sensor("fov_deg", fov_deg)
+    if not 0.0 < fov < 180.0:
+        raise BadInput(f"fov_deg = {fov_deg!r}: expected a number in (0, 180)")
+    mpp = _check_sensor("map_m_per_px", map_m_per_px)
+    if mpp <= 0.0:
+        raise BadInput(f"map_m_per_px = {map_m_per_px!r}: expected > 0")
+
+    gray = to_gray_float32(image)
+    h_src, w_src = gray.shape
+    foot = footprint_m(altitude, fov)
+    cam_mpp = foot / w_src
+    scale = cam_mpp / mpp
+    c, s = math.cos(heading), math.sin(heading)
+    ac, as_ = abs(c), abs(s)
+
+    if crop_mode is CropMode.INSCRIBED_SQUARE:
+        side = max(1, int(math.floor(scale * min(w_src, h_src) / (ac + as_) + 1e-6)))
+        out_w = out_h = side
+    else:
+        out_w = max(1, int(math.ceil(scale * (w_src * ac + h_src * as_) - 1e-6)))
+        out_h = max(1, int(math.ceil(scale * (w_src * as_ + h_src * ac) - 1e-6)))
+
+    if max_template_px is not None and (out_w > max_template_px[0] or out_h > max_template_px[1]):
+        raise TemplateTooLarge(f"template {out_w}x{out_h} px at {altitude:.1f} m exceeds "
+                               f"{max_template_px[0]}x{max_template_px[1]} px")
+
+    # dst = A (src - c_src) + c_dst in pixel-index coordinates (pixel centres on integers).
+    a = np.array([[c, -s], [s, c]]) * scale
+    c_src = np.array([(w_src - 1) / 2.0, (h_src - 1) / 2.0])
+    c_dst = np.array([(out_w - 1) / 2.0, (out_h - 1) / 2.0])
+    m = np.hstack([a, (c_dst - a @ c_src)[:, None]])
+
+    src = gray
+    if scale < 1.0:
+        # Anti-alias before shrinking: blur to the target sampling (bilinear alone would alias).
+        sigma = 0.5 * math.sqrt(1.0 / (scale * scale) - 1.0)
+        if sigma > 0.3:
+            src = cv2.GaussianBlur(gray, (0, 0), sigma, borderType=cv2.BORDER_REPLICATE)
+
+    template = cv2.warpAffine(src, m, (out_w, out_h), flags=cv2.INTER_LINEAR,
+                              borderMode=cv2.BORDER_REPLICATE)
+    if crop_mode is CropMode.INSCRIBED_SQUARE:
+        mask = np.ones(template.shape, dtype=bool)
+    else:
+        ones = np.ones(gray.shape, dtype=np.uint8)
+        mask_u8 = cv2.warpAffine(ones, m, (out_w, out_h), flags=cv2.INTER_NEAREST,
+                                 borderMode=cv2.BORDER_CONSTANT, borderValue=0)
+        mask_u8 = cv2.erode(mask_u8, np.ones((3, 3), np.uint8), borderType=cv2.BORDER_CONSTANT,
+                            borderValue=0)
+        mask = mask_u8.astype(bool)
+        template[~mask] = 0.0
+    return AlignedCapture(template=template, mask=mask, scale=float(scale),
+                          camera_m_per_px=float(cam_mpp), footprint_m=float(foot),
+                          heading_rad=heading, altitude_m=altitude, gray=gray)

@@ -1,0 +1,140 @@
+"""Configuration of the perception algorithms (frozen dataclasses, units in the key names).
+
+Loaded with ``scenenav.config.load_config(PerceptionConfig, mapping)``; range checks raise
+``ConfigError`` through ``scenenav.config.check``. See docs/perception.md for what each key does.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+from enum import Enum
+
+from scenenav.config import check
+
+from perception.decision import P_BAD_THRESHOLD, FalseMatchMethod
+
+
+class NccMethod(str, Enum):
+    """Correlation score passed to cv2.matchTemplate.
+
+    ``ccorr_normed`` is exactly the paper's equation (1). ``ccoeff_normed`` is its zero-mean variant
+    (template and window each minus their mean): invariant to a brightness offset between the day the
+    reference was taken and the flight, and its correlation surface has a zero baseline, so the peak
+    stands out (higher PSR). It is the default because it matches far more reliably on our data
+    (see docs/perception.md, "Choice of NCC").
+    """
+
+    CCORR_NORMED = "ccorr_normed"
+    CCOEFF_NORMED = "ccoeff_normed"
+
+
+class CropMode(str, Enum):
+    """What part of the rotated capture becomes the template."""
+
+    INSCRIBED_SQUARE = "inscribed-square"   # largest axis-aligned square inside the rotated image
+    MASKED_BOUNDS = "masked-bounds"          # full bounding box + validity mask (masked NCC, slower)
+
+
+class UnknownPolicy(str, Enum):
+    """Assistant-map method: what to do where the map has no value and no classifier is available."""
+
+    REJECT = "reject"
+    ACCEPT = "accept"
+
+
+@dataclass(frozen=True)
+class MatcherConfig:
+    """NCC matcher, tracker window and quality thresholds."""
+
+    ncc_method: NccMethod = NccMethod.CCOEFF_NORMED
+    # Tracking window: template + 2 * radius, radius = margin * (1 + misses) + factor * movement.
+    min_window_margin_px: int = 24
+    movement_factor: float = 1.0
+    max_speed_m_s: float = 25.0          # window radius when the velocity is not known yet
+    max_search_radius_px: int = 400      # a larger radius triggers a global search instead
+    lost_after_n: int = 3                # consecutive low-quality matches before a global search
+    # Quality gate ("low quality" = any of these fails, or the peak sits on the window border).
+    min_peak: float = 0.3
+    min_psr: float = 7.0
+    max_second_peak_ratio: float = 0.85
+    # Covariance: fully confident at/above psr_confident and at/below second_peak_ratio_confident.
+    psr_confident: float = 10.0
+    second_peak_ratio_confident: float = 0.6
+    exclusion_radius_px: int = 6         # around the peak, for PSR and the second peak
+    cov_floor_px: float = 0.3            # 1-sigma floor on the position (interpolation, resampling)
+    cov_local_scale: float = 1.0         # multiplies the peak-curvature term of the covariance
+    # Global search.
+    coarse_above_px: int = 2048          # maps with a larger side use coarse-to-fine global search
+    coarse_target_px: int = 1024         # coarsest pyramid level has a side <= this
+    min_coarse_template_px: int = 16     # a coarse level is used only if the template stays this big
+    coarse_candidates: int = 5           # coarse peaks verified at full resolution
+    # Template limits.
+    min_template_px: int = 16
+
+    def __post_init__(self) -> None:
+        check(self.min_window_margin_px >= 2, "matcher.min_window_margin_px", self.min_window_margin_px,
+              "an integer >= 2")
+        check(self.movement_factor >= 0.0, "matcher.movement_factor", self.movement_factor,
+              "a number >= 0")
+        check(self.max_speed_m_s > 0.0, "matcher.max_speed_m_s", self.max_speed_m_s, "a positive number")
+        check(self.max_search_radius_px >= self.min_window_margin_px, "matcher.max_search_radius_px",
+              self.max_search_radius_px, "an integer >= min_window_margin_px")
+        check(self.lost_after_n >= 1, "matcher.lost_after_n", self.lost_after_n, "an integer >= 1")
+        check(-1.0 <= self.min_peak <= 1.0, "matcher.min_peak", self.min_peak, "a number in [-1, 1]")
+        check(self.min_psr >= 0.0, "matcher.min_psr", self.min_psr, "a number >= 0")
+        check(self.psr_confident > self.min_psr, "matcher.psr_confident", self.psr_confident,
+              "a number > min_psr")
+        check(0.0 < self.max_second_peak_ratio <= 1.0, "matcher.max_second_peak_ratio",
+              self.max_second_peak_ratio, "a number in (0, 1]")
+        check(0.0 <= self.second_peak_ratio_confident < self.max_second_peak_ratio,
+              "matcher.second_peak_ratio_confident", self.second_peak_ratio_confident,
+              "a number in [0, max_second_peak_ratio)")
+        check(self.exclusion_radius_px >= 1, "matcher.exclusion_radius_px", self.exclusion_radius_px,
+              "an integer >= 1")
+        check(self.cov_floor_px > 0.0, "matcher.cov_floor_px", self.cov_floor_px, "a positive number")
+        check(self.cov_local_scale >= 0.0, "matcher.cov_local_scale", self.cov_local_scale,
+              "a number >= 0")
+        check(self.coarse_target_px >= 64, "matcher.coarse_target_px", self.coarse_target_px,
+              "an integer >= 64")
+        check(self.coarse_above_px >= self.coarse_target_px, "matcher.coarse_above_px",
+              self.coarse_above_px, "an integer >= coarse_target_px")
+        check(self.min_coarse_template_px >= 8, "matcher.min_coarse_template_px",
+              self.min_coarse_template_px, "an integer >= 8")
+        check(self.coarse_candidates >= 1, "matcher.coarse_candidates", self.coarse_candidates,
+              "an integer >= 1")
+        check(self.min_template_px >= 8, "matcher.min_template_px", self.min_template_px,
+              "an integer >= 8")
+
+
+@dataclass(frozen=True)
+class PerceptionConfig:
+    """The whole perception pipeline (alignment, matcher, decision)."""
+
+    method: FalseMatchMethod = FalseMatchMethod.NONE
+    fov_deg: float = 60.0                      # camera horizontal field of view
+    crop_mode: CropMode = CropMode.INSCRIBED_SQUARE
+    cnn_input_px: int = 200                    # the classifier sees (N, cnn_input_px, cnn_input_px)
+    p_bad_threshold: float = P_BAD_THRESHOLD   # paper 5.4: reject when P(bad) > 0.5
+    statistical_window: int = 30               # paper 6.3
+    statistical_threshold_m2: float = 1.4      # paper 6.3 / Figure 8
+    unknown_policy: UnknownPolicy = UnknownPolicy.REJECT
+    assistant_patch_max_px: int = 32           # cap on the written patch side (2 x last movement)
+    quality_gate: bool = False                 # also reject what the matcher flags low quality
+    true_match_tolerance_m: float = 5.0        # evaluation: a fix this close to the truth is true
+    matcher: MatcherConfig = field(default_factory=MatcherConfig)
+
+    def __post_init__(self) -> None:
+        check(0.0 < self.fov_deg < 170.0, "perception.fov_deg", self.fov_deg, "a number in (0, 170)")
+        check(16 <= self.cnn_input_px <= 1024, "perception.cnn_input_px", self.cnn_input_px,
+              "an integer in [16, 1024]")
+        check(0.0 < self.p_bad_threshold < 1.0, "perception.p_bad_threshold", self.p_bad_threshold,
+              "a number in (0, 1)")
+        check(self.statistical_window >= 3, "perception.statistical_window", self.statistical_window,
+              "an integer >= 3")
+        check(self.statistical_threshold_m2 > 0.0 and math.isfinite(self.statistical_threshold_m2),
+              "perception.statistical_threshold_m2", self.statistical_threshold_m2, "a positive number")
+        check(self.assistant_patch_max_px >= 1, "perception.assistant_patch_max_px",
+              self.assistant_patch_max_px, "an integer >= 1")
+        check(self.true_match_tolerance_m > 0.0, "perception.true_match_tolerance_m",
+              self.true_match_tolerance_m, "a positive number")

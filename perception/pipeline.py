@@ -1,0 +1,293 @@
+"""The perception pipeline of the paper's Figure 2: align -> NCC match (tracked) -> decide.
+
+Decision per ``FalseMatchMethod`` (details in docs/perception.md):
+
+* ``none``: every computed match is accepted.
+* ``statistical``: the detrended-variance detector (perception.statistical) over the last
+  ``statistical_window`` fixes; rejected when the variance exceeds ``statistical_threshold_m2``.
+* ``assistant-map``: p_true is read from the assistant map at the drone pixel. Where the map has no
+  value, the capture is classified when a classifier is given (and the patch is written), otherwise
+  ``unknown_policy`` decides (default REJECT: no evidence of a good area, and losing a fix is cheaper
+  than accepting a false one, paper 7.1).
+* ``cnn``: every capture is classified; the patch is written to the assistant map as well.
+
+Rejection (paper 5.4): P(bad) > p_bad_threshold (0.5). The drone pixel used for the map lookup and the
+patch is the match position when the matcher rates the match quality-ok, otherwise the tracker's
+constant-velocity prediction when there is one (a low-quality match lands anywhere on the map).
+The patch side is twice the last movement in pixels (paper 5.4), at least 1 px and at most
+``assistant_patch_max_px``.
+
+The classifier callable takes (N, cnn_input_px, cnn_input_px) float32 grey in [0, 1] (here N = 1: the
+camera image as captured, grey, resized) and returns (N,) P(bad) or (N, 4) softmax (column 0 = bad).
+"""
+
+from __future__ import annotations
+
+import logging
+import math
+import time
+from dataclasses import dataclass, field
+from enum import Enum
+from typing import Callable
+
+import cv2
+import numpy as np
+
+from perception.alignment import (AlignedCapture, BadInput, TemplateTooLarge, align_capture,
+                                  to_gray_float32)
+from perception.assistant_map import AssistantMap
+from perception.config import PerceptionConfig, UnknownPolicy
+from perception.decision import (N_PAPER_CLASSES, Decision, FalseMatchMethod, decide_from_p_bad,
+                                 split_classifier_output)
+from perception.matcher import MatchResult, MatchTracker, SceneMatcher, SearchMode, TrackState
+from perception.statistical import StatisticalDetector
+from scenenav.errors import UserError
+
+__all__ = ["BadInput", "FixResult", "PerceptionPipeline", "Reason"]
+
+log = logging.getLogger(__name__)
+
+Classifier = Callable[[np.ndarray], np.ndarray]
+_MS = 1000.0
+_NAN = float("nan")
+
+
+class Reason(str, Enum):
+    """Why a fix was accepted or rejected (for logs and evaluation)."""
+
+    ACCEPTED = "accepted"
+    NO_DETECTION = "no-detection"            # method none: accepted without a check
+    CNN_BAD_AREA = "cnn-bad-area"
+    MAP_BAD_AREA = "map-bad-area"
+    MAP_UNKNOWN = "map-unknown"              # unknown_policy REJECT and no classifier
+    STATISTICAL_VARIANCE = "statistical-variance"
+    LOW_QUALITY = "low-quality"              # quality_gate on and the matcher rated it low
+    TEMPLATE_TOO_SMALL = "template-too-small"
+    TEMPLATE_TOO_LARGE = "template-too-large"
+    FLAT_CAPTURE = "flat-capture"            # uniform capture: NCC undefined, no match computed
+
+
+@dataclass(frozen=True)
+class FixResult:
+    """Output of ``PerceptionPipeline.process`` for one capture (maps onto contracts.VisionFix).
+
+    ``valid``: a match was computed (position NaN otherwise). ``accepted``: the false-match verdict.
+    ``p_true``: probability of a true match (NaN when not evaluated). ``p_classes``: the classifier's
+    4 class probabilities (bad, 4-, 3-, 2-arm) or NaNs. ``metrics``: ``peak``, ``psr``,
+    ``second_peak_ratio`` of the NCC match (NaN when invalid). ``timings_ms``: ``align``, ``ncc``
+    (crop + NCC + refine), ``cnn``, ``lookup``, ``total``.
+    """
+
+    timestamp_s: float
+    valid: bool
+    accepted: bool
+    decision: Decision
+    reason: Reason
+    method: FalseMatchMethod
+    position_enu_m: tuple[float, float]
+    position_px: tuple[float, float]
+    covariance_m2: np.ndarray
+    p_true: float
+    p_classes: tuple[float, float, float, float]
+    metrics: dict[str, float]
+    quality_ok: bool
+    search: SearchMode | None
+    track_state: TrackState
+    statistical_variance_m2: float
+    template_side_px: int
+    timings_ms: dict[str, float] = field(default_factory=dict)
+
+    @property
+    def covariance_row_major(self) -> tuple[float, float, float, float]:
+        """The 2x2 covariance as the row-major 4-tuple of contracts.VisionFix."""
+        c = self.covariance_m2
+        return (float(c[0, 0]), float(c[0, 1]), float(c[1, 0]), float(c[1, 1]))
+
+
+_NAN_CLASSES = (_NAN,) * N_PAPER_CLASSES
+
+
+def _metrics(peak: float, psr: float, second_peak_ratio: float) -> dict[str, float]:
+    return {"peak": float(peak), "psr": float(psr), "second_peak_ratio": float(second_peak_ratio)}
+
+
+class PerceptionPipeline:
+    """Align, match and decide for one reference map (see the module docstring)."""
+
+    def __init__(self, reference_rgb: np.ndarray, m_per_px: float,
+                 method: FalseMatchMethod | str | None = None, cfg: PerceptionConfig | None = None,
+                 classify: Classifier | None = None, assistant_map: AssistantMap | None = None,
+                 world_name: str = "", model_id: str = "") -> None:
+        self.cfg = cfg if cfg is not None else PerceptionConfig()
+        try:
+            self.method = FalseMatchMethod(method) if method is not None else self.cfg.method
+        except ValueError:
+            allowed = ", ".join(m.value for m in FalseMatchMethod)
+            raise UserError(f"perception method {method!r}: expected one of {allowed}") from None
+        if self.method is FalseMatchMethod.CNN and classify is None:
+            raise UserError("perception method 'cnn' needs a classifier (CNN model); none was given")
+        try:
+            gray = to_gray_float32(reference_rgb)
+        except BadInput as exc:
+            raise UserError(f"reference map: {exc}") from None
+        self.m_per_px = float(m_per_px)
+        self.matcher = SceneMatcher(gray, self.m_per_px, self.cfg.matcher)
+        self.tracker = MatchTracker(self.matcher, self.cfg.matcher)
+        self.classify = classify
+        h, w = gray.shape
+        if assistant_map is None:
+            assistant_map = AssistantMap(w, h, self.m_per_px, world_name=world_name,
+                                         method=self.method.value, model_id=model_id)
+        elif (assistant_map.width_px, assistant_map.height_px) != (w, h):
+            raise UserError(f"assistant map is {assistant_map.width_px}x{assistant_map.height_px} px:"
+                            f" expected {w}x{h} px (the size of the reference map)")
+        elif not math.isclose(assistant_map.m_per_px, self.m_per_px, rel_tol=1e-6):
+            raise UserError(f"assistant map resolution {assistant_map.m_per_px} m/px: expected "
+                            f"{self.m_per_px} m/px (the reference map's)")
+        self.assistant_map = assistant_map
+        self._detector: StatisticalDetector | None = None
+        if self.method is FalseMatchMethod.STATISTICAL:
+            self._detector = StatisticalDetector(self.cfg.statistical_window,
+                                                 self.cfg.statistical_threshold_m2)
+        if (self.method is FalseMatchMethod.ASSISTANT_MAP and classify is None
+                and assistant_map.coverage() == 0.0):
+            log.warning("assistant-map method with an empty map and no classifier: every fix will "
+                        "follow unknown_policy=%s", self.cfg.unknown_policy.value)
+
+    def reset(self) -> None:
+        """Forget the track and the statistical window (keeps the assistant map)."""
+        self.tracker.reset()
+        if self._detector is not None:
+            self._detector.reset()
+
+    # ------------------------------------------------------------------------------ main
+    def process(self, image_rgb: np.ndarray, heading_rad: float, altitude_m: float,
+                timestamp_s: float, prior_enu_m: tuple[float, float] | None = None) -> FixResult:
+        """One capture -> FixResult. Raises BadInput for unusable inputs (the node drops those).
+
+        ``prior_enu_m`` (optional, e.g. the autopilot's estimate) seeds the search window when the
+        tracker has no prediction of its own.
+        """
+        t_start = time.perf_counter()
+        try:
+            t_s = float(timestamp_s)
+        except (TypeError, ValueError):
+            raise BadInput(f"timestamp_s = {timestamp_s!r}: expected a finite number") from None
+        if not math.isfinite(t_s):
+            raise BadInput(f"timestamp_s = {timestamp_s!r}: expected a finite number")
+        cfg = self.cfg
+        timings = {"align": 0.0, "ncc": 0.0, "cnn": 0.0, "lookup": 0.0}
+        try:
+            aligned = align_capture(image_rgb, heading_rad, altitude_m, cfg.fov_deg, self.m_per_px,
+                                    cfg.crop_mode, (self.matcher.width_px, self.matcher.height_px))
+        except TemplateTooLarge as exc:
+            log.debug("capture unusable: %s", exc)
+            timings["total"] = (time.perf_counter() - t_start) * _MS
+            return self._invalid(t_s, Reason.TEMPLATE_TOO_LARGE, 0, timings)
+        t_align = time.perf_counter()
+        timings["align"] = (t_align - t_start) * _MS
+
+        side = aligned.side_px
+        if side < cfg.matcher.min_template_px:
+            log.debug("capture at %.1f m gives a %d px template: too small", aligned.altitude_m, side)
+            timings["total"] = (time.perf_counter() - t_start) * _MS
+            return self._invalid(t_s, Reason.TEMPLATE_TOO_SMALL, side, timings)
+
+        prior_uv = None
+        if prior_enu_m is not None and all(math.isfinite(c) for c in prior_enu_m):
+            prior_uv = self.matcher.world_to_pixel(prior_enu_m[0], prior_enu_m[1])
+        mask = None if aligned.mask_is_full else aligned.mask
+        match = self.tracker.match(aligned.template, t_s, mask=mask, prior_uv=prior_uv)
+        t_match = time.perf_counter()
+        timings["ncc"] = (t_match - t_align) * _MS
+        if match.flat_template:
+            timings["total"] = (time.perf_counter() - t_start) * _MS
+            return self._invalid(t_s, Reason.FLAT_CAPTURE, side, timings)
+
+        decision, reason, p_true, p_classes, variance = self._decide(aligned, match, t_s, timings)
+        if cfg.quality_gate and not match.quality_ok and decision is Decision.ACCEPT:
+            decision, reason = Decision.REJECT, Reason.LOW_QUALITY
+        timings["total"] = (time.perf_counter() - t_start) * _MS
+        return FixResult(
+            timestamp_s=t_s, valid=True, accepted=decision is Decision.ACCEPT, decision=decision,
+            reason=reason, method=self.method, position_enu_m=match.position_enu_m,
+            position_px=match.position_px, covariance_m2=match.covariance_m2, p_true=p_true,
+            p_classes=p_classes,
+            metrics=_metrics(match.peak, match.psr, match.second_peak_ratio),
+            quality_ok=match.quality_ok, search=match.search, track_state=self.tracker.state,
+            statistical_variance_m2=variance, template_side_px=side, timings_ms=timings)
+
+    # ------------------------------------------------------------------------------ decisions
+    def _decide(self, aligned: AlignedCapture, match: MatchResult, t_s: float,
+                timings: dict[str, float]) -> tuple[Decision, Reason, float, tuple, float]:
+        method = self.method
+        if method is FalseMatchMethod.NONE:
+            return Decision.ACCEPT, Reason.NO_DETECTION, _NAN, _NAN_CLASSES, _NAN
+        if method is FalseMatchMethod.STATISTICAL:
+            t0 = time.perf_counter()
+            flag, var = self._detector.update(match.position_enu_m[0], match.position_enu_m[1], t_s)
+            timings["lookup"] = (time.perf_counter() - t0) * _MS
+            if flag:
+                return Decision.REJECT, Reason.STATISTICAL_VARIANCE, _NAN, _NAN_CLASSES, var
+            return Decision.ACCEPT, Reason.ACCEPTED, _NAN, _NAN_CLASSES, var
+
+        u, v = self._drone_pixel(match)
+        if method is FalseMatchMethod.ASSISTANT_MAP:
+            t0 = time.perf_counter()
+            p_true = self.assistant_map.lookup(u, v)
+            timings["lookup"] = (time.perf_counter() - t0) * _MS
+            if math.isfinite(p_true):
+                decision = decide_from_p_bad(1.0 - p_true, self.cfg.p_bad_threshold)
+                reason = Reason.ACCEPTED if decision is Decision.ACCEPT else Reason.MAP_BAD_AREA
+                return decision, reason, p_true, _NAN_CLASSES, _NAN
+            if self.classify is None:
+                if self.cfg.unknown_policy is UnknownPolicy.ACCEPT:
+                    return Decision.ACCEPT, Reason.ACCEPTED, _NAN, _NAN_CLASSES, _NAN
+                return Decision.REJECT, Reason.MAP_UNKNOWN, _NAN, _NAN_CLASSES, _NAN
+        # cnn, or assistant-map with an unknown pixel and a classifier: classify and write.
+        p_bad, p_classes = self._classify(aligned, timings)
+        t0 = time.perf_counter()
+        self.assistant_map.write_patch(u, v, self._patch_side_px(), 1.0 - p_bad)
+        timings["lookup"] += (time.perf_counter() - t0) * _MS
+        decision = decide_from_p_bad(p_bad, self.cfg.p_bad_threshold)
+        if decision is Decision.ACCEPT:
+            reason = Reason.ACCEPTED
+        else:
+            reason = Reason.CNN_BAD_AREA
+        return decision, reason, 1.0 - p_bad, p_classes, _NAN
+
+    def _classify(self, aligned: AlignedCapture,
+                  timings: dict[str, float]) -> tuple[float, tuple[float, float, float, float]]:
+        t0 = time.perf_counter()
+        n = self.cfg.cnn_input_px
+        gray = aligned.gray
+        if gray.shape != (n, n):
+            interp = cv2.INTER_AREA if min(gray.shape) > n else cv2.INTER_LINEAR
+            gray = cv2.resize(gray, (n, n), interpolation=interp)
+        p_bad, classes = split_classifier_output(self.classify(gray[None, :, :]), 1)
+        timings["cnn"] = (time.perf_counter() - t0) * _MS
+        if classes is not None and classes.shape[1] == N_PAPER_CLASSES:
+            p_classes = tuple(float(c) for c in classes[0])
+        else:
+            p_classes = _NAN_CLASSES
+        return float(p_bad[0]), p_classes
+
+    def _drone_pixel(self, match: MatchResult) -> tuple[float, float]:
+        pred = self.tracker.last_prediction
+        if not match.quality_ok and pred is not None:
+            return pred.uv
+        return match.position_px
+
+    def _patch_side_px(self) -> float:
+        movement = self.tracker.last_movement_px()
+        return float(min(self.cfg.assistant_patch_max_px, max(1.0, 2.0 * movement)))
+
+    def _invalid(self, t_s: float, reason: Reason, side: int, timings: dict[str, float]) -> FixResult:
+        nan_cov = np.full((2, 2), np.nan)
+        return FixResult(
+            timestamp_s=t_s, valid=False, accepted=False, decision=Decision.REJECT, reason=reason,
+            method=self.method, position_enu_m=(_NAN, _NAN), position_px=(_NAN, _NAN),
+            covariance_m2=nan_cov, p_true=_NAN, p_classes=_NAN_CLASSES,
+            metrics=_metrics(_NAN, _NAN, _NAN), quality_ok=False, search=None,
+            track_state=self.tracker.state, statistical_variance_m2=_NAN, template_side_px=side,
+            timings_ms=timings)

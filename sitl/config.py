@@ -1,0 +1,179 @@
+"""Configuration of the simulator's physics, wind, sensors and camera.
+
+Every config is a frozen dataclass whose field names carry their unit; ``__post_init__`` range-checks
+each value through ``scenenav.config.check`` (which raises ``ConfigError``). Load them with
+``scenenav.config.load_config(SimConfig, mapping, source)``. Vehicle constants are not here: they are
+``sitl.vehicle.VehicleParams`` (PX4 Iris model). See docs/simulator.md for the models behind each value.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+from enum import Enum
+
+from scenenav.config import check
+
+
+class CameraMount(str, Enum):
+    """How the camera is attached to the vehicle."""
+
+    # Nadir-stabilised: the optical axis points straight down whatever the roll/pitch; the image
+    # rotates with the body heading only (image top = body forward projected on the ground).
+    GIMBAL = "gimbal"
+    # Rigid to the body: optical axis along body -z, image top along body +x, image right along body -y.
+    FIXED = "fixed"
+
+
+def _finite(value: float) -> bool:
+    return isinstance(value, (int, float)) and math.isfinite(value)
+
+
+def _non_negative(value: float) -> bool:
+    return _finite(value) and value >= 0.0
+
+
+def _positive(value: float) -> bool:
+    return _finite(value) and value > 0.0
+
+
+@dataclass(frozen=True)
+class WindConfig:
+    """Mean wind plus first-order Gauss-Markov gusts (same statistics on every ENU axis)."""
+
+    mean_velocity_enu_m_s: tuple[float, float, float] = (0.0, 0.0, 0.0)
+    gust_std_m_s: float = 0.0             # stationary standard deviation of each gust component
+    gust_time_constant_s: float = 2.0     # correlation time of the gusts
+
+    def __post_init__(self) -> None:
+        check(len(self.mean_velocity_enu_m_s) == 3 and all(_finite(v) for v in self.mean_velocity_enu_m_s),
+              "mean_velocity_enu_m_s", self.mean_velocity_enu_m_s, "three finite numbers (m/s)")
+        check(_non_negative(self.gust_std_m_s), "gust_std_m_s", self.gust_std_m_s, "a number >= 0")
+        check(_positive(self.gust_time_constant_s), "gust_time_constant_s",
+              self.gust_time_constant_s, "a number > 0")
+
+
+@dataclass(frozen=True)
+class ImuConfig:
+    """Accelerometer and gyroscope errors: white noise per sample, constant turn-on bias, bias walk."""
+
+    accel_noise_std_m_s2: float = 0.05
+    gyro_noise_std_rad_s: float = 0.005
+    accel_bias_std_m_s2: float = 0.05          # turn-on bias, drawn once per axis
+    gyro_bias_std_rad_s: float = 0.002
+    accel_bias_walk_m_s2_per_sqrt_s: float = 0.0   # bias random walk; 0 = constant bias
+    gyro_bias_walk_rad_s_per_sqrt_s: float = 0.0
+
+    def __post_init__(self) -> None:
+        for name in ("accel_noise_std_m_s2", "gyro_noise_std_rad_s", "accel_bias_std_m_s2",
+                     "gyro_bias_std_rad_s", "accel_bias_walk_m_s2_per_sqrt_s",
+                     "gyro_bias_walk_rad_s_per_sqrt_s"):
+            value = getattr(self, name)
+            check(_non_negative(value), name, value, "a number >= 0")
+
+
+@dataclass(frozen=True)
+class BaroConfig:
+    rate_hz: float = 20.0
+    noise_std_m: float = 0.3
+    bias_m: float = 0.0
+
+    def __post_init__(self) -> None:
+        check(_positive(self.rate_hz), "rate_hz", self.rate_hz, "a number > 0")
+        check(_non_negative(self.noise_std_m), "noise_std_m", self.noise_std_m, "a number >= 0")
+        check(_finite(self.bias_m), "bias_m", self.bias_m, "a finite number")
+
+
+@dataclass(frozen=True)
+class CompassConfig:
+    rate_hz: float = 20.0
+    noise_std_rad: float = 0.01   # about 0.6 degrees
+    bias_rad: float = 0.0
+
+    def __post_init__(self) -> None:
+        check(_positive(self.rate_hz), "rate_hz", self.rate_hz, "a number > 0")
+        check(_non_negative(self.noise_std_rad), "noise_std_rad", self.noise_std_rad,
+              "a number >= 0")
+        check(_finite(self.bias_rad), "bias_rad", self.bias_rad, "a finite number")
+
+
+@dataclass(frozen=True)
+class GpsConfig:
+    """GPS receiver: white noise per fix plus an optional slow Gauss-Markov position error."""
+
+    enabled: bool = True
+    rate_hz: float = 5.0
+    horizontal_noise_std_m: float = 0.5
+    vertical_noise_std_m: float = 1.0
+    velocity_noise_std_m_s: float = 0.1
+    drift_std_m: float = 0.0              # slow horizontal/vertical error, stationary std; 0 = off
+    drift_time_constant_s: float = 60.0
+    satellites: int = 10
+
+    def __post_init__(self) -> None:
+        check(isinstance(self.enabled, bool), "enabled", self.enabled, "true or false")
+        check(_positive(self.rate_hz), "rate_hz", self.rate_hz, "a number > 0")
+        for name in ("horizontal_noise_std_m", "vertical_noise_std_m", "velocity_noise_std_m_s",
+                     "drift_std_m"):
+            value = getattr(self, name)
+            check(_non_negative(value), name, value, "a number >= 0")
+        check(_positive(self.drift_time_constant_s), "drift_time_constant_s",
+              self.drift_time_constant_s, "a number > 0")
+        check(isinstance(self.satellites, int) and 0 <= self.satellites <= 64, "satellites",
+              self.satellites, "an integer in [0, 64]")
+
+
+@dataclass(frozen=True)
+class CameraConfig:
+    """Downward camera rendered from the orthophoto (see sitl.camera.GroundCamera)."""
+
+    width_px: int = 200
+    height_px: int = 200
+    fov_deg: float = 60.0          # field of view across the width (= the vertical one for a square image)
+    rate_hz: float = 10.0
+    mount: CameraMount = CameraMount.GIMBAL
+    noise_std: float = 0.0         # additive Gaussian noise, grey levels (0..255 scale)
+    blur_sigma_px: float = 0.0     # Gaussian blur, image pixels; 0 = off
+    exposure_gain_range: tuple[float, float] = (1.0, 1.0)   # per-frame gain drawn uniformly in [lo, hi]
+    ground_window_px: int = 2048   # side of the textured ground window, in texels
+    outside_grey_level: int = 128  # grey level of the ground outside the map
+    latency_s: float = 0.05        # capture-to-publication delay; rendering overlaps the physics meanwhile
+    render_in_worker: bool = True  # render in a separate process (pipelined with the simulation loop)
+
+    def __post_init__(self) -> None:
+        check(isinstance(self.width_px, int) and 8 <= self.width_px <= 4096, "width_px",
+              self.width_px, "an integer in [8, 4096]")
+        check(isinstance(self.height_px, int) and 8 <= self.height_px <= 4096, "height_px",
+              self.height_px, "an integer in [8, 4096]")
+        check(_finite(self.fov_deg) and 1.0 <= self.fov_deg <= 150.0, "fov_deg", self.fov_deg,
+              "a number in [1, 150] degrees")
+        check(_positive(self.rate_hz), "rate_hz", self.rate_hz, "a number > 0")
+        check(isinstance(self.mount, CameraMount), "mount", self.mount,
+              "one of " + ", ".join(m.value for m in CameraMount))
+        check(_non_negative(self.noise_std), "noise_std", self.noise_std, "a number >= 0")
+        check(_non_negative(self.blur_sigma_px) and self.blur_sigma_px <= 20.0, "blur_sigma_px",
+              self.blur_sigma_px, "a number in [0, 20]")
+        lo_hi = self.exposure_gain_range
+        check(len(lo_hi) == 2 and all(_positive(g) for g in lo_hi) and lo_hi[0] <= lo_hi[1],
+              "exposure_gain_range", lo_hi, "two numbers 0 < lo <= hi")
+        check(isinstance(self.ground_window_px, int) and 64 <= self.ground_window_px <= 8192,
+              "ground_window_px", self.ground_window_px, "an integer in [64, 8192]")
+        check(isinstance(self.outside_grey_level, int) and 0 <= self.outside_grey_level <= 255,
+              "outside_grey_level", self.outside_grey_level, "an integer in [0, 255]")
+        check(_non_negative(self.latency_s) and self.latency_s <= 1.0, "latency_s", self.latency_s,
+              "a number in [0, 1] seconds")
+
+
+@dataclass(frozen=True)
+class SimConfig:
+    physics_rate_hz: float = 400.0
+    wind: WindConfig = field(default_factory=WindConfig)
+    imu: ImuConfig = field(default_factory=ImuConfig)
+    baro: BaroConfig = field(default_factory=BaroConfig)
+    compass: CompassConfig = field(default_factory=CompassConfig)
+    gps: GpsConfig = field(default_factory=GpsConfig)
+    camera: CameraConfig = field(default_factory=CameraConfig)
+
+    def __post_init__(self) -> None:
+        check(_finite(self.physics_rate_hz) and 50.0 <= self.physics_rate_hz <= 10000.0,
+              "physics_rate_hz", self.physics_rate_hz, "a number in [50, 10000] Hz")

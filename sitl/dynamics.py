@@ -1,0 +1,247 @@
+"""Quadrotor rotor and airframe model (pure numpy; the pybullet shell is sitl.physics).
+
+Frames (worlds/frames.py): world ENU, body FLU, ``q_wxyz`` rotates body vectors into the world.
+Rotor model after the ``gazebo_motor_model`` plugin that PX4's Iris model uses (constants in
+``sitl.vehicle.VehicleParams``); for rotor i with speed w_i (rad/s, >= 0), spin direction d_i
+(+1 = counter-clockwise seen from above) and position r_i in the body frame:
+
+    thrust          T_i = k_T w_i^2                       along body +z, applied at r_i
+    drag torque     Q_i = -d_i k_M T_i                    about body +z (reaction on the airframe)
+    rotor drag      D_i = -c_D w_i v_perp                 applied at r_i
+    rolling moment  M_i = -d_i c_R w_i v_perp
+
+with v_perp the part of the body-frame airspeed (vehicle velocity minus wind) perpendicular to the
+rotor axis (body z). Airframe drag is quadratic per body axis: F_j = -0.5 rho (Cd A)_j |v| v_j.
+The motors are first-order lags with separate rise and fall time constants. Gravity is not part of
+the wrench: the physics engine adds it.
+"""
+
+from __future__ import annotations
+
+import logging
+import math
+
+import numpy as np
+
+from sitl.vehicle import VehicleParams
+
+logger = logging.getLogger(__name__)
+
+
+def rotation_rows(q_wxyz) -> tuple[tuple[float, float, float], ...]:
+    """Rows of the body -> world rotation matrix of a quaternion (w, x, y, z), as plain floats.
+
+    The quaternion is normalised; a zero or non-finite quaternion raises ValueError.
+    """
+    w, x, y, z = (float(c) for c in q_wxyz)
+    n = w * w + x * x + y * y + z * z
+    if not (n > 0.0 and math.isfinite(n)):
+        raise ValueError(f"quaternion {q_wxyz!r} has no direction")
+    s = 2.0 / n
+    wx, wy, wz = s * w * x, s * w * y, s * w * z
+    xx, xy, xz = s * x * x, s * x * y, s * x * z
+    yy, yz, zz = s * y * y, s * y * z, s * z * z
+    return ((1.0 - (yy + zz), xy - wz, xz + wy),
+            (xy + wz, 1.0 - (xx + zz), yz - wx),
+            (xz - wy, yz + wx, 1.0 - (xx + yy)))
+
+
+def quat_to_rotation_matrix(q_wxyz: np.ndarray) -> np.ndarray:
+    """Unit quaternion (w, x, y, z) -> 3x3 rotation matrix (body -> world). Normalises the input."""
+    return np.array(rotation_rows(q_wxyz))
+
+
+def quat_from_yaw(yaw_enu_rad: float) -> np.ndarray:
+    """Level attitude with body +x at ENU yaw ``yaw_enu_rad`` (counter-clockwise from east)."""
+    half = 0.5 * yaw_enu_rad
+    return np.array([math.cos(half), 0.0, 0.0, math.sin(half)])
+
+
+def quat_from_euler(roll_rad: float, pitch_rad: float, yaw_enu_rad: float) -> np.ndarray:
+    """Body FLU -> ENU quaternion from intrinsic z-y-x Euler angles (yaw, then pitch, then roll).
+
+    Positive roll is a right-handed rotation about body +x: it raises the left side (body +y) and
+    lowers the right side. Positive pitch is a right-handed rotation about body +y: it lowers the
+    nose (body +x tilts toward world -z).
+    """
+    cr, sr = math.cos(0.5 * roll_rad), math.sin(0.5 * roll_rad)
+    cp, sp = math.cos(0.5 * pitch_rad), math.sin(0.5 * pitch_rad)
+    cy, sy = math.cos(0.5 * yaw_enu_rad), math.sin(0.5 * yaw_enu_rad)
+    return np.array([
+        cr * cp * cy + sr * sp * sy,
+        sr * cp * cy - cr * sp * sy,
+        cr * sp * cy + sr * cp * sy,
+        cr * cp * sy - sr * sp * cy,
+    ])
+
+
+def quat_multiply(a_wxyz: np.ndarray, b_wxyz: np.ndarray) -> np.ndarray:
+    """Hamilton product a * b (apply b first, then a)."""
+    aw, ax, ay, az = a_wxyz
+    bw, bx, by, bz = b_wxyz
+    return np.array([
+        aw * bw - ax * bx - ay * by - az * bz,
+        aw * bx + ax * bw + ay * bz - az * by,
+        aw * by - ax * bz + ay * bw + az * bx,
+        aw * bz + ax * by - ay * bx + az * bw,
+    ])
+
+
+def yaw_from_quat(q_wxyz: np.ndarray) -> float:
+    """ENU yaw (rad, counter-clockwise from east) of the body +x axis projected on the ground."""
+    w, x, y, z = (float(c) for c in q_wxyz)
+    return math.atan2(2.0 * (w * z + x * y), 1.0 - 2.0 * (y * y + z * z))
+
+
+def heading_from_quat(q_wxyz: np.ndarray) -> float:
+    """Compass heading (rad, clockwise from north, [0, 2*pi)) of the body +x axis."""
+    return (math.pi / 2.0 - yaw_from_quat(q_wxyz)) % (2.0 * math.pi)
+
+
+class QuadrotorDynamics:
+    """Motor lag and the aerodynamic wrench of an X quadrotor (see the module docstring).
+
+    Attributes:
+        rotor_speeds_rad_s: (4,) current rotor speeds, rad/s (never negative).
+    """
+
+    def __init__(self, params: VehicleParams) -> None:
+        n = len(params.rotor_positions_flu_m)
+        if n != len(params.rotor_directions):
+            raise ValueError("VehicleParams: rotor_positions_flu_m and rotor_directions differ in length")
+        self.params = params
+        self.rotor_count = n
+        self._k_thrust = params.motor_constant_n_per_rad2_s2
+        self._k_moment = params.moment_constant_m
+        self._max_speed = params.max_rotor_speed_rad_s
+        self._tau_up = params.motor_time_constant_up_s
+        self._tau_down = params.motor_time_constant_down_s
+        self._positions = np.array([(x, y, 0.0) for x, y in params.rotor_positions_flu_m])   # (n, 3)
+        self._directions = np.array([float(d) for d in params.rotor_directions])             # (n,)
+        self._drag_half_rho_cda_list = [0.5 * params.air_density_kg_m3 * cda
+                                        for cda in params.body_drag_cd_area_m2]
+        self._positions_list = [tuple(r) for r in self._positions.tolist()]
+        self._directions_list = self._directions.tolist()
+        self._rotor_drag = params.rotor_drag_coefficient
+        self._rolling = params.rolling_moment_coefficient
+        self._cache_dt_s = -1.0
+        self._alpha_up = 0.0
+        self._alpha_down = 0.0
+        self.rotor_speeds_rad_s = np.zeros(n)
+
+    @property
+    def hover_command(self) -> float:
+        """Normalised command whose steady rotor speed carries the weight."""
+        return self.params.hover_rotor_speed_rad_s / self._max_speed
+
+    def reset(self) -> None:
+        """Stop the rotors."""
+        self.rotor_speeds_rad_s = np.zeros(self.rotor_count)
+
+    def set_rotor_speeds(self, rotor_speeds_rad_s: np.ndarray) -> None:
+        """Set the rotor speeds directly (clipped to [0, max]); for scripted starts in the air."""
+        speeds = np.nan_to_num(np.asarray(rotor_speeds_rad_s, dtype=float).reshape(self.rotor_count))
+        self.rotor_speeds_rad_s = np.clip(speeds, 0.0, self._max_speed)
+
+    def step_motors(self, command: np.ndarray, dt_s: float) -> np.ndarray:
+        """Advance the motors by ``dt_s`` toward ``command`` and return the rotor speeds (rad/s).
+
+        ``command`` is (n,) normalised: clipped to [0, 1], NaN read as 0; the commanded speed is
+        command * max_rotor_speed. Each motor follows the exact discretisation of a first-order lag,
+        with the rise time constant when speeding up and the fall one when slowing down.
+        """
+        if dt_s != self._cache_dt_s:
+            if not dt_s >= 0.0:
+                raise ValueError(f"dt_s = {dt_s}: expected a number >= 0")
+            self._cache_dt_s = dt_s
+            self._alpha_up = -math.expm1(-dt_s / self._tau_up)
+            self._alpha_down = -math.expm1(-dt_s / self._tau_down)
+        cmd = command.tolist() if isinstance(command, np.ndarray) else list(command)
+        if len(cmd) != self.rotor_count:
+            raise ValueError(f"command has {len(cmd)} values: expected {self.rotor_count}")
+        speeds = self.rotor_speeds_rad_s.tolist()
+        max_speed, up, down = self._max_speed, self._alpha_up, self._alpha_down
+        for i, c in enumerate(cmd):
+            c = float(c)
+            if not c > 0.0:          # NaN and negative commands stop the motor
+                c = 0.0
+            elif c > 1.0:
+                c = 1.0
+            error = c * max_speed - speeds[i]
+            speeds[i] += (up if error > 0.0 else down) * error
+        self.rotor_speeds_rad_s = np.array(speeds)
+        return self.rotor_speeds_rad_s
+
+    def thrusts_n(self) -> np.ndarray:
+        """(n,) rotor thrusts, N."""
+        return self._k_thrust * self.rotor_speeds_rad_s * self.rotor_speeds_rad_s
+
+    def _wrench_body_tuple(self, vx: float, vy: float, vz: float) -> tuple[float, ...]:
+        """Body-frame wrench (fx, fy, fz, tx, ty, tz) for a body-frame airspeed, plain floats."""
+        k_t = self._k_thrust
+        k_m = self._k_moment
+        fz = tx = ty = tz = 0.0
+        w_sum = w_dir = lever_x = lever_y = 0.0
+        for w, (rx, ry, _), d in zip(self.rotor_speeds_rad_s.tolist(), self._positions_list,
+                                     self._directions_list):
+            thrust = k_t * w * w
+            fz += thrust
+            tx += ry * thrust               # r x (0, 0, T) = (r_y T, -r_x T, 0)
+            ty -= rx * thrust
+            tz -= d * k_m * thrust          # reaction of the rotor drag torque
+            w_sum += w
+            w_dir += d * w
+            lever_x += w * rx
+            lever_y += w * ry
+        fx = fy = 0.0
+        if vx != 0.0 or vy != 0.0 or vz != 0.0:
+            # Rotor drag -c_D w_i v_perp at each rotor (v_perp = (vx, vy, 0)): force and moment
+            # -c_D (sum_i w_i r_i) x v_perp, with r_i = (x_i, y_i, 0).
+            c_d = self._rotor_drag
+            fx -= c_d * w_sum * vx
+            fy -= c_d * w_sum * vy
+            tz -= c_d * (lever_x * vy - lever_y * vx)
+            # Rolling moments -d_i c_R w_i v_perp.
+            c_r = self._rolling * w_dir
+            tx -= c_r * vx
+            ty -= c_r * vy
+            # Airframe drag -0.5 rho (Cd A)_j |v| v_j.
+            speed = math.sqrt(vx * vx + vy * vy + vz * vz)
+            dx, dy, dz = self._drag_half_rho_cda_list
+            fx -= dx * speed * vx
+            fy -= dy * speed * vy
+            fz -= dz * speed * vz
+        return fx, fy, fz, tx, ty, tz
+
+    def wrench_body(self, airspeed_flu_m_s: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """(force_flu_n, torque_flu_nm) about the centre of mass for a body-frame airspeed (m/s).
+
+        The airspeed is the vehicle velocity relative to the air (velocity minus wind), in FLU.
+        """
+        vx, vy, vz = (float(c) for c in airspeed_flu_m_s)
+        fx, fy, fz, tx, ty, tz = self._wrench_body_tuple(vx, vy, vz)
+        return np.array([fx, fy, fz]), np.array([tx, ty, tz])
+
+    def wrench(self, q_wxyz: np.ndarray, velocity_enu_m_s: np.ndarray,
+               wind_enu_m_s: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """(force_enu_n, torque_enu_nm) acting at the centre of mass, in the WORLD frame. No gravity.
+
+        Hot path of the physics loop: plain-float arithmetic, two small arrays allocated.
+        """
+        r = rotation_rows(q_wxyz)
+        (r00, r01, r02), (r10, r11, r12), (r20, r21, r22) = r
+        ax = float(velocity_enu_m_s[0]) - float(wind_enu_m_s[0])
+        ay = float(velocity_enu_m_s[1]) - float(wind_enu_m_s[1])
+        az = float(velocity_enu_m_s[2]) - float(wind_enu_m_s[2])
+        # Airspeed in the body frame: R^T a.
+        bx = r00 * ax + r10 * ay + r20 * az
+        by = r01 * ax + r11 * ay + r21 * az
+        bz = r02 * ax + r12 * ay + r22 * az
+        fx, fy, fz, tx, ty, tz = self._wrench_body_tuple(bx, by, bz)
+        force = np.array([r00 * fx + r01 * fy + r02 * fz,
+                          r10 * fx + r11 * fy + r12 * fz,
+                          r20 * fx + r21 * fy + r22 * fz])
+        torque = np.array([r00 * tx + r01 * ty + r02 * tz,
+                           r10 * tx + r11 * ty + r12 * tz,
+                           r20 * tx + r21 * ty + r22 * tz])
+        return force, torque

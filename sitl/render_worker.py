@@ -1,0 +1,96 @@
+"""Camera rendering pipelined with the simulation loop.
+
+``CameraPipeline.request(seq, position, q)`` hands a capture pose to the renderer and returns at
+once; ``CameraPipeline.result(seq)`` returns that frame's image, blocking only if it is not ready.
+The simulator requests at the capture tick and collects ``latency_s`` later, so the TinyRenderer
+work (about 8 ms a frame) overlaps the physics and the bus on the second core. The image depends
+only on the capture pose, so lockstep runs stay deterministic.
+
+With ``render_in_worker`` the renderer lives in a forked child process that owns its own pybullet
+client; otherwise it renders in-process at request time. The child exits when the pipe closes,
+so it never outlives the simulator.
+"""
+
+from __future__ import annotations
+
+import logging
+import multiprocessing as mp
+from collections import OrderedDict
+
+import numpy as np
+
+from sitl.config import CameraConfig
+
+log = logging.getLogger(__name__)
+
+
+def _serve(conn, orthophoto: np.ndarray, m_per_px: float, cfg: CameraConfig) -> None:
+    from sitl.camera import GroundCamera
+    camera = GroundCamera(-1, orthophoto, m_per_px, cfg)
+    try:
+        while True:
+            try:
+                msg = conn.recv()
+            except (EOFError, OSError):
+                return
+            if msg is None:
+                return
+            seq, pos, q = msg
+            conn.send((seq, camera.render(pos, q)))
+    finally:
+        camera.close()
+
+
+class CameraPipeline:
+    def __init__(self, orthophoto: np.ndarray, m_per_px: float, cfg: CameraConfig):
+        self.cfg = cfg
+        self._done: OrderedDict[int, np.ndarray] = OrderedDict()
+        self._in_flight: list[int] = []
+        self._proc = None
+        self._camera = None
+        if cfg.render_in_worker:
+            ctx = mp.get_context("fork")   # the child inherits the orthophoto without a copy
+            self._conn, child = ctx.Pipe()
+            self._proc = ctx.Process(target=_serve, args=(child, orthophoto, m_per_px, cfg),
+                                     name="camera-render", daemon=True)
+            self._proc.start()
+            child.close()
+        else:
+            from sitl.camera import GroundCamera
+            self._camera = GroundCamera(-1, orthophoto, m_per_px, cfg)
+
+    def request(self, seq: int, position_enu_m, q_wxyz) -> None:
+        pos = np.asarray(position_enu_m, dtype=float).copy()
+        q = np.asarray(q_wxyz, dtype=float).copy()
+        if self._camera is not None:
+            self._done[seq] = self._camera.render(pos, q)
+            return
+        self._conn.send((seq, pos, q))
+        self._in_flight.append(seq)
+
+    def result(self, seq: int) -> np.ndarray:
+        while seq not in self._done:
+            if not self._in_flight:
+                raise KeyError(f"camera frame {seq} was never requested")
+            try:
+                got_seq, image = self._conn.recv()
+            except (EOFError, OSError) as exc:
+                raise RuntimeError("the camera render process died (see the simulator log)") from exc
+            self._in_flight.remove(got_seq)
+            self._done[got_seq] = image
+        return self._done.pop(seq)
+
+    def close(self) -> None:
+        if self._proc is not None:
+            try:
+                self._conn.send(None)
+            except (OSError, BrokenPipeError):
+                pass
+            self._proc.join(5)
+            if self._proc.is_alive():
+                self._proc.terminate()
+            self._conn.close()
+            self._proc = None
+        if self._camera is not None:
+            self._camera.close()
+            self._camera = None

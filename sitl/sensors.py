@@ -1,0 +1,223 @@
+"""Sensor models (pure numpy): each takes the truth and returns a measurement.
+
+Every model draws its randomness from the ``numpy.random.Generator`` it is given, so a seeded
+generator gives a reproducible sequence. Units are in the names. Noise standard deviations are per
+sample (discrete-time), so they do not depend on the sampling rate.
+"""
+
+from __future__ import annotations
+
+import logging
+import math
+from dataclasses import dataclass
+from enum import IntEnum
+
+import numpy as np
+
+from sitl.config import BaroConfig, CameraConfig, CompassConfig, GpsConfig, ImuConfig
+from worlds.frames import enu_to_geodetic
+
+logger = logging.getLogger(__name__)
+
+# International Standard Atmosphere, troposphere (ISO 2533:1975; U.S. Standard Atmosphere 1976).
+ISA_SEA_LEVEL_PRESSURE_PA = 101325.0
+ISA_SEA_LEVEL_TEMPERATURE_K = 288.15
+ISA_LAPSE_RATE_K_PER_M = 0.0065
+ISA_GRAVITY_M_S2 = 9.80665
+ISA_MOLAR_MASS_KG_PER_MOL = 0.0289644
+ISA_GAS_CONSTANT_J_PER_MOL_K = 8.3144598
+_ISA_EXPONENT = ISA_GRAVITY_M_S2 * ISA_MOLAR_MASS_KG_PER_MOL / (
+    ISA_GAS_CONSTANT_J_PER_MOL_K * ISA_LAPSE_RATE_K_PER_M)      # about 5.2559
+
+
+def isa_pressure_pa(altitude_m: float) -> float:
+    """ISA static pressure (Pa) at a geopotential altitude above mean sea level (troposphere, < 11 km)."""
+    ratio = 1.0 - ISA_LAPSE_RATE_K_PER_M * altitude_m / ISA_SEA_LEVEL_TEMPERATURE_K
+    return ISA_SEA_LEVEL_PRESSURE_PA * ratio ** _ISA_EXPONENT
+
+
+def isa_altitude_m(pressure_pa: float) -> float:
+    """Inverse of ``isa_pressure_pa``: pressure altitude (m) for a static pressure (Pa)."""
+    ratio = (pressure_pa / ISA_SEA_LEVEL_PRESSURE_PA) ** (1.0 / _ISA_EXPONENT)
+    return ISA_SEA_LEVEL_TEMPERATURE_K * (1.0 - ratio) / ISA_LAPSE_RATE_K_PER_M
+
+
+class ImuModel:
+    """Accelerometer + gyroscope: truth + turn-on bias (+ optional bias random walk) + white noise.
+
+    Inputs and outputs are in the body FLU frame: specific force in m/s^2 (what an ideal
+    accelerometer reads: +g on body z when level at rest), angular velocity in rad/s.
+    """
+
+    def __init__(self, cfg: ImuConfig, rng: np.random.Generator) -> None:
+        self.cfg = cfg
+        self._rng = rng
+        self.accel_bias_flu_m_s2 = cfg.accel_bias_std_m_s2 * rng.standard_normal(3)
+        self.gyro_bias_flu_rad_s = cfg.gyro_bias_std_rad_s * rng.standard_normal(3)
+
+    def sample(self, specific_force_flu_m_s2: np.ndarray, angular_velocity_flu_rad_s: np.ndarray,
+               dt_s: float = 0.0) -> tuple[np.ndarray, np.ndarray]:
+        """(accel_flu_m_s2, gyro_flu_rad_s). ``dt_s`` (time since the previous sample) drives the
+        bias random walk; with the default 0 the biases stay constant."""
+        cfg = self.cfg
+        if dt_s > 0.0:
+            root_dt = math.sqrt(dt_s)
+            if cfg.accel_bias_walk_m_s2_per_sqrt_s > 0.0:
+                self.accel_bias_flu_m_s2 = self.accel_bias_flu_m_s2 + (
+                    cfg.accel_bias_walk_m_s2_per_sqrt_s * root_dt * self._rng.standard_normal(3))
+            if cfg.gyro_bias_walk_rad_s_per_sqrt_s > 0.0:
+                self.gyro_bias_flu_rad_s = self.gyro_bias_flu_rad_s + (
+                    cfg.gyro_bias_walk_rad_s_per_sqrt_s * root_dt * self._rng.standard_normal(3))
+        noise = self._rng.standard_normal(6)
+        accel = (np.asarray(specific_force_flu_m_s2, dtype=float) + self.accel_bias_flu_m_s2
+                 + cfg.accel_noise_std_m_s2 * noise[:3])
+        gyro = (np.asarray(angular_velocity_flu_rad_s, dtype=float) + self.gyro_bias_flu_rad_s
+                + cfg.gyro_noise_std_rad_s * noise[3:])
+        return accel, gyro
+
+
+class BaroModel:
+    """Barometric altimeter: altitude + bias + white noise, and the ISA static pressure of that reading."""
+
+    def __init__(self, cfg: BaroConfig, rng: np.random.Generator) -> None:
+        self.cfg = cfg
+        self._rng = rng
+
+    def sample(self, altitude_m: float) -> tuple[float, float]:
+        """(altitude_m, pressure_pa) for a true altitude above mean sea level (m).
+
+        The pressure is the ISA pressure of the measured (noisy) altitude, so the pair is consistent.
+        """
+        measured = float(altitude_m) + self.cfg.bias_m + self.cfg.noise_std_m * float(
+            self._rng.standard_normal())
+        return measured, isa_pressure_pa(measured)
+
+
+class CompassModel:
+    """Magnetic compass already corrected for declination: heading + bias + white noise."""
+
+    def __init__(self, cfg: CompassConfig, rng: np.random.Generator) -> None:
+        self.cfg = cfg
+        self._rng = rng
+
+    def sample(self, heading_rad: float) -> float:
+        """Heading (rad, clockwise from north) -> measured heading wrapped to [0, 2*pi)."""
+        value = float(heading_rad) + self.cfg.bias_rad + self.cfg.noise_std_rad * float(
+            self._rng.standard_normal())
+        wrapped = value % (2.0 * math.pi)
+        # float modulo can return exactly 2*pi for tiny negative inputs.
+        return 0.0 if wrapped >= 2.0 * math.pi else wrapped
+
+
+class GpsFixType(IntEnum):
+    """Fix types, numbered as MAVLink GPS_FIX_TYPE."""
+
+    NO_GPS = 0
+    NO_FIX = 1
+    FIX_2D = 2
+    FIX_3D = 3
+
+
+@dataclass(frozen=True, eq=False)   # numpy fields: compare fields explicitly, not with ==
+class GpsSample:
+    lat_deg: float
+    lon_deg: float
+    alt_m: float                    # altitude of the fix (origin altitude + ENU z + error), m
+    velocity_enu_m_s: np.ndarray    # (3,)
+    eph_m: float                    # horizontal 1-sigma accuracy, m
+    epv_m: float                    # vertical 1-sigma accuracy, m
+    fix_type: GpsFixType
+    satellites: int
+
+
+class GpsModel:
+    """GPS receiver: position + slow Gauss-Markov drift + white noise, velocity + white noise.
+
+    The drift (``drift_std_m``, ``drift_time_constant_s``) is advanced by 1/rate_hz at every
+    sample, i.e. the model assumes it is sampled at ``rate_hz``. With ``enabled`` false every sample
+    is a NO_FIX sample whose numeric fields are NaN.
+    """
+
+    def __init__(self, cfg: GpsConfig, rng: np.random.Generator) -> None:
+        self.cfg = cfg
+        self._rng = rng
+        self._sigma = np.array([cfg.horizontal_noise_std_m, cfg.horizontal_noise_std_m,
+                                cfg.vertical_noise_std_m])
+        self._drift = cfg.drift_std_m * rng.standard_normal(3) if cfg.drift_std_m > 0.0 else np.zeros(3)
+        a = math.exp(-1.0 / (cfg.rate_hz * cfg.drift_time_constant_s))
+        self._drift_a = a
+        self._drift_b = cfg.drift_std_m * math.sqrt(1.0 - a * a)
+        self.eph_m = math.hypot(cfg.horizontal_noise_std_m, cfg.drift_std_m)
+        self.epv_m = math.hypot(cfg.vertical_noise_std_m, cfg.drift_std_m)
+
+    def sample(self, position_enu_m: np.ndarray, velocity_enu_m_s: np.ndarray, origin_lat_deg: float,
+               origin_lon_deg: float, origin_alt_m: float = 0.0) -> GpsSample:
+        """Fix for a true ENU position (m) and velocity (m/s) around the world origin (map centre)."""
+        if not self.cfg.enabled:
+            nan = float("nan")
+            return GpsSample(nan, nan, nan, np.full(3, nan), nan, nan, GpsFixType.NO_FIX, 0)
+        if self.cfg.drift_std_m > 0.0:
+            self._drift = self._drift_a * self._drift + self._drift_b * self._rng.standard_normal(3)
+        noise = self._rng.standard_normal(6)
+        pos = np.asarray(position_enu_m, dtype=float) + self._drift + self._sigma * noise[:3]
+        vel = np.asarray(velocity_enu_m_s, dtype=float) + self.cfg.velocity_noise_std_m_s * noise[3:]
+        lat, lon = enu_to_geodetic(pos[0], pos[1], origin_lat_deg, origin_lon_deg)
+        return GpsSample(lat_deg=float(lat), lon_deg=float(lon), alt_m=float(origin_alt_m + pos[2]),
+                         velocity_enu_m_s=vel, eph_m=self.eph_m, epv_m=self.epv_m,
+                         fix_type=GpsFixType.FIX_3D, satellites=self.cfg.satellites)
+
+
+def gaussian_kernel(sigma_px: float) -> np.ndarray:
+    """Normalised 1-D Gaussian kernel with radius ceil(3 sigma)."""
+    radius = max(1, int(math.ceil(3.0 * sigma_px)))
+    x = np.arange(-radius, radius + 1, dtype=float)
+    k = np.exp(-0.5 * (x / sigma_px) ** 2)
+    return k / k.sum()
+
+
+def gaussian_blur(image: np.ndarray, sigma_px: float) -> np.ndarray:
+    """Separable Gaussian blur of an (h, w) or (h, w, c) float image, mirrored borders."""
+    kernel = gaussian_kernel(sigma_px)
+    radius = len(kernel) // 2
+    out = np.asarray(image, dtype=float)
+    for axis in (0, 1):
+        moved = np.moveaxis(out, axis, 0)
+        n = moved.shape[0]
+        pad = [(radius, radius)] + [(0, 0)] * (moved.ndim - 1)
+        padded = np.pad(moved, pad, mode="reflect" if n > radius else "edge")
+        acc = kernel[0] * padded[0:n]
+        for i in range(1, len(kernel)):
+            acc += kernel[i] * padded[i:i + n]
+        out = np.moveaxis(acc, 0, axis)
+    return out
+
+
+class CameraEffects:
+    """Exposure gain, optical blur and sensor noise applied to a rendered RGB image.
+
+    Order: gain (drawn uniformly in ``exposure_gain_range`` for each frame), Gaussian blur of
+    ``blur_sigma_px``, additive Gaussian noise of ``noise_std`` grey levels, round and clip to uint8.
+    With everything off (gain range (1, 1), blur 0, noise 0) ``apply`` returns its input unchanged.
+    """
+
+    def __init__(self, cfg: CameraConfig, rng: np.random.Generator) -> None:
+        self.cfg = cfg
+        self._rng = rng
+        lo, hi = cfg.exposure_gain_range
+        self.enabled = not (lo == 1.0 and hi == 1.0 and cfg.blur_sigma_px == 0.0 and cfg.noise_std == 0.0)
+
+    def apply(self, image_rgb_uint8: np.ndarray) -> np.ndarray:
+        if not self.enabled:
+            return image_rgb_uint8
+        cfg = self.cfg
+        lo, hi = cfg.exposure_gain_range
+        img = np.asarray(image_rgb_uint8, dtype=float)
+        if hi > lo:
+            img = img * float(self._rng.uniform(lo, hi))
+        elif lo != 1.0:
+            img = img * lo
+        if cfg.blur_sigma_px > 0.0:
+            img = gaussian_blur(img, cfg.blur_sigma_px)
+        if cfg.noise_std > 0.0:
+            img = img + cfg.noise_std * self._rng.standard_normal(img.shape)
+        return np.clip(np.rint(img), 0.0, 255.0).astype(np.uint8)
