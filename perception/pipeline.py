@@ -133,6 +133,8 @@ class PerceptionPipeline:
         self.m_per_px = float(m_per_px)
         self.matcher = SceneMatcher(gray, self.m_per_px, self.cfg.matcher)
         self.tracker = MatchTracker(self.matcher, self.cfg.matcher)
+        self.last_aligned: AlignedCapture | None = None
+        self.last_match: MatchResult | None = None
         self.classify = classify
         h, w = gray.shape
         if assistant_map is None:
@@ -199,6 +201,7 @@ class PerceptionPipeline:
         mask = None if aligned.mask_is_full else aligned.mask
         match = self.tracker.match(aligned.template, t_s, mask=mask, prior_uv=prior_uv)
         t_match = time.perf_counter()
+        self.last_aligned, self.last_match = aligned, match   # for benchmarks and inspection
         timings["ncc"] = (t_match - t_align) * _MS
         if match.flat_template:
             timings["total"] = (time.perf_counter() - t_start) * _MS

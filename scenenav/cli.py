@@ -49,10 +49,20 @@ def _bench(args: argparse.Namespace) -> int:
     if args.what == "sim":
         from scenenav.bench_sim import run_sim_bench
         result = run_sim_bench(seconds=args.seconds, sizes=args.sizes)
+    elif args.what == "perception":
+        from perception.bench import run_perception_bench
+        result = run_perception_bench(n_frames=args.frames)
     else:
         raise UserError(f"unknown benchmark {args.what!r}")
     if args.json:
         print(json.dumps(result, indent=2))
+    return 0
+
+
+def _table2(args: argparse.Namespace) -> int:
+    from scenenav.experiment import run_table2
+    run_table2(args.world, args.out, seed=args.seed, threshold_m=args.false_fix_threshold_m,
+               overrides=tuple(args.set or ()), progress=not args.quiet)
     return 0
 
 
@@ -97,6 +107,25 @@ def build_parser() -> argparse.ArgumentParser:
     n.add_argument("--lockstep", choices=["on", "off"], help="perception only: answer each frame in lockstep")
     n.set_defaults(func=_node)
 
+    e = sub.add_parser("experiment", help="the paper's experiments, reproduced",
+                       description="Experiments that regenerate the paper's results from flights.")
+    esub = e.add_subparsers(dest="experiment", metavar="NAME")
+    esub.required = True
+    t2 = esub.add_parser("table2", help="Table 2: online CNN, assistant map, statistical, none",
+                         description="Fly the same path four times in lockstep (identical frames): "
+                                     "online CNN (builds the assistant map), the assistant map from "
+                                     "that flight, the statistical indicator, no exclusion. Writes "
+                                     "table2.json, table2.md, figure7.png, figure8.png and one run "
+                                     "folder per method.")
+    t2.add_argument("--world", help="world folder (default: the built-in default world)")
+    t2.add_argument("--out", required=True, metavar="DIR")
+    t2.add_argument("--seed", type=int, default=0, help="scenario seed (default 0)")
+    t2.add_argument("--false-fix-threshold-m", type=float, default=5.0,
+                    help="a fix whose error exceeds this is false (default 5 m)")
+    t2.add_argument("--set", action="append", metavar="KEY=VALUE", help="scenario override for every flight")
+    t2.add_argument("--quiet", action="store_true", help="no progress bars")
+    t2.set_defaults(func=_table2)
+
     b = sub.add_parser("bench", help="benchmarks that print figures (never part of the tests)",
                        description="Benchmarks. Speed and accuracy targets live here, not in tests.")
     bsub = b.add_subparsers(dest="what", metavar="WHAT")
@@ -107,6 +136,14 @@ def build_parser() -> argparse.ArgumentParser:
     bs.add_argument("--sizes", default="900x1000,2000x2000,8000x8000",
                     help="world sizes WxH in px, comma separated (default 900x1000,2000x2000,8000x8000)")
     bs.set_defaults(func=_bench)
+    bp = bsub.add_parser("perception", help="per-fix time by stage and method vs raw matchTemplate",
+                         description="Per-fix time (alignment, NCC, CNN, map lookup) for each false-match "
+                                     "method on camera frames over the default world, beside a raw "
+                                     "cv2.matchTemplate on the same window; whole assistant-map build "
+                                     "time; per-fix time as the map grows. One thread (one core).")
+    bp.add_argument("--json", action="store_true", help="print the results as JSON")
+    bp.add_argument("--frames", type=int, default=60, help="camera frames per method (default 60)")
+    bp.set_defaults(func=_bench)
     _register_optional(sub, bsub)
     return p
 
@@ -114,7 +151,7 @@ def build_parser() -> argparse.ArgumentParser:
 def _register_optional(sub, bsub) -> None:
     """Subcommands owned by the capability packages."""
     for modname, regname in (("worlds.cli", "register"), ("guidance.cli", "register"),
-                             ("perception.cli", "register")):
+                             ("perception.cli", "register"), ("perception.map_cli", "register")):
         try:
             mod = __import__(modname, fromlist=[regname])
         except ImportError as exc:   # package not built yet in this checkout

@@ -184,7 +184,8 @@ def plot_run(run_dir: Path, world, fx: dict) -> None:
         tx, ty = _interp_truth(truth, est["t_s"])
         ax2.plot(est["t_s"], np.hypot(est["x_m"] - tx, est["y_m"] - ty), "b-", lw=1,
                  label="estimate error")
-    ax2.set_yscale("symlog", linthresh=1.0)
+    ax2.axhline(fx_threshold(run_dir), color="orange", ls="--", lw=1, label="false-fix threshold")
+    ax2.set_ylim(bottom=0)
     ax2.set_xlabel("time (s)")
     ax2.set_ylabel("horizontal error (m)")
     ax2.grid(True, alpha=0.3)
@@ -192,6 +193,13 @@ def plot_run(run_dir: Path, world, fx: dict) -> None:
     fig.tight_layout()
     fig.savefig(run_dir / "trajectory.png", dpi=90)
     plt.close(fig)
+
+
+def fx_threshold(run_dir: Path) -> float:
+    try:
+        return float(json.loads((Path(run_dir) / "summary.json").read_text())["false_fix_threshold_m"])
+    except (OSError, KeyError, ValueError):
+        return 5.0
 
 
 def format_summary(summary: dict) -> str:
