@@ -53,6 +53,8 @@ class Launch:
                                 start_new_session=True)
         child = Child(name, proc, f)
         self.children.append(child)
+        pids = {c.name: c.proc.pid for c in self.children}
+        (self.run_dir / "logs" / "pids.json").write_text(json.dumps(pids))
         log.info("started %s (pid %d)", name, proc.pid)
         return child
 
