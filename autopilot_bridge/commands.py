@@ -1,0 +1,327 @@
+"""COMMAND_LONG / COMMAND_INT / SET_MODE dispatch with MAV_RESULT codes, ArduCopter style.
+
+Shell module (uses pymavlink constants only through ``mavlink2``). Both command messages are
+normalised into a :class:`CommandRequest`; every handler validates its parameters (NaN,
+infinity, ranges) and never raises. Result codes follow ArduPilot
+(``GCS_MAVLINK::handle_command_*``, ``GCS_MAVLINK_Copter::handle_command_int_packet``) and the
+MAVLink meaning: DENIED = invalid parameters, FAILED = valid but the vehicle refused (its
+reason goes out as STATUSTEXT), UNSUPPORTED = unknown command, COMMAND_INT_ONLY = only
+meaningful as COMMAND_INT.
+
+Supported: COMPONENT_ARM_DISARM (param2 2989 or 21196 forces arming, 21196 forces disarming),
+NAV_TAKEOFF (param7 / z metres above home; COMMAND_INT needs a GLOBAL_RELATIVE_ALT frame),
+NAV_LAND, NAV_RETURN_TO_LAUNCH, NAV_LOITER_UNLIM (-> LOITER), DO_SET_MODE (base_mode with
+CUSTOM_MODE_ENABLED + custom_mode), MISSION_START (param1 = param2 = 0 only, as ArduCopter),
+DO_SET_MISSION_CURRENT, DO_REPOSITION (COMMAND_INT), DO_CHANGE_SPEED, SET_MESSAGE_INTERVAL,
+GET_MESSAGE_INTERVAL, REQUEST_MESSAGE, REQUEST_AUTOPILOT_CAPABILITIES, GET_HOME_POSITION.
+"""
+
+from __future__ import annotations
+
+import logging
+import math
+from dataclasses import dataclass
+from enum import IntEnum
+from typing import Callable, Protocol
+
+from pymavlink.dialects.v20 import ardupilotmega as mavlink2
+
+from autopilot_bridge.modes import SUPPORTED_MODES, CopterMode, mode_from_number
+from autopilot_bridge.vehicle_interface import (
+    AltFrame,
+    MavFrame,
+    MavSeverity,
+    SpeedType,
+    Vehicle,
+    VehicleTelemetry,
+)
+
+logger = logging.getLogger(__name__)
+
+# ArduPilot GCS.h: magic_force_arm_value / magic_force_disarm_value
+FORCE_ARM_MAGIC = 2989.0
+FORCE_ARM_DISARM_MAGIC = 21196.0
+MAX_TAKEOFF_ALT_M = 10_000.0
+MAX_MSG_ID = 2 ** 24 - 1
+
+
+class MavResult(IntEnum):
+    """MAV_RESULT (COMMAND_ACK.result)."""
+
+    ACCEPTED = 0
+    TEMPORARILY_REJECTED = 1
+    DENIED = 2
+    UNSUPPORTED = 3
+    FAILED = 4
+    IN_PROGRESS = 5
+    COMMAND_LONG_ONLY = 7
+    COMMAND_INT_ONLY = 8
+
+
+class RepositionFlag(IntEnum):
+    """MAV_DO_REPOSITION_FLAGS (DO_REPOSITION param2)."""
+
+    CHANGE_MODE = 1
+
+
+@dataclass(frozen=True)
+class CommandRequest:
+    """COMMAND_LONG or COMMAND_INT, normalised. ``params`` are param1..param7 as floats; for
+    COMMAND_INT params[4:6] are x, y (degE7 as floats) and params[6] is z."""
+
+    command: int
+    params: tuple[float, float, float, float, float, float, float]
+    is_int: bool
+    frame: int = int(MavFrame.GLOBAL)
+    x: int = 0
+    y: int = 0
+    confirmation: int = 0
+
+    @classmethod
+    def from_message(cls, msg: mavlink2.MAVLink_message) -> CommandRequest:
+        if msg.get_type() == "COMMAND_INT":
+            return cls(int(msg.command), (msg.param1, msg.param2, msg.param3, msg.param4,
+                                          float(msg.x), float(msg.y), msg.z),
+                       True, int(msg.frame), int(msg.x), int(msg.y))
+        return cls(int(msg.command), (msg.param1, msg.param2, msg.param3, msg.param4,
+                                      msg.param5, msg.param6, msg.param7),
+                   False, confirmation=int(msg.confirmation))
+
+    def p(self, i: int) -> float:
+        """param ``i`` (1-based)."""
+        return float(self.params[i - 1])
+
+
+@dataclass(frozen=True)
+class CommandResult:
+    """What to answer: the COMMAND_ACK result, then messages to send to the requester."""
+
+    result: MavResult
+    then_send: tuple[int, ...] = ()
+    reply: mavlink2.MAVLink_message | None = None
+
+
+class CommandServices(Protocol):
+    """Server facilities the command handlers use."""
+
+    def telemetry(self) -> VehicleTelemetry: ...
+
+    def statustext(self, severity: MavSeverity, text: str) -> None: ...
+
+    def can_send(self, msg_id: int) -> bool: ...
+
+    def set_message_interval(self, link: object, msg_id: int, interval_us: float) -> bool: ...
+
+    def message_interval_us(self, link: object, msg_id: int) -> int: ...
+
+    def mission_item_count(self) -> int: ...
+
+    def set_mission_current(self, seq: int) -> bool: ...
+
+
+def _finite(*values: float) -> bool:
+    return all(math.isfinite(v) for v in values)
+
+
+def _as_int(value: float, lo: int, hi: int) -> int | None:
+    """An exactly integral finite value within [lo, hi], else None."""
+    if not math.isfinite(value) or value != int(value):
+        return None
+    v = int(value)
+    return v if lo <= v <= hi else None
+
+
+class CommandHandler:
+    """Validates commands and forwards them to the vehicle."""
+
+    def __init__(self, vehicle: Vehicle, services: CommandServices) -> None:
+        self._vehicle = vehicle
+        self._svc = services
+        m = mavlink2
+        self._handlers: dict[int, Callable[[CommandRequest, object], CommandResult]] = {
+            m.MAV_CMD_COMPONENT_ARM_DISARM: self._arm_disarm,
+            m.MAV_CMD_NAV_TAKEOFF: self._takeoff,
+            m.MAV_CMD_NAV_LAND: self._land,
+            m.MAV_CMD_NAV_RETURN_TO_LAUNCH: self._rtl,
+            m.MAV_CMD_NAV_LOITER_UNLIM: self._loiter_unlim,
+            m.MAV_CMD_DO_SET_MODE: self._do_set_mode,
+            m.MAV_CMD_MISSION_START: self._mission_start,
+            m.MAV_CMD_DO_SET_MISSION_CURRENT: self._set_mission_current,
+            m.MAV_CMD_DO_REPOSITION: self._reposition,
+            m.MAV_CMD_DO_CHANGE_SPEED: self._change_speed,
+            m.MAV_CMD_SET_MESSAGE_INTERVAL: self._set_message_interval,
+            m.MAV_CMD_GET_MESSAGE_INTERVAL: self._get_message_interval,
+            m.MAV_CMD_REQUEST_MESSAGE: self._request_message,
+            m.MAV_CMD_REQUEST_AUTOPILOT_CAPABILITIES: self._request_capabilities,
+            m.MAV_CMD_GET_HOME_POSITION: self._get_home_position,
+        }
+
+    @property
+    def supported_commands(self) -> frozenset[int]:
+        return frozenset(self._handlers)
+
+    def handle(self, req: CommandRequest, link: object) -> CommandResult:
+        handler = self._handlers.get(req.command)
+        if handler is None:
+            return CommandResult(MavResult.UNSUPPORTED)
+        result = handler(req, link)
+        logger.info("command %d -> %s", req.command, result.result.name)
+        return result
+
+    # ----------------------------------------------------------------- modes
+    def set_mode_common(self, base_mode: float, custom_mode: float) -> MavResult:
+        """DO_SET_MODE / SET_MODE: only custom modes (ArduPilot ``_set_mode_common``)."""
+        base = _as_int(base_mode, 0, 255)
+        if base is None or not base & mavlink2.MAV_MODE_FLAG_CUSTOM_MODE_ENABLED:
+            return MavResult.DENIED
+        number = _as_int(custom_mode, 0, 2 ** 32 - 1)
+        if number is None:
+            return MavResult.DENIED
+        mode = mode_from_number(number)
+        if mode is None:
+            self._svc.statustext(MavSeverity.WARNING, f"No such mode {number}")
+            return MavResult.FAILED
+        return self.change_mode(mode)
+
+    def change_mode(self, mode: CopterMode) -> MavResult:
+        if self._svc.telemetry().mode == mode:
+            return MavResult.ACCEPTED
+        if mode not in SUPPORTED_MODES:
+            self._svc.statustext(MavSeverity.WARNING,
+                                 f"Flight mode change failed: {mode.name} not supported")
+            return MavResult.FAILED
+        outcome = self._vehicle.set_mode(mode)
+        if outcome.ok:
+            return MavResult.ACCEPTED
+        self._svc.statustext(MavSeverity.WARNING,
+                             outcome.reason or f"Flight mode change failed: {mode.name}")
+        return MavResult.FAILED
+
+    def _do_set_mode(self, req: CommandRequest, link: object) -> CommandResult:
+        return CommandResult(self.set_mode_common(req.p(1), req.p(2)))
+
+    def _loiter_unlim(self, req: CommandRequest, link: object) -> CommandResult:
+        return CommandResult(self.change_mode(CopterMode.LOITER))
+
+    # ----------------------------------------------------------------- arming & flight
+    def _outcome(self, outcome: tuple[bool, str], severity: MavSeverity = MavSeverity.WARNING,
+                 default_reason: str = "") -> MavResult:
+        ok, reason = outcome
+        if ok:
+            return MavResult.ACCEPTED
+        if reason or default_reason:
+            self._svc.statustext(severity, reason or default_reason)
+        return MavResult.FAILED
+
+    def _arm_disarm(self, req: CommandRequest, link: object) -> CommandResult:
+        action, magic = req.p(1), req.p(2)
+        armed = self._svc.telemetry().armed
+        if action == 1.0:
+            if armed:
+                return CommandResult(MavResult.ACCEPTED)
+            force = magic in (FORCE_ARM_MAGIC, FORCE_ARM_DISARM_MAGIC)
+            return CommandResult(self._outcome(self._vehicle.arm(force), MavSeverity.CRITICAL,
+                                               "Arm: refused"))
+        if action == 0.0:
+            if not armed:
+                return CommandResult(MavResult.ACCEPTED)
+            force = magic == FORCE_ARM_DISARM_MAGIC
+            return CommandResult(self._outcome(self._vehicle.disarm(force), MavSeverity.CRITICAL,
+                                               "Disarm: refused"))
+        return CommandResult(MavResult.DENIED)
+
+    def _takeoff(self, req: CommandRequest, link: object) -> CommandResult:
+        if req.is_int and req.frame not in (MavFrame.GLOBAL_RELATIVE_ALT,
+                                            MavFrame.GLOBAL_RELATIVE_ALT_INT):
+            return CommandResult(MavResult.DENIED)
+        alt = req.p(7)
+        if not (math.isfinite(alt) and 0.0 < alt <= MAX_TAKEOFF_ALT_M):
+            return CommandResult(MavResult.DENIED)
+        return CommandResult(self._outcome(self._vehicle.takeoff(alt)))
+
+    def _land(self, req: CommandRequest, link: object) -> CommandResult:
+        return CommandResult(self._outcome(self._vehicle.land()))
+
+    def _rtl(self, req: CommandRequest, link: object) -> CommandResult:
+        return CommandResult(self._outcome(self._vehicle.return_to_launch()))
+
+    def _mission_start(self, req: CommandRequest, link: object) -> CommandResult:
+        first, last = req.p(1), req.p(2)
+        if first != 0.0 or last != 0.0:
+            return CommandResult(MavResult.DENIED)  # first/last item not supported (ArduCopter)
+        if self._svc.mission_item_count() == 0:
+            self._svc.statustext(MavSeverity.WARNING, "Mission start failed: no mission")
+            return CommandResult(MavResult.FAILED)
+        return CommandResult(self._outcome(self._vehicle.start_mission(0, 0)))
+
+    def _set_mission_current(self, req: CommandRequest, link: object) -> CommandResult:
+        seq = _as_int(req.p(1), 1, self._svc.mission_item_count())
+        if seq is None:
+            return CommandResult(MavResult.DENIED)
+        return CommandResult(MavResult.ACCEPTED if self._svc.set_mission_current(seq)
+                             else MavResult.FAILED)
+
+    def _reposition(self, req: CommandRequest, link: object) -> CommandResult:
+        if not req.is_int:
+            return CommandResult(MavResult.COMMAND_INT_ONLY)
+        if req.frame in (MavFrame.GLOBAL, MavFrame.GLOBAL_INT):
+            alt_frame = AltFrame.AMSL
+        elif req.frame in (MavFrame.GLOBAL_RELATIVE_ALT, MavFrame.GLOBAL_RELATIVE_ALT_INT):
+            alt_frame = AltFrame.RELATIVE_HOME
+        else:
+            return CommandResult(MavResult.DENIED)
+        speed, flags, yaw, alt = req.p(1), req.p(2), req.p(4), req.p(7)
+        if not (abs(req.x) <= 900_000_000 and abs(req.y) <= 1_800_000_000
+                and math.isfinite(alt) and abs(alt) < 83_000.0):
+            return CommandResult(MavResult.DENIED)
+        change_mode = math.isfinite(flags) and int(flags) & RepositionFlag.CHANGE_MODE
+        if self._svc.telemetry().mode != CopterMode.GUIDED:
+            if not change_mode:
+                return CommandResult(MavResult.DENIED)
+            if self.change_mode(CopterMode.GUIDED) != MavResult.ACCEPTED:
+                return CommandResult(MavResult.FAILED)
+        speed_m_s = speed if math.isfinite(speed) and speed > 0 else None
+        yaw_deg = yaw if math.isfinite(yaw) else None
+        return CommandResult(self._outcome(self._vehicle.reposition(
+            req.x * 1e-7, req.y * 1e-7, alt, alt_frame, speed_m_s, yaw_deg)))
+
+    def _change_speed(self, req: CommandRequest, link: object) -> CommandResult:
+        kind = _as_int(req.p(1), 0, max(SpeedType))
+        speed = req.p(2)
+        if kind is None or not (math.isfinite(speed) and speed > 0.0):
+            return CommandResult(MavResult.DENIED)
+        return CommandResult(self._outcome(self._vehicle.change_speed(SpeedType(kind), speed)))
+
+    # ----------------------------------------------------------------- messages
+    def _set_message_interval(self, req: CommandRequest, link: object) -> CommandResult:
+        msg_id = _as_int(req.p(1), 0, MAX_MSG_ID)
+        interval = req.p(2)
+        if msg_id is None or not math.isfinite(interval):
+            return CommandResult(MavResult.DENIED)
+        ok = self._svc.set_message_interval(link, msg_id, interval)
+        return CommandResult(MavResult.ACCEPTED if ok else MavResult.DENIED)
+
+    def _get_message_interval(self, req: CommandRequest, link: object) -> CommandResult:
+        msg_id = _as_int(req.p(1), 0, MAX_MSG_ID)
+        if msg_id is None:
+            return CommandResult(MavResult.DENIED)
+        reply = mavlink2.MAVLink_message_interval_message(
+            msg_id & 0xFFFF, self._svc.message_interval_us(link, msg_id))
+        return CommandResult(MavResult.ACCEPTED, reply=reply)
+
+    def _request_message(self, req: CommandRequest, link: object) -> CommandResult:
+        msg_id = _as_int(req.p(1), 0, MAX_MSG_ID)
+        if msg_id is None or not self._svc.can_send(msg_id):
+            return CommandResult(MavResult.DENIED)
+        if msg_id == mavlink2.MAVLINK_MSG_ID_HOME_POSITION and not self._svc.telemetry().home_set:
+            return CommandResult(MavResult.FAILED)
+        return CommandResult(MavResult.ACCEPTED, then_send=(msg_id,))
+
+    def _request_capabilities(self, req: CommandRequest, link: object) -> CommandResult:
+        return CommandResult(MavResult.ACCEPTED,
+                             then_send=(mavlink2.MAVLINK_MSG_ID_AUTOPILOT_VERSION,))
+
+    def _get_home_position(self, req: CommandRequest, link: object) -> CommandResult:
+        if not self._svc.telemetry().home_set:
+            return CommandResult(MavResult.FAILED)
+        return CommandResult(MavResult.ACCEPTED, then_send=(mavlink2.MAVLINK_MSG_ID_HOME_POSITION,))

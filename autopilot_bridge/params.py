@@ -1,0 +1,321 @@
+"""ArduPilot-named, typed parameters with range checks, JSON persistence and observers.
+
+Pure module (no pymavlink). The MAVLink server serves these over the parameter protocol
+(PARAM_REQUEST_LIST / PARAM_REQUEST_READ / PARAM_SET -> PARAM_VALUE); the flight core reads
+them (``store.get("WPNAV_SPEED")``) and subscribes to changes (``store.add_observer``).
+
+Names, types, units, defaults and ranges follow ArduCopter 4.5 (``@Param`` documentation in
+ArduPilot ``ArduCopter/Parameters.cpp``, ``libraries/AC_WPNav/AC_WPNav.cpp``,
+``libraries/AP_NavEKF3/AP_NavEKF3.cpp``, ``libraries/GCS_MAVLink/GCS.cpp``). Enumerated
+parameters accept only the values this stack implements (``ParamSpec.values``).
+
+Differences from ArduPilot, on purpose: ArduPilot does not range-check PARAM_SET (ranges are
+ground-station metadata); we refuse out-of-range or not-implemented values and the server
+answers with the unchanged value plus a STATUSTEXT, the way ArduPilot answers a write to a
+read-only parameter. Integer parameters are converted from the float on the wire as
+ArduPilot's ``AP_Param::set_float`` does (truncation after adding 0.01 towards the sign).
+"""
+
+from __future__ import annotations
+
+import json
+import logging
+import math
+import os
+import struct
+import tempfile
+from dataclasses import dataclass
+from enum import IntEnum
+from pathlib import Path
+from typing import Callable, Iterable, Mapping, NamedTuple
+
+from scenenav.errors import UserError
+
+logger = logging.getLogger(__name__)
+
+PARAM_NAME_MAX_LEN = 16  # PARAM_VALUE.param_id is char[16]
+
+
+class ParamType(IntEnum):
+    """MAV_PARAM_TYPE values ArduPilot uses (AP_Int8/16/32, AP_Float)."""
+
+    INT8 = 2
+    INT16 = 4
+    INT32 = 6
+    REAL32 = 9
+
+
+_INT_LIMITS: dict[ParamType, tuple[int, int]] = {
+    ParamType.INT8: (-(2 ** 7), 2 ** 7 - 1),
+    ParamType.INT16: (-(2 ** 15), 2 ** 15 - 1),
+    ParamType.INT32: (-(2 ** 31), 2 ** 31 - 1),
+}
+
+
+@dataclass(frozen=True)
+class ParamSpec:
+    """One parameter: name, MAVLink type, default, inclusive range, unit and meaning."""
+
+    name: str
+    ptype: ParamType
+    default: float
+    min_value: float
+    max_value: float
+    units: str = ""
+    description: str = ""
+    # allowed enumerated values as (value, label); empty = any value in range
+    values: tuple[tuple[int, str], ...] = ()
+
+    def __post_init__(self) -> None:
+        if not self.name or len(self.name) > PARAM_NAME_MAX_LEN or not self.name.isascii():
+            raise ValueError(f"parameter name {self.name!r}: expected 1..16 ASCII characters")
+        if not self.min_value <= self.default <= self.max_value:
+            raise ValueError(f"{self.name}: default {self.default} outside "
+                             f"[{self.min_value}, {self.max_value}]")
+        if self.values and int(self.default) not in {v for v, _ in self.values}:
+            raise ValueError(f"{self.name}: default {self.default} not among the allowed values")
+
+    @property
+    def is_integer(self) -> bool:
+        return self.ptype != ParamType.REAL32
+
+    def coerce(self, value: float) -> tuple[float | None, str]:
+        """The stored value for a requested ``value``, or ``(None, reason)`` when refused."""
+        try:
+            v = float(value)
+        except (TypeError, ValueError):
+            return None, f"{self.name}: not a number"
+        if not math.isfinite(v):
+            return None, f"{self.name}: {v} is not finite"
+        if self.is_integer:
+            lo, hi = _INT_LIMITS[self.ptype]
+            if not lo - 1 < v < hi + 1:
+                return None, f"{self.name}: {v:g} does not fit {self.ptype.name}"
+            v = float(int(v + math.copysign(0.01, v)))
+        else:
+            # what goes over the wire is a float32
+            v = _to_float32(v)
+        if not self.min_value <= v <= self.max_value:
+            return None, f"{self.name}={v:g} out of range [{self.min_value:g}, {self.max_value:g}]"
+        if self.values and int(v) not in {val for val, _ in self.values}:
+            allowed = ", ".join(f"{val}:{label}" for val, label in self.values)
+            return None, f"{self.name}={v:g} not supported ({allowed})"
+        return v, ""
+
+
+def _to_float32(v: float) -> float:
+    try:
+        return struct.unpack("<f", struct.pack("<f", v))[0]
+    except OverflowError:
+        return math.copysign(math.inf, v)
+
+
+class SetResult(NamedTuple):
+    """Outcome of :meth:`ParameterStore.set`: the value now stored and why a set was refused."""
+
+    ok: bool
+    value: float
+    reason: str = ""
+
+
+def _spec(name: str, ptype: ParamType, default: float, lo: float, hi: float, units: str,
+          description: str, values: tuple[tuple[int, str], ...] = ()) -> ParamSpec:
+    return ParamSpec(name, ptype, default, lo, hi, units, description, values)
+
+
+_I8, _I16, _I32, _F = ParamType.INT8, ParamType.INT16, ParamType.INT32, ParamType.REAL32
+
+# ArduCopter 4.5 names, units, defaults and ranges (see the module docstring for sources).
+DEFAULT_PARAM_SPECS: tuple[ParamSpec, ...] = (
+    _spec("ANGLE_MAX", _I16, 3000, 1000, 8000, "cdeg", "Maximum lean angle in all flight modes"),
+    _spec("ARMING_CHECK", _I32, 1, 0, 2 ** 31 - 1, "",
+          "Pre-arm checks bitmask: 0 skips all checks, 1 runs all"),
+    _spec("BATT_CAPACITY", _I32, 3300, 0, 1_000_000, "mAh", "Battery capacity"),
+    _spec("BATT_MONITOR", _I8, 4, 0, 4, "", "Battery monitoring reported to the GCS",
+          ((0, "Disabled"), (3, "Analog Voltage Only"), (4, "Analog Voltage and Current"))),
+    _spec("DISARM_DELAY", _I8, 10, 0, 127, "s",
+          "Delay before automatic disarm after landing; 0 disables auto disarm"),
+    _spec("EK3_SRC1_POSXY", _I8, 3, 0, 6, "", "EKF horizontal position source",
+          ((0, "None"), (3, "GPS"), (6, "ExternalNav"))),
+    _spec("EK3_SRC1_POSZ", _I8, 1, 0, 6, "", "EKF vertical position source",
+          ((0, "None"), (1, "Baro"), (3, "GPS"), (6, "ExternalNav"))),
+    _spec("EK3_SRC1_VELXY", _I8, 3, 0, 6, "", "EKF horizontal velocity source",
+          ((0, "None"), (3, "GPS"), (6, "ExternalNav"))),
+    _spec("EK3_SRC1_VELZ", _I8, 3, 0, 6, "", "EKF vertical velocity source",
+          ((0, "None"), (3, "GPS"), (6, "ExternalNav"))),
+    _spec("EK3_SRC1_YAW", _I8, 1, 0, 6, "", "EKF yaw source",
+          ((0, "None"), (1, "Compass"), (6, "ExternalNav"))),
+    _spec("FRAME_CLASS", _I8, 1, 1, 1, "", "Frame class (only Quad is implemented)",
+          ((1, "Quad"),)),
+    _spec("FRAME_TYPE", _I8, 1, 1, 1, "", "Frame type (only X is implemented)", ((1, "X"),)),
+    _spec("FS_EKF_ACTION", _I8, 1, 0, 3, "", "EKF failsafe action",
+          ((0, "Report only"), (1, "Land if the mode needs position"),
+           (2, "AltHold if the mode needs position"), (3, "Land from all modes"))),
+    _spec("FS_EKF_THRESH", _F, 0.8, 0.0, 1.0, "",
+          "EKF failsafe variance threshold (0 disables the EKF failsafe)"),
+    _spec("FS_GCS_ENABLE", _I8, 0, 0, 5, "",
+          "GCS failsafe action after FS_GCS_TIMEOUT without a SYSID_MYGCS heartbeat",
+          ((0, "Disabled"), (1, "RTL"), (3, "SmartRTL or RTL"), (4, "SmartRTL or Land"),
+           (5, "Land"))),
+    _spec("FS_GCS_TIMEOUT", _F, 5.0, 2.0, 120.0, "s", "GCS failsafe timeout"),
+    _spec("GUID_TIMEOUT", _F, 3.0, 0.1, 5.0, "s",
+          "Guided mode: stop if no velocity/acceleration setpoint arrives for this long"),
+    _spec("LAND_SPEED", _I16, 50, 30, 200, "cm/s", "Descent speed for the final stage of landing"),
+    _spec("LAND_SPEED_HIGH", _I16, 0, 0, 500, "cm/s",
+          "Descent speed for the first stage of landing; 0 = WPNAV_SPEED_DN"),
+    _spec("PILOT_SPEED_DN", _I16, 0, 0, 500, "cm/s",
+          "Maximum pilot descent speed; 0 = PILOT_SPEED_UP"),
+    _spec("PILOT_SPEED_UP", _I16, 250, 50, 500, "cm/s", "Maximum pilot climb speed"),
+    _spec("RTL_ALT", _I32, 1500, 30, 300000, "cm",
+          "Minimum altitude above home for the return leg of RTL"),
+    _spec("RTL_ALT_FINAL", _I16, 0, 0, 1000, "cm",
+          "Final RTL altitude above home; 0 = land"),
+    _spec("RTL_LOIT_TIME", _I32, 5000, 0, 60000, "ms", "Loiter time above home before descending"),
+    _spec("RTL_SPEED", _I16, 0, 0, 2000, "cm/s", "Horizontal RTL speed; 0 = WPNAV_SPEED"),
+    _spec("SYSID_MYGCS", _I16, 255, 1, 255, "",
+          "System id of the GCS whose heartbeats keep the GCS failsafe quiet"),
+    _spec("SYSID_THISMAV", _I16, 1, 1, 255, "", "MAVLink system id of this vehicle (at start-up)"),
+    _spec("VISO_TYPE", _I8, 0, 0, 1, "",
+          "Visual odometry: 1 accepts VISION_POSITION_ESTIMATE / ODOMETRY over MAVLink",
+          ((0, "None"), (1, "MAVLink"))),
+    _spec("WP_YAW_BEHAVIOR", _I8, 2, 0, 3, "", "Yaw during missions and RTL",
+          ((0, "Never change yaw"), (1, "Face next waypoint"),
+           (2, "Face next waypoint except RTL"), (3, "Face along GPS course"))),
+    _spec("WPNAV_ACCEL", _F, 250.0, 50.0, 500.0, "cm/s/s", "Horizontal waypoint acceleration"),
+    _spec("WPNAV_RADIUS", _F, 200.0, 5.0, 1000.0, "cm", "Waypoint acceptance radius"),
+    _spec("WPNAV_SPEED", _F, 1000.0, 10.0, 2000.0, "cm/s", "Horizontal waypoint speed"),
+    _spec("WPNAV_SPEED_DN", _F, 150.0, 10.0, 500.0, "cm/s", "Waypoint descent speed"),
+    _spec("WPNAV_SPEED_UP", _F, 250.0, 10.0, 1000.0, "cm/s", "Waypoint climb speed"),
+)
+
+ParamObserver = Callable[[str, float], None]
+
+
+class ParameterStore:
+    """Typed parameters in a fixed order (``param_index`` = position in ``specs``).
+
+    ``path`` (optional) is a JSON file ``{"NAME": value, ...}`` read at construction and
+    rewritten atomically after every change. ``defaults`` overrides spec defaults (e.g. from a
+    scenario) before the file is applied.
+    """
+
+    def __init__(self, specs: Iterable[ParamSpec] = DEFAULT_PARAM_SPECS,
+                 path: str | Path | None = None,
+                 defaults: Mapping[str, float] | None = None) -> None:
+        self._specs: tuple[ParamSpec, ...] = tuple(specs)
+        self._index: dict[str, int] = {}
+        for i, spec in enumerate(self._specs):
+            if spec.name in self._index:
+                raise ValueError(f"duplicate parameter {spec.name}")
+            self._index[spec.name] = i
+        self._values: list[float] = [float(s.default) for s in self._specs]
+        self._observers: list[ParamObserver] = []
+        self._path = Path(path) if path is not None else None
+        for name, value in (defaults or {}).items():
+            self._apply_initial(name, value, "defaults")
+        if self._path is not None and self._path.exists():
+            self._load(self._path)
+
+    # ----------------------------------------------------------------- queries
+    @property
+    def count(self) -> int:
+        return len(self._specs)
+
+    def names(self) -> list[str]:
+        return [s.name for s in self._specs]
+
+    def specs(self) -> tuple[ParamSpec, ...]:
+        return self._specs
+
+    def __contains__(self, name: object) -> bool:
+        return name in self._index
+
+    def index_of(self, name: str) -> int | None:
+        return self._index.get(name)
+
+    def spec(self, name: str) -> ParamSpec:
+        return self._specs[self._index[name]]
+
+    def get(self, name: str) -> float:
+        """The value (an integral float for integer types). KeyError for unknown names."""
+        return self._values[self._index[name]]
+
+    def get_int(self, name: str) -> int:
+        return int(self.get(name))
+
+    def by_index(self, index: int) -> tuple[ParamSpec, float]:
+        return self._specs[index], self._values[index]
+
+    def as_dict(self) -> dict[str, float]:
+        return {s.name: v for s, v in zip(self._specs, self._values)}
+
+    # ----------------------------------------------------------------- changes
+    def add_observer(self, observer: ParamObserver) -> None:
+        """Call ``observer(name, value)`` after every change (not for refused or no-op sets)."""
+        self._observers.append(observer)
+
+    def remove_observer(self, observer: ParamObserver) -> None:
+        if observer in self._observers:
+            self._observers.remove(observer)
+
+    def set(self, name: str, value: float) -> SetResult:
+        """Validate and store; on refusal the old value is kept and returned with a reason."""
+        i = self._index.get(name)
+        if i is None:
+            return SetResult(False, math.nan, f"{name}: no such parameter")
+        new, reason = self._specs[i].coerce(value)
+        if new is None:
+            logger.info("parameter set refused: %s", reason)
+            return SetResult(False, self._values[i], reason)
+        if new == self._values[i]:
+            return SetResult(True, new)
+        self._values[i] = new
+        logger.info("parameter %s = %g", name, new)
+        self._save()
+        for observer in list(self._observers):
+            observer(name, new)
+        return SetResult(True, new)
+
+    # ----------------------------------------------------------------- persistence
+    def _apply_initial(self, name: str, value: object, source: str) -> None:
+        i = self._index.get(name)
+        if i is None:
+            logger.warning("%s: unknown parameter %s ignored", source, name)
+            return
+        if isinstance(value, bool) or not isinstance(value, (int, float)):
+            raise UserError(f"{source}: {name} = {value!r}: expected a number")
+        new, reason = self._specs[i].coerce(value)
+        if new is None:
+            raise UserError(f"{source}: {reason}")
+        self._values[i] = new
+
+    def _load(self, path: Path) -> None:
+        try:
+            data = json.loads(path.read_text(encoding="utf-8"))
+        except (OSError, UnicodeDecodeError) as exc:
+            raise UserError(f"{path}: cannot read parameter file: {exc}") from None
+        except json.JSONDecodeError as exc:
+            raise UserError(f"{path}: line {exc.lineno}: not valid JSON "
+                            f"(expected {{\"NAME\": value, ...}})") from None
+        if not isinstance(data, dict):
+            raise UserError(f"{path}: expected a JSON object {{\"NAME\": value, ...}}")
+        for name, value in data.items():
+            self._apply_initial(str(name), value, str(path))
+
+    def _save(self) -> None:
+        if self._path is None:
+            return
+        data = {s.name: (int(v) if s.is_integer else v) for s, v in zip(self._specs, self._values)}
+        self._path.parent.mkdir(parents=True, exist_ok=True)
+        fd, tmp = tempfile.mkstemp(prefix=self._path.name, dir=self._path.parent)
+        try:
+            with os.fdopen(fd, "w", encoding="utf-8") as fh:
+                json.dump(data, fh, indent=1, sort_keys=True)
+                fh.write("\n")
+            os.replace(tmp, self._path)
+        except OSError:
+            logger.exception("could not save parameters to %s", self._path)
+            try:
+                os.unlink(tmp)
+            except OSError:
+                pass

@@ -1,0 +1,454 @@
+"""Telemetry streams: per-link message scheduling and VehicleTelemetry -> MAVLink encoding.
+
+Shell module (uses pymavlink). Two request styles are honoured, per link as in ArduPilot
+(each GCS connection has its own rates):
+
+* MAV_CMD_SET_MESSAGE_INTERVAL (interval in us; -1 disables, 0 restores the default), used by
+  MAVSDK and QGC;
+* REQUEST_DATA_STREAM (legacy stream groups at a rate in Hz), used by MAVProxy
+  (``set streamrate``, default 4 Hz). Groups follow ArduPilot's SRx_ streams for the
+  messages we produce: EXTENDED_STATUS = SYS_STATUS, MISSION_CURRENT, GPS_RAW_INT,
+  EXTENDED_SYS_STATE; POSITION = GLOBAL_POSITION_INT, LOCAL_POSITION_NED; EXTRA1 = ATTITUDE;
+  EXTRA2 = VFR_HUD; EXTRA3 = BATTERY_STATUS, EKF_STATUS_REPORT.
+
+Time is the caller's clock (``now_s`` given to :meth:`TelemetryScheduler.due`), so message
+counts over a window are deterministic under a simulated clock.
+
+Encoders never raise on odd vehicle values: NaN/inf and out-of-range numbers are mapped to
+MAVLink's "unknown" encodings or clamped to the field type.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+from enum import IntEnum
+from typing import Callable, Mapping
+
+from pymavlink.dialects.v20 import ardupilotmega as mavlink2
+
+from autopilot_bridge.modes import POSITION_CONTROLLED_MODES, CopterMode
+from autopilot_bridge.vehicle_interface import SensorFlag, VehicleTelemetry
+
+INT16_MAX = 2 ** 15 - 1
+INT32_MIN, INT32_MAX = -(2 ** 31), 2 ** 31 - 1
+UINT16_MAX = 2 ** 16 - 1
+FLOAT32_MAX = 3.4028234663852886e38
+STATUSTEXT_CHUNK_LEN = 50
+
+# What we claim to be: ArduCopter 4.5.7, official build (AUTOPILOT_VERSION.flight_sw_version
+# layout major<<24 | minor<<16 | patch<<8 | FIRMWARE_VERSION_TYPE).
+FIRMWARE_VERSION = (4, 5, 7)
+FIRMWARE_VERSION_TYPE = mavlink2.FIRMWARE_VERSION_TYPE_OFFICIAL
+FLIGHT_CUSTOM_VERSION = b"scenenav"  # 8 bytes where ArduPilot puts its git hash
+
+# AUTOPILOT_VERSION.capabilities: what this emulator implements. Not claimed: FTP (QGC would
+# fetch parameters by FTP), MISSION_FENCE / MISSION_RALLY (fence and rally are answered as
+# empty lists), SET_ATTITUDE_TARGET, FLIGHT_TERMINATION, COMPASS_CALIBRATION, TERRAIN.
+CAPABILITIES = (mavlink2.MAV_PROTOCOL_CAPABILITY_MISSION_FLOAT
+                | mavlink2.MAV_PROTOCOL_CAPABILITY_PARAM_FLOAT
+                | mavlink2.MAV_PROTOCOL_CAPABILITY_MISSION_INT
+                | mavlink2.MAV_PROTOCOL_CAPABILITY_COMMAND_INT
+                | mavlink2.MAV_PROTOCOL_CAPABILITY_SET_POSITION_TARGET_LOCAL_NED
+                | mavlink2.MAV_PROTOCOL_CAPABILITY_SET_POSITION_TARGET_GLOBAL_INT
+                | mavlink2.MAV_PROTOCOL_CAPABILITY_MAVLINK2)
+
+
+class DataStream(IntEnum):
+    """MAV_DATA_STREAM (REQUEST_DATA_STREAM.req_stream_id)."""
+
+    ALL = 0
+    RAW_SENSORS = 1
+    EXTENDED_STATUS = 2
+    RC_CHANNELS = 3
+    RAW_CONTROLLER = 4
+    POSITION = 6
+    EXTRA1 = 10
+    EXTRA2 = 11
+    EXTRA3 = 12
+
+
+class MissionMode(IntEnum):
+    """MISSION_CURRENT.mission_mode."""
+
+    UNKNOWN = 0
+    IN_MISSION_MODE = 1
+    SUSPENDED = 2
+
+
+_M = mavlink2
+STREAM_GROUPS: Mapping[DataStream, tuple[int, ...]] = {
+    DataStream.RAW_SENSORS: (),
+    DataStream.EXTENDED_STATUS: (_M.MAVLINK_MSG_ID_SYS_STATUS, _M.MAVLINK_MSG_ID_MISSION_CURRENT,
+                                 _M.MAVLINK_MSG_ID_GPS_RAW_INT,
+                                 _M.MAVLINK_MSG_ID_EXTENDED_SYS_STATE),
+    DataStream.RC_CHANNELS: (),
+    DataStream.RAW_CONTROLLER: (),
+    DataStream.POSITION: (_M.MAVLINK_MSG_ID_GLOBAL_POSITION_INT,
+                          _M.MAVLINK_MSG_ID_LOCAL_POSITION_NED),
+    DataStream.EXTRA1: (_M.MAVLINK_MSG_ID_ATTITUDE,),
+    DataStream.EXTRA2: (_M.MAVLINK_MSG_ID_VFR_HUD,),
+    DataStream.EXTRA3: (_M.MAVLINK_MSG_ID_BATTERY_STATUS, _M.MAVLINK_MSG_ID_EKF_STATUS_REPORT),
+}
+
+# Default rates of a new link (Hz). HEARTBEAT and HOME_POSITION belong to no stream group.
+DEFAULT_RATES_HZ: Mapping[int, float] = {
+    _M.MAVLINK_MSG_ID_HEARTBEAT: 1.0,
+    _M.MAVLINK_MSG_ID_SYS_STATUS: 2.0,
+    _M.MAVLINK_MSG_ID_MISSION_CURRENT: 2.0,
+    _M.MAVLINK_MSG_ID_GPS_RAW_INT: 2.0,
+    _M.MAVLINK_MSG_ID_EXTENDED_SYS_STATE: 2.0,
+    _M.MAVLINK_MSG_ID_GLOBAL_POSITION_INT: 4.0,
+    _M.MAVLINK_MSG_ID_LOCAL_POSITION_NED: 4.0,
+    _M.MAVLINK_MSG_ID_ATTITUDE: 4.0,
+    _M.MAVLINK_MSG_ID_VFR_HUD: 4.0,
+    _M.MAVLINK_MSG_ID_BATTERY_STATUS: 1.0,
+    _M.MAVLINK_MSG_ID_EKF_STATUS_REPORT: 1.0,
+    _M.MAVLINK_MSG_ID_HOME_POSITION: 0.2,
+}
+
+
+class TelemetryScheduler:
+    """Which message ids are due on one link at a given time of the caller's clock."""
+
+    MIN_INTERVAL_S = 0.01  # 100 Hz cap
+    MAX_INTERVAL_S = 3600.0
+
+    def __init__(self, default_rates_hz: Mapping[int, float] | None = None,
+                 streamable: frozenset[int] | None = None) -> None:
+        self._defaults = dict(DEFAULT_RATES_HZ if default_rates_hz is None else default_rates_hz)
+        self._streamable = streamable if streamable is not None else STREAMABLE_MSG_IDS
+        self._interval_s: dict[int, float] = {}
+        self._next_due_s: dict[int, float | None] = {}
+        for msg_id, rate in self._defaults.items():
+            self._set_rate(msg_id, rate)
+
+    def is_streamable(self, msg_id: int) -> bool:
+        return msg_id in self._streamable
+
+    def interval_s(self, msg_id: int) -> float | None:
+        """Current interval, None when the message is not streamed."""
+        return self._interval_s.get(msg_id)
+
+    def interval_us(self, msg_id: int) -> int:
+        """For MESSAGE_INTERVAL: -1 disabled, 0 not available, else the interval in us."""
+        if msg_id not in self._streamable:
+            return 0
+        interval = self._interval_s.get(msg_id)
+        return -1 if interval is None else int(round(interval * 1e6))
+
+    def set_interval_us(self, msg_id: int, interval_us: float) -> bool:
+        """SET_MESSAGE_INTERVAL semantics; False when the id or interval is not acceptable."""
+        if msg_id not in self._streamable or not math.isfinite(interval_us):
+            return False
+        if interval_us == -1:
+            self._disable(msg_id)
+        elif interval_us == 0:
+            self._set_rate(msg_id, self._defaults.get(msg_id, 0.0))
+        elif interval_us > 0:
+            self._set_interval(msg_id, interval_us * 1e-6)
+        else:
+            return False
+        return True
+
+    def set_stream_rate(self, stream: int, rate_hz: float) -> bool:
+        """REQUEST_DATA_STREAM semantics: rate 0 stops the group. False for unknown streams."""
+        if not math.isfinite(rate_hz) or rate_hz < 0:
+            return False
+        if stream == DataStream.ALL:
+            groups = list(STREAM_GROUPS)
+        else:
+            try:
+                groups = [DataStream(stream)]
+            except ValueError:
+                return False
+        for group in groups:
+            for msg_id in STREAM_GROUPS[group]:
+                self._set_rate(msg_id, rate_hz)
+        return True
+
+    def due(self, now_s: float) -> list[int]:
+        """Message ids to send now; each scheduled message advances by its interval."""
+        out = []
+        for msg_id, interval in self._interval_s.items():
+            nxt = self._next_due_s.get(msg_id)
+            if nxt is None:
+                out.append(msg_id)
+                self._next_due_s[msg_id] = now_s + interval
+            elif now_s >= nxt:
+                out.append(msg_id)
+                nxt += interval
+                if nxt <= now_s:  # fell behind (e.g. the clock jumped): restart the phase
+                    nxt = now_s + interval
+                self._next_due_s[msg_id] = nxt
+        return out
+
+    def _set_rate(self, msg_id: int, rate_hz: float) -> None:
+        if rate_hz <= 0:
+            self._disable(msg_id)
+        else:
+            self._set_interval(msg_id, 1.0 / rate_hz)
+
+    def _set_interval(self, msg_id: int, interval_s: float) -> None:
+        interval_s = min(max(interval_s, self.MIN_INTERVAL_S), self.MAX_INTERVAL_S)
+        if self._interval_s.get(msg_id) != interval_s:
+            self._interval_s[msg_id] = interval_s
+            self._next_due_s[msg_id] = None
+
+    def _disable(self, msg_id: int) -> None:
+        self._interval_s.pop(msg_id, None)
+        self._next_due_s.pop(msg_id, None)
+
+
+# ----------------------------------------------------------------------------- encoding
+
+
+def clamp_int(value: float, lo: int, hi: int, unknown: int) -> int:
+    """Round and clamp to [lo, hi]; NaN (and None) -> ``unknown``."""
+    try:
+        v = float(value)
+    except (TypeError, ValueError):
+        return unknown
+    if math.isnan(v):
+        return unknown
+    if v >= hi:
+        return hi
+    if v <= lo:
+        return lo
+    return int(round(v))
+
+
+def finite_float(value: float, default: float = 0.0) -> float:
+    """A float32-representable finite value; NaN -> ``default``, inf -> +-FLOAT32_MAX."""
+    try:
+        v = float(value)
+    except (TypeError, ValueError):
+        return default
+    if math.isnan(v):
+        return default
+    return min(max(v, -FLOAT32_MAX), FLOAT32_MAX)
+
+
+def deg_e7(deg: float) -> int:
+    return clamp_int(deg * 1e7, INT32_MIN, INT32_MAX, 0)
+
+
+def _mm(m: float) -> int:
+    return clamp_int(m * 1000.0, INT32_MIN, INT32_MAX, 0)
+
+
+def _heading_cdeg(deg: float) -> int:
+    """Compass angle in centidegrees 0..35999, UINT16_MAX when unknown."""
+    try:
+        v = float(deg)
+    except (TypeError, ValueError):
+        return UINT16_MAX
+    if not math.isfinite(v):
+        return UINT16_MAX
+    return clamp_int((v % 360.0) * 100.0, 0, 35999, UINT16_MAX)
+
+
+def _triple(values: tuple[float, ...]) -> tuple[float, float, float]:
+    vals = tuple(values)[:3] + (0.0, 0.0, 0.0)
+    return (finite_float(vals[0]), finite_float(vals[1]), finite_float(vals[2]))
+
+
+def heartbeat_base_mode(tel: VehicleTelemetry) -> int:
+    """HEARTBEAT.base_mode as ArduCopter builds it (``GCS_MAVLINK_Copter::base_mode``)."""
+    base = (mavlink2.MAV_MODE_FLAG_CUSTOM_MODE_ENABLED | mavlink2.MAV_MODE_FLAG_STABILIZE_ENABLED
+            | mavlink2.MAV_MODE_FLAG_MANUAL_INPUT_ENABLED)
+    if tel.mode in POSITION_CONTROLLED_MODES:
+        base |= mavlink2.MAV_MODE_FLAG_GUIDED_ENABLED
+    if tel.armed:
+        base |= mavlink2.MAV_MODE_FLAG_SAFETY_ARMED
+    return base
+
+
+@dataclass(frozen=True)
+class EncodeContext:
+    """Server state the encoders need besides the vehicle telemetry."""
+
+    mission_item_count: int   # stored items excluding home
+    battery_monitor: int      # BATT_MONITOR parameter
+
+
+Encoder = Callable[[VehicleTelemetry, EncodeContext], "mavlink2.MAVLink_message | None"]
+
+
+def encode_heartbeat(tel: VehicleTelemetry, ctx: EncodeContext) -> mavlink2.MAVLink_message:
+    return mavlink2.MAVLink_heartbeat_message(
+        mavlink2.MAV_TYPE_QUADROTOR, mavlink2.MAV_AUTOPILOT_ARDUPILOTMEGA,
+        heartbeat_base_mode(tel), clamp_int(int(tel.mode), 0, 2 ** 32 - 1, 0),
+        clamp_int(int(tel.system_status), 0, 255, 0), 3)
+
+
+def encode_sys_status(tel: VehicleTelemetry, ctx: EncodeContext) -> mavlink2.MAVLink_message:
+    present, enabled, health = tel.sensors_present, tel.sensors_enabled, tel.sensors_health
+    # no fence, so never breached: ArduPilot keeps the GEOFENCE health bit set in that case
+    # (MAVProxy announces "fence breach" when it is missing)
+    health |= SensorFlag.GEOFENCE
+    battery = ctx.battery_monitor != 0
+    if battery:
+        present |= SensorFlag.BATTERY
+        enabled |= SensorFlag.BATTERY
+        health |= SensorFlag.BATTERY
+    voltage_mv = clamp_int(tel.battery_voltage_v * 1000.0, 0, UINT16_MAX - 1, UINT16_MAX)
+    current_ca = clamp_int(tel.battery_current_a * 100.0, -1, INT16_MAX, -1)
+    if not battery:
+        voltage_mv, current_ca = UINT16_MAX, -1
+    if ctx.battery_monitor == 3:  # voltage only
+        current_ca = -1
+    remaining = clamp_int(tel.battery_remaining_pct, -1, 100, -1) if battery else -1
+    mask = 0xFFFFFFFF
+    return mavlink2.MAVLink_sys_status_message(
+        int(present) & mask, int(enabled) & mask, int(health) & mask,
+        clamp_int(tel.cpu_load_pct * 10.0, 0, 1000, 0), voltage_mv, current_ca, remaining,
+        0, 0, 0, 0, 0, 0, 0, 0, 0)
+
+
+def encode_attitude(tel: VehicleTelemetry, ctx: EncodeContext) -> mavlink2.MAVLink_message:
+    r, p, y = _triple(tel.attitude_rpy_rad)
+    rr, pr, yr = _triple(tel.body_rates_rad_s)
+    return mavlink2.MAVLink_attitude_message(_time_ms(tel), r, p, y, rr, pr, yr)
+
+
+def encode_global_position_int(tel: VehicleTelemetry, ctx: EncodeContext
+                               ) -> mavlink2.MAVLink_message:
+    vn, ve, vd = _triple(tel.velocity_ned_m_s)
+    hdg = _heading_cdeg(tel.heading_deg)
+    return mavlink2.MAVLink_global_position_int_message(
+        _time_ms(tel), deg_e7(tel.lat_deg), deg_e7(tel.lon_deg), _mm(tel.alt_amsl_m),
+        _mm(tel.relative_alt_m), clamp_int(vn * 100.0, -32768, INT16_MAX, 0),
+        clamp_int(ve * 100.0, -32768, INT16_MAX, 0), clamp_int(vd * 100.0, -32768, INT16_MAX, 0),
+        hdg)
+
+
+def encode_local_position_ned(tel: VehicleTelemetry, ctx: EncodeContext
+                              ) -> mavlink2.MAVLink_message:
+    x, y, z = _triple(tel.position_ned_m)
+    vx, vy, vz = _triple(tel.velocity_ned_m_s)
+    return mavlink2.MAVLink_local_position_ned_message(_time_ms(tel), x, y, z, vx, vy, vz)
+
+
+def encode_gps_raw_int(tel: VehicleTelemetry, ctx: EncodeContext) -> mavlink2.MAVLink_message:
+    return mavlink2.MAVLink_gps_raw_int_message(
+        clamp_int(tel.time_boot_ms * 1000, 0, 2 ** 63 - 1, 0),
+        clamp_int(int(tel.gps_fix_type), 0, 255, 0),
+        deg_e7(tel.gps_lat_deg), deg_e7(tel.gps_lon_deg), _mm(tel.gps_alt_amsl_m),
+        clamp_int(tel.gps_hdop * 100.0, 0, UINT16_MAX - 1, UINT16_MAX),
+        clamp_int(tel.gps_vdop * 100.0, 0, UINT16_MAX - 1, UINT16_MAX),
+        clamp_int(tel.gps_ground_speed_m_s * 100.0, 0, UINT16_MAX - 1, UINT16_MAX),
+        _heading_cdeg(tel.gps_course_deg),
+        clamp_int(tel.gps_satellites, 0, 254, 255),
+        0, 0, 0, 0, 0, 0)
+
+
+def encode_vfr_hud(tel: VehicleTelemetry, ctx: EncodeContext) -> mavlink2.MAVLink_message:
+    heading = clamp_int(tel.heading_deg % 360.0 if math.isfinite(tel.heading_deg) else 0.0,
+                        0, 359, 0)
+    return mavlink2.MAVLink_vfr_hud_message(
+        finite_float(tel.airspeed_m_s), finite_float(tel.groundspeed_m_s), heading,
+        clamp_int(tel.throttle_pct, 0, 100, 0), finite_float(tel.alt_amsl_m),
+        finite_float(tel.climb_m_s))
+
+
+def encode_home_position(tel: VehicleTelemetry, ctx: EncodeContext
+                         ) -> mavlink2.MAVLink_message | None:
+    if not tel.home_set:
+        return None
+    x, y, z = _triple(tel.home_position_ned_m)
+    return mavlink2.MAVLink_home_position_message(
+        deg_e7(tel.home_lat_deg), deg_e7(tel.home_lon_deg), _mm(tel.home_alt_amsl_m),
+        x, y, z, [1.0, 0.0, 0.0, 0.0], 0.0, 0.0, 0.0, 0)
+
+
+def encode_extended_sys_state(tel: VehicleTelemetry, ctx: EncodeContext
+                              ) -> mavlink2.MAVLink_message:
+    return mavlink2.MAVLink_extended_sys_state_message(
+        mavlink2.MAV_VTOL_STATE_UNDEFINED, clamp_int(int(tel.landed_state), 0, 255, 0))
+
+
+def encode_battery_status(tel: VehicleTelemetry, ctx: EncodeContext
+                          ) -> mavlink2.MAVLink_message | None:
+    if ctx.battery_monitor == 0:
+        return None
+    # Per the MAVLink spec: unknown cell voltages -> total voltage in cell 0, others UINT16_MAX.
+    voltages = [UINT16_MAX] * 10
+    voltages[0] = clamp_int(tel.battery_voltage_v * 1000.0, 0, UINT16_MAX - 1, UINT16_MAX)
+    current_ca = (-1 if ctx.battery_monitor == 3
+                  else clamp_int(tel.battery_current_a * 100.0, -1, INT16_MAX, -1))
+    return mavlink2.MAVLink_battery_status_message(
+        0, mavlink2.MAV_BATTERY_FUNCTION_ALL, mavlink2.MAV_BATTERY_TYPE_LIPO, INT16_MAX,
+        voltages, current_ca, -1, -1, clamp_int(tel.battery_remaining_pct, -1, 100, -1),
+        0, mavlink2.MAV_BATTERY_CHARGE_STATE_OK, [0, 0, 0, 0], 0, 0)
+
+
+def encode_mission_current(tel: VehicleTelemetry, ctx: EncodeContext
+                           ) -> mavlink2.MAVLink_message:
+    total = ctx.mission_item_count if ctx.mission_item_count > 0 else UINT16_MAX
+    mode = MissionMode.IN_MISSION_MODE if tel.mode == CopterMode.AUTO else MissionMode.SUSPENDED
+    return mavlink2.MAVLink_mission_current_message(
+        clamp_int(tel.mission_current_seq, 0, UINT16_MAX, 0), total,
+        clamp_int(int(tel.mission_state), 0, 255, 0), int(mode))
+
+
+def encode_ekf_status_report(tel: VehicleTelemetry, ctx: EncodeContext
+                             ) -> mavlink2.MAVLink_message:
+    return mavlink2.MAVLink_ekf_status_report_message(
+        clamp_int(tel.ekf_flags, 0, UINT16_MAX, 0), finite_float(tel.ekf_velocity_variance),
+        finite_float(tel.ekf_pos_horiz_variance), finite_float(tel.ekf_pos_vert_variance),
+        finite_float(tel.ekf_compass_variance), finite_float(tel.ekf_terrain_alt_variance), 0.0)
+
+
+def encode_autopilot_version(tel: VehicleTelemetry, ctx: EncodeContext
+                             ) -> mavlink2.MAVLink_message:
+    major, minor, patch = FIRMWARE_VERSION
+    version = (major << 24) | (minor << 16) | (patch << 8) | FIRMWARE_VERSION_TYPE
+    return mavlink2.MAVLink_autopilot_version_message(
+        CAPABILITIES, version, 0, 0, 0, list(FLIGHT_CUSTOM_VERSION[:8].ljust(8, b"\0")),
+        [0] * 8, [0] * 8, 0, 0, 0, [0] * 18)
+
+
+ENCODERS: Mapping[int, Encoder] = {
+    _M.MAVLINK_MSG_ID_HEARTBEAT: encode_heartbeat,
+    _M.MAVLINK_MSG_ID_SYS_STATUS: encode_sys_status,
+    _M.MAVLINK_MSG_ID_ATTITUDE: encode_attitude,
+    _M.MAVLINK_MSG_ID_GLOBAL_POSITION_INT: encode_global_position_int,
+    _M.MAVLINK_MSG_ID_LOCAL_POSITION_NED: encode_local_position_ned,
+    _M.MAVLINK_MSG_ID_GPS_RAW_INT: encode_gps_raw_int,
+    _M.MAVLINK_MSG_ID_VFR_HUD: encode_vfr_hud,
+    _M.MAVLINK_MSG_ID_HOME_POSITION: encode_home_position,
+    _M.MAVLINK_MSG_ID_EXTENDED_SYS_STATE: encode_extended_sys_state,
+    _M.MAVLINK_MSG_ID_BATTERY_STATUS: encode_battery_status,
+    _M.MAVLINK_MSG_ID_MISSION_CURRENT: encode_mission_current,
+    _M.MAVLINK_MSG_ID_EKF_STATUS_REPORT: encode_ekf_status_report,
+    _M.MAVLINK_MSG_ID_AUTOPILOT_VERSION: encode_autopilot_version,
+}
+
+STREAMABLE_MSG_IDS: frozenset[int] = frozenset(ENCODERS)
+
+
+def encode(msg_id: int, tel: VehicleTelemetry, ctx: EncodeContext
+           ) -> mavlink2.MAVLink_message | None:
+    """The message for ``msg_id`` from the telemetry, or None (unknown id / nothing to say)."""
+    encoder = ENCODERS.get(msg_id)
+    return None if encoder is None else encoder(tel, ctx)
+
+
+def statustext_messages(severity: int, text: str, chunk_id: int
+                        ) -> list[mavlink2.MAVLink_message]:
+    """STATUSTEXT message(s) for a text; longer than 50 bytes -> chunks sharing ``chunk_id``."""
+    data = text.encode("ascii", errors="replace")
+    sev = clamp_int(int(severity), 0, 7, 6)
+    if len(data) <= STATUSTEXT_CHUNK_LEN:
+        return [mavlink2.MAVLink_statustext_message(sev, data, 0, 0)]
+    chunks = [data[i:i + STATUSTEXT_CHUNK_LEN] for i in range(0, len(data), STATUSTEXT_CHUNK_LEN)]
+    if len(chunks[-1]) == STATUSTEXT_CHUNK_LEN:
+        chunks.append(b"")  # a short final chunk marks the end
+    chunks = chunks[:256]
+    cid = chunk_id & 0xFFFF or 1
+    return [mavlink2.MAVLink_statustext_message(sev, c, cid, i) for i, c in enumerate(chunks)]
+
+
+def _time_ms(tel: VehicleTelemetry) -> int:
+    return clamp_int(tel.time_boot_ms, 0, 2 ** 32 - 1, 0)
