@@ -36,21 +36,6 @@ PAPER = {  # Table 2 of the seed paper: RMS m, time ms, detected %
 METHODS = ("cnn", "assistant-map", "statistical", "none")
 
 
-def bowtie_route(world, altitude_m: float = 100.0, fov_deg: float = 60.0, margin_m: float = 10.0):
-    """A route for any world: SW -> SE -> NW -> NE -> SW, inset so the footprint stays on the map.
-
-    The diagonals cross the map centre; the legs cover the edges' districts.
-    """
-    half_fp = altitude_m * math.tan(math.radians(fov_deg / 2))
-    hx = world.width_px * world.m_per_px / 2 - half_fp - margin_m
-    hy = world.height_px * world.m_per_px / 2 - half_fp - margin_m
-    if hx < 20 or hy < 20:
-        raise UserError(f"world {world.manifest.name}: {world.width_px}x{world.height_px} px at "
-                        f"{world.m_per_px} m/px is too small for a {2 * half_fp:.0f} m camera footprint "
-                        f"at {altitude_m:.0f} m (needs at least {2 * (half_fp + margin_m + 20):.0f} m a side)")
-    return ((-hx, -hy), (hx, -hy), (-hx, hy), (hx, hy), (-hx, -hy))
-
-
 def rejection_metrics(fx: dict) -> dict:
     valid = fx["valid"] > 0.5
     false = fx["is_false"].astype(bool) & valid
@@ -78,7 +63,7 @@ def run_table2(world_dir: str | None, out: str, seed: int = 0, threshold_m: floa
     from scenenav.evaluation import fix_table
     from scenenav.launcher import run
     from scenenav.nodes import load_world_for
-    from scenenav.scenario import load_scenario
+    from scenenav.scenario import load_scenario, route_for
     out_dir = Path(out)
     if out_dir.exists() and any(out_dir.iterdir()):
         raise UserError(f"{out_dir}: output folder exists and is not empty (choose a new --out)")
@@ -87,9 +72,8 @@ def run_table2(world_dir: str | None, out: str, seed: int = 0, threshold_m: floa
         base.append(f"world={Path(world_dir).resolve()}")
     cfg0 = load_scenario(None, tuple(base) + tuple(overrides))
     world = load_world_for(cfg0)
-    if not any(o.startswith("flight.route_enu_m=") for o in overrides):
-        route = bowtie_route(world, cfg0.flight.altitude_m, cfg0.sim.camera.fov_deg)
-        base.append("flight.route_enu_m=" + json.dumps([list(p) for p in route]))
+    route = route_for(cfg0, world)
+    base.append("flight.route_enu_m=" + json.dumps([list(p) for p in route]))
     base.append("duration_s=100000")          # ends when the scripted route is done
     out_dir.mkdir(parents=True, exist_ok=True)
     rows = []

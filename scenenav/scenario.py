@@ -7,12 +7,14 @@ values are one-line errors naming the file and the key.
 from __future__ import annotations
 
 import dataclasses
+import math
 from dataclasses import dataclass, field
 from enum import Enum
 from pathlib import Path
 
 from scenenav.config import apply_overrides, check, load_config, load_yaml, to_dict
 from scenenav.contracts import ClockMode
+from scenenav.errors import UserError
 from sitl.config import SimConfig
 
 
@@ -38,13 +40,10 @@ class ClockConfig:
         check(self.startup_timeout_s > 0, "startup_timeout_s", self.startup_timeout_s, "> 0 s")
 
 
-DEFAULT_ROUTE = ((-150.0, -180.0), (150.0, -180.0), (150.0, 180.0), (-150.0, 180.0), (-150.0, -180.0))
-
-
 @dataclass(frozen=True)
 class FlightConfig:
     mode: FlightMode = FlightMode.SCRIPTED
-    route_enu_m: tuple[tuple[float, float], ...] = DEFAULT_ROUTE
+    route_enu_m: tuple[tuple[float, float], ...] = ()   # [x, y] waypoints in m; empty: a bowtie fitted to the world
     altitude_m: float = 100.0
     speed_m_s: float = 10.0
     turn_radius_m: float = 30.0
@@ -52,8 +51,8 @@ class FlightConfig:
     start_heading_deg: float = 0.0                   # compass, clockwise from north
 
     def __post_init__(self) -> None:
-        check(len(self.route_enu_m) >= 2 or self.mode == FlightMode.IDLE, "route_enu_m",
-              self.route_enu_m, "at least two [x, y] waypoints in metres")
+        check(len(self.route_enu_m) != 1, "route_enu_m", self.route_enu_m,
+              "at least two [x, y] waypoints in metres, or [] for a route fitted to the world")
         check(5.0 <= self.altitude_m <= 1000.0, "altitude_m", self.altitude_m, "5 to 1000 m")
         check(0.5 <= self.speed_m_s <= 30.0, "speed_m_s", self.speed_m_s, "0.5 to 30 m/s")
         check(self.turn_radius_m >= 0, "turn_radius_m", self.turn_radius_m, ">= 0 m")
@@ -107,6 +106,28 @@ class ScenarioConfig:
     def __post_init__(self) -> None:
         check(self.duration_s > 0, "duration_s", self.duration_s, "a positive number of seconds")
         check(self.seed >= 0, "seed", self.seed, "a non-negative integer")
+
+
+def bowtie_route(world, altitude_m: float = 100.0, fov_deg: float = 60.0,
+                 margin_m: float = 10.0) -> tuple[tuple[float, float], ...]:
+    """A route for any world: SW -> SE -> NW -> NE -> SW, inset so the camera footprint stays on
+    the map. The diagonals cross the centre; the legs cover the edge districts."""
+    half_fp = altitude_m * math.tan(math.radians(fov_deg / 2))
+    hx = world.width_px * world.m_per_px / 2 - half_fp - margin_m
+    hy = world.height_px * world.m_per_px / 2 - half_fp - margin_m
+    if hx < 20 or hy < 20:
+        raise UserError(f"world {world.manifest.name}: {world.width_px}x{world.height_px} px at "
+                        f"{world.m_per_px} m/px is too small for a {2 * half_fp:.0f} m camera footprint "
+                        f"at {altitude_m:.0f} m (needs at least {2 * (half_fp + margin_m + 20):.0f} m a side); "
+                        f"give flight.route_enu_m or a lower flight.altitude_m")
+    return ((-hx, -hy), (hx, -hy), (-hx, hy), (hx, hy), (-hx, -hy))
+
+
+def route_for(cfg: "ScenarioConfig", world) -> tuple[tuple[float, float], ...]:
+    """The scenario's route, or the bowtie fitted to ``world`` when ``flight.route_enu_m`` is empty."""
+    if cfg.flight.route_enu_m:
+        return cfg.flight.route_enu_m
+    return bowtie_route(world, cfg.flight.altitude_m, cfg.sim.camera.fov_deg)
 
 
 def load_scenario(path: str | Path | None, overrides: tuple[str, ...] = ()) -> ScenarioConfig:

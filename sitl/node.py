@@ -38,7 +38,7 @@ from scenenav.contracts import (AutopilotStatus, BaroSample, CameraFrame, ClockM
                                 Severity, TruthPose)
 from scenenav.keys import Keys
 from scenenav.lockstep import LockstepBarrier
-from scenenav.scenario import FlightMode, ScenarioConfig
+from scenenav.scenario import FlightMode, ScenarioConfig, route_for
 from sitl.scripted import ScriptedTrajectory
 from worlds.frames import enu_yaw_to_heading, heading_to_enu_yaw
 
@@ -118,7 +118,7 @@ class SimulatorNode:
         flight = scenario.flight
         self.trajectory = None
         if flight.mode == FlightMode.SCRIPTED:
-            self.trajectory = ScriptedTrajectory(flight.route_enu_m, flight.altitude_m,
+            self.trajectory = ScriptedTrajectory(route_for(scenario, world), flight.altitude_m,
                                                  flight.speed_m_s, flight.turn_radius_m)
             st = self.trajectory.state(0.0)
             self.physics.reset(st.position_enu_m, heading_to_enu_yaw(st.heading_rad))

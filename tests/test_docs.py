@@ -22,3 +22,9 @@ def test_every_key_documented():
     for key in key_types(k):
         tail = key[len(k.root) + 1:].replace("*", "<id>")
         assert f"`{tail}`" in DOC, tail
+
+
+def test_scenario_schema_page_is_current():
+    from scenenav.schema_doc import render
+    page = (Path(__file__).resolve().parents[1] / "docs" / "scenarios-schema.md").read_text()
+    assert page == render(), "run: python -m scenenav.schema_doc > docs/scenarios-schema.md"
