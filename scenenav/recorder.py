@@ -114,9 +114,48 @@ class RecorderNode:
         self._csvs = [self.truth, self.fixes, self.estimates, self.status, self.events]
         self._last_flush = time.monotonic()
         self._closed = False
+        self._last_fix: tuple[str, int] | None = None     # (node id, timestamp_us) of the newest fix
+        self._perception_live: list[str] = []             # live perception nodes, newest last
+        self._sim_time_us = 0
         self.bus = Bus(bus_cfg)
         self.bus.subscribe_raw(self.keys.everything, self._on_sample)
+        self.bus.watch_liveliness(self.keys.node_alive_all, self._on_node)
         self.bus.declare_token(self.keys.node_alive("recorder", NODE_ID))
+
+    def _log_event(self, t_us: int, severity: int, text: str) -> None:
+        """An event the recorder itself observed (written to events.csv and the log)."""
+        log.info("%s", text)
+        with self._lock:
+            if not self._closed:
+                self.events.row([t_us * 1e-6, NODE_ID, severity, text])
+
+    def _on_node(self, key: str, alive: bool) -> None:
+        parts = key.split("/")
+        if len(parts) < 2:
+            return
+        role, node = parts[-2], parts[-1]
+        if role == "perception":
+            with self._lock:
+                if node in self._perception_live:
+                    self._perception_live.remove(node)
+                if alive:
+                    self._perception_live.append(node)   # newest last: the one followed
+        self._log_event(self._sim_time_us, 6, f"node {'up' if alive else 'down'}: {role}/{node}")
+
+    def _track_fix_source(self, msg: VisionFix) -> None:
+        """Log when the followed fix source (the newest live perception node) changes, and the
+        gap between the old source's last fix and the new one's first."""
+        followed = self._perception_live[-1] if self._perception_live else msg.node_id
+        if msg.node_id != followed:
+            return
+        last = self._last_fix
+        if last is not None and last[0] != msg.node_id:
+            gap_s = (msg.timestamp_us - last[1]) * 1e-6
+            self.events.row([msg.timestamp_us * 1e-6, NODE_ID, 5,
+                             f"fix source changed: {last[0]} -> {msg.node_id} ({msg.method}), "
+                             f"gap in fixes {gap_s:.2f} s"])
+            log.info("fix source changed %s -> %s, gap %.2f s", last[0], msg.node_id, gap_s)
+        self._last_fix = (msg.node_id, msg.timestamp_us)
 
     # --------------------------------------------------------------------------------- mcap
     def _channel(self, key: str, type_name: str) -> int:
@@ -149,6 +188,9 @@ class RecorderNode:
             if self._closed:
                 return
             self.counts[type_name] = self.counts.get(type_name, 0) + 1
+            self._sim_time_us = max(self._sim_time_us, int(msg.timestamp_us))
+            if isinstance(msg, VisionFix):
+                self._track_fix_source(msg)
             t_ns = int(msg.timestamp_us) * 1000
             if isinstance(msg, CameraFrame):
                 n = self.cfg.camera_every_n
