@@ -26,6 +26,7 @@ from enum import Enum, IntEnum
 from typing import Any, ClassVar
 
 import numpy as np
+import orjson
 
 
 class DecodeError(ValueError):
@@ -338,10 +339,47 @@ def _dec_value(tp: Any, value: Any, name: str) -> Any:
     raise DecodeError(f"field {name!r}: unsupported type {tp}")
 
 
+_KIND_FLOAT, _KIND_FLOATS, _KIND_PLAIN = 0, 1, 2
+_FLOAT_ONLY = frozenset({float})
+_TUPLE_LEN: dict[Any, int] = {}
+
+
+def _tuple_len(tp: Any) -> int:
+    n = _TUPLE_LEN.get(tp)
+    if n is None:
+        n = _TUPLE_LEN[tp] = len(typing.get_args(tp))
+    return n
+_ENC_SPECS: dict[type, list[tuple[str, int]]] = {}
+_isfinite = math.isfinite
+
+
+def _enc_spec(cls: type) -> list[tuple[str, int]]:
+    spec = _ENC_SPECS.get(cls)
+    if spec is None:
+        spec = []
+        for name, tp in _schema(cls):
+            if tp is float:
+                kind = _KIND_FLOAT
+            elif typing.get_origin(tp) is tuple and all(a is float for a in typing.get_args(tp)):
+                kind = _KIND_FLOATS
+            else:
+                kind = _KIND_PLAIN
+            spec.append((name, kind))
+        _ENC_SPECS[cls] = spec
+    return spec
+
+
 def _to_json_obj(msg: Any) -> dict:
-    obj: dict[str, Any] = {"type": type(msg).__name__, "version": type(msg).VERSION}
-    for name, _tp in _schema(type(msg)):
-        obj[name] = _enc_value(getattr(msg, name))
+    cls = type(msg)
+    obj: dict[str, Any] = {"type": cls.__name__, "version": cls.VERSION}
+    for name, kind in _enc_spec(cls):
+        value = getattr(msg, name)
+        if kind == _KIND_FLOAT:
+            obj[name] = float(value)          # orjson writes NaN and inf as null
+        elif kind == _KIND_FLOATS:
+            obj[name] = [float(v) for v in value]
+        else:
+            obj[name] = _enc_value(value)
     return obj
 
 
@@ -354,10 +392,18 @@ def _from_json_obj(cls: type, obj: Any) -> Any:
         raise DecodeError(f"{cls.__name__}: unsupported version {obj.get('version')!r} "
                           f"(this node speaks version {cls.VERSION})")
     kwargs = {}
-    for name, tp in _schema(cls):
-        if name not in obj:
-            raise DecodeError(f"{cls.__name__}: missing field {name!r}")
-        kwargs[name] = _dec_value(tp, obj[name], name)
+    for (name, tp), (_, kind) in zip(_schema(cls), _enc_spec(cls)):
+        try:
+            value = obj[name]
+        except KeyError:
+            raise DecodeError(f"{cls.__name__}: missing field {name!r}") from None
+        if kind == _KIND_FLOAT and type(value) is float:              # fast path
+            kwargs[name] = value
+        elif kind == _KIND_FLOATS and type(value) is list and len(value) == _tuple_len(tp) \
+                and set(map(type, value)) <= _FLOAT_ONLY:
+            kwargs[name] = tuple(value)
+        else:
+            kwargs[name] = _dec_value(tp, value, name)
     return kwargs
 
 
@@ -368,10 +414,10 @@ _CHANNELS = {ImageEncoding.RGB8.value: 3, ImageEncoding.MONO8.value: 1}
 def encode(msg: Any) -> bytes:
     """Serialise any bus message to its wire form."""
     if isinstance(msg, CameraFrame):
-        header = json.dumps(_to_json_obj(msg), separators=(",", ":"), allow_nan=False).encode()
+        header = orjson.dumps(_to_json_obj(msg))
         pixels = np.ascontiguousarray(msg.pixels, dtype=np.uint8)
         return _HEADER.pack(len(header)) + header + pixels.tobytes()
-    return json.dumps(_to_json_obj(msg), separators=(",", ":"), allow_nan=False).encode()
+    return orjson.dumps(_to_json_obj(msg))
 
 
 def decode(cls: type, payload: bytes | bytearray | memoryview) -> Any:
@@ -384,8 +430,8 @@ def decode(cls: type, payload: bytes | bytearray | memoryview) -> Any:
         if n > len(data) - _HEADER.size:
             raise DecodeError("CameraFrame: header length beyond the payload")
         try:
-            obj = json.loads(data[_HEADER.size:_HEADER.size + n])
-        except (UnicodeDecodeError, json.JSONDecodeError) as exc:
+            obj = orjson.loads(data[_HEADER.size:_HEADER.size + n])
+        except orjson.JSONDecodeError as exc:
             raise DecodeError(f"CameraFrame: header is not JSON ({exc})") from None
         kwargs = _from_json_obj(cls, obj)
         channels = _CHANNELS.get(kwargs["encoding"])
@@ -401,8 +447,8 @@ def decode(cls: type, payload: bytes | bytearray | memoryview) -> Any:
         pixels = np.frombuffer(raw, dtype=np.uint8).reshape(shape)
         return cls(pixels=pixels, **kwargs)
     try:
-        obj = json.loads(data)
-    except (UnicodeDecodeError, json.JSONDecodeError) as exc:
+        obj = orjson.loads(data)
+    except orjson.JSONDecodeError as exc:
         raise DecodeError(f"{cls.__name__}: not JSON ({exc})") from None
     return cls(**_from_json_obj(cls, obj))
 
