@@ -59,7 +59,8 @@ def rejection_metrics(fx: dict) -> dict:
 
 
 def run_table2(world_dir: str | None, out: str, seed: int = 0, threshold_m: float = 5.0,
-               overrides: tuple[str, ...] = (), progress: bool = True) -> dict:
+               overrides: tuple[str, ...] = (), progress: bool = True,
+               results_page: str | None = None) -> dict:
     from scenenav.evaluation import fix_table
     from scenenav.launcher import run
     from scenenav.nodes import load_world_for
@@ -107,6 +108,16 @@ def run_table2(world_dir: str | None, out: str, seed: int = 0, threshold_m: floa
         plot_figures(out_dir, rows, threshold_m)
     except Exception:  # plots never lose the table
         log.exception("could not draw the figures")
+    if results_page:
+        page = Path(results_page)
+        page.parent.mkdir(parents=True, exist_ok=True)
+        for fig in ("figure7.png", "figure8.png"):
+            if (out_dir / fig).is_file():
+                shutil.copy(out_dir / fig, page.parent / f"table2-{fig}")
+        page.write_text(md.replace("Figures: figure7.png (paths), figure8.png (statistical variance).",
+                                   "Figures: ![Figure 7](table2-figure7.png) ![Figure 8](table2-figure8.png)")
+                        + f"\nCommand: `scenenav experiment table2 --out {out} --results-page {results_page}`"
+                        + (f" with overrides {list(overrides)}" if overrides else "") + "\n")
     print(md)
     return result
 

@@ -126,3 +126,21 @@ def test_realtime_mode_is_paced(tmp_path):
     # paced to 2x the wall clock: 3 simulated seconds cannot take less than 1.5 wall seconds
     assert stats["wall_time_s"] >= 1.5 * 0.95
     assert stats["sim_time_s"] >= 2.9
+
+
+def test_children_die_with_a_killed_launcher(tmp_path):
+    out = tmp_path / "killed"
+    proc = subprocess.Popen([sys.executable, "-m", "scenenav.cli", "run", "--out", str(out),
+                             "--set", "duration_s=600", "--set", "perception.enabled=false", "--quiet"],
+                            stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+    pids_file = out / "logs" / "pids.json"
+    t0 = time.monotonic()
+    while time.monotonic() - t0 < 120 and not (pids_file.exists() and len(json.loads(pids_file.read_text())) >= 2):
+        time.sleep(0.2)
+    pids = json.loads(pids_file.read_text())
+    proc.kill()                      # SIGKILL: the launcher cannot clean up
+    proc.wait(30)
+    t0 = time.monotonic()
+    while time.monotonic() - t0 < 30 and any(_alive(p) for p in pids.values()):
+        time.sleep(0.2)
+    assert not [n for n, p in pids.items() if _alive(p)]
