@@ -55,12 +55,17 @@ class MatcherConfig:
     max_search_radius_px: int = 400      # a larger radius triggers a global search instead
     lost_after_n: int = 3                # consecutive low-quality matches before a global search
     # Quality gate ("low quality" = any of these fails, or the peak sits on the window border).
-    min_peak: float = 0.3
-    min_psr: float = 7.0
-    max_second_peak_ratio: float = 0.85
-    # Covariance: fully confident at/above psr_confident and at/below second_peak_ratio_confident.
-    psr_confident: float = 10.0
-    second_peak_ratio_confident: float = 0.6
+    # Calibrated on generated worlds against their other-day reference maps (true fixes: peak
+    # p10 0.61, PSR p10 4.3, second-peak ratio p90 0.79; false fixes: peak p90 0.40, second-peak
+    # ratio p50 0.94), see docs/perception.md.
+    min_peak: float = 0.4
+    min_psr: float = 3.0
+    max_second_peak_ratio: float = 0.95
+    # Covariance: fully confident at/above peak_confident and psr_confident and at/below
+    # second_peak_ratio_confident; fully ambiguous at min_peak / min_psr / max_second_peak_ratio.
+    peak_confident: float = 0.55
+    psr_confident: float = 5.0
+    second_peak_ratio_confident: float = 0.75
     exclusion_radius_px: int = 6         # around the peak, for PSR and the second peak
     cov_floor_px: float = 0.3            # 1-sigma floor on the position (interpolation, resampling)
     cov_local_scale: float = 1.0         # multiplies the peak-curvature term of the covariance
@@ -82,6 +87,8 @@ class MatcherConfig:
               self.max_search_radius_px, "an integer >= min_window_margin_px")
         check(self.lost_after_n >= 1, "matcher.lost_after_n", self.lost_after_n, "an integer >= 1")
         check(-1.0 <= self.min_peak <= 1.0, "matcher.min_peak", self.min_peak, "a number in [-1, 1]")
+        check(self.min_peak < self.peak_confident <= 1.0, "matcher.peak_confident",
+              self.peak_confident, "a number in (min_peak, 1]")
         check(self.min_psr >= 0.0, "matcher.min_psr", self.min_psr, "a number >= 0")
         check(self.psr_confident > self.min_psr, "matcher.psr_confident", self.psr_confident,
               "a number > min_psr")

@@ -384,14 +384,15 @@ class SceneMatcher:
         return bool(not flat and not at_border and peak >= cfg.min_peak and psr >= cfg.min_psr
                     and spr <= cfg.max_second_peak_ratio)
 
-    def _ambiguity_weight(self, psr: float, spr: float) -> float:
+    def _ambiguity_weight(self, psr: float, spr: float, peak: float = 1.0) -> float:
         cfg = self.cfg
-        if not (math.isfinite(psr) and math.isfinite(spr)):
+        if not (math.isfinite(psr) and math.isfinite(spr) and math.isfinite(peak)):
             return 1.0
         w_psr = (cfg.psr_confident - psr) / (cfg.psr_confident - cfg.min_psr)
         w_spr = (spr - cfg.second_peak_ratio_confident) / (
             cfg.max_second_peak_ratio - cfg.second_peak_ratio_confident)
-        return float(min(1.0, max(0.0, w_psr, w_spr)))
+        w_peak = (cfg.peak_confident - peak) / (cfg.peak_confident - cfg.min_peak)
+        return float(min(1.0, max(0.0, w_psr, w_spr, w_peak)))
 
     def _covariance_px(self, peak: float, curvature: np.ndarray | None, edge_axes: tuple[bool, bool],
                        psr: float, spr: float, rx: float, ry: float, n_px: int) -> np.ndarray:
@@ -410,7 +411,7 @@ class SceneMatcher:
                     local[axis, :] = 0.0
                     local[:, axis] = 0.0
                     local[axis, axis] = _EDGE_AXIS_VAR_PX2
-        w = self._ambiguity_weight(psr, spr)
+        w = self._ambiguity_weight(psr, spr, peak)
         cov = local + cfg.cov_floor_px ** 2 * np.eye(2) + w * uniform
         # Never wider than "anywhere in the searched area" plus the floor, never asymmetric.
         cov = 0.5 * (cov + cov.T)
@@ -426,7 +427,7 @@ class SceneMatcher:
         search (diagonal, so the axis orientation does not matter)."""
         m2 = self.m_per_px ** 2
         local_px = best.covariance_m2 / m2
-        w = self._ambiguity_weight(psr, spr)
+        w = self._ambiguity_weight(psr, spr, best.peak)
         cov = local_px + w * np.diag([rx * rx / 3.0, ry * ry / 3.0])
         return cov * m2
 

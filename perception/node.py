@@ -114,14 +114,15 @@ class PerceptionNode:
             altitude = self._at(self._altitudes, msg.timestamp_us)
         self._queue.put((msg, heading, altitude))
 
-    def _drop(self, reason: str, msg: CameraFrame) -> None:
+    def _drop(self, reason: str, msg: CameraFrame, detail: str = "") -> None:
+        """Count a dropped frame under a fixed ``reason`` key; log the first ones with detail."""
         self.stats[f"dropped_{reason}"] += 1
         n = self.stats[f"dropped_{reason}"]
         if n <= 5 or n % 100 == 0:
-            log.warning("dropped frame %d (%s), %d so far", msg.seq, reason, n)
+            text = f"dropped camera frame {msg.seq}: {reason}" + (f" ({detail})" if detail else "")
+            log.warning("%s, %d so far", text, n)
             self.bus.publish(self.keys.events(self.node_id), Event(
-                msg.timestamp_us, self.node_id, int(Severity.WARNING),
-                f"dropped camera frame {msg.seq}: {reason}"))
+                msg.timestamp_us, self.node_id, int(Severity.WARNING), text))
 
     def _work(self) -> None:
         from perception.pipeline import BadInput
@@ -143,7 +144,7 @@ class PerceptionNode:
                         res = self.pipeline.process(msg.pixels, heading, altitude,
                                                     msg.timestamp_us * 1e-6)
                     except BadInput as exc:
-                        self._drop(f"bad_input: {exc}", msg)
+                        self._drop("bad_input", msg, str(exc))
                     else:
                         self.bus.publish(self.keys.vision_fix(self.node_id),
                                          self._fix_message(msg, res))

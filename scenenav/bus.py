@@ -60,6 +60,11 @@ def free_port(host: str = "127.0.0.1") -> int:
         return s.getsockname()[1]
 
 
+def _direct(handler: Callable) -> zenoh.handlers.Callback:
+    """Run ``handler`` in Zenoh's receive thread: in-order delivery across subscriptions."""
+    return zenoh.handlers.Callback(handler, indirect=False)
+
+
 class Bus:
     """One Zenoh session of a node, with typed publish/subscribe and malformed-message counting."""
 
@@ -94,7 +99,10 @@ class Bus:
 
         Malformed payloads are counted in ``self.dropped`` and logged (rate-limited), never raised.
         Exceptions from the callback are logged with their traceback and swallowed so the
-        subscriber keeps running.
+        subscriber keeps running. Callbacks run directly in Zenoh's receive thread
+        (``indirect=False``), so messages from one publisher session arrive in publication order
+        across all of this session's subscriptions (the lockstep protocol relies on it): keep
+        them short and hand long work to a thread of your own.
         """
         def handler(sample: zenoh.Sample) -> None:
             k = str(sample.key_expr)
@@ -107,7 +115,7 @@ class Bus:
                 callback(msg, k)
             except Exception:  # a bug in a handler must not kill the Zenoh callback thread
                 log.exception("handler for %s failed", k)
-        self._subscribers.append(self.session.declare_subscriber(key, handler))
+        self._subscribers.append(self.session.declare_subscriber(key, _direct(handler)))
 
     def subscribe_raw(self, key: str, callback: Callable[[bytes, str], None]) -> None:
         def handler(sample: zenoh.Sample) -> None:
@@ -115,7 +123,7 @@ class Bus:
                 callback(sample.payload.to_bytes(), str(sample.key_expr))
             except Exception:
                 log.exception("raw handler for %s failed", sample.key_expr)
-        self._subscribers.append(self.session.declare_subscriber(key, handler))
+        self._subscribers.append(self.session.declare_subscriber(key, _direct(handler)))
 
     def _count_drop(self, key: str, why: str) -> None:
         with self._lock:

@@ -62,8 +62,21 @@ def _bench(args: argparse.Namespace) -> int:
 def _table2(args: argparse.Namespace) -> int:
     from scenenav.experiment import run_table2
     run_table2(args.world, args.out, seed=args.seed, threshold_m=args.false_fix_threshold_m,
-               overrides=tuple(args.set or ()), progress=not args.quiet)
+               overrides=tuple(args.set or ()), progress=not args.quiet,
+               results_page=args.results_page)
     return 0
+
+
+def _sitl(args: argparse.Namespace) -> int:
+    from autopilot_bridge.sitl_cmd import SitlOptions, run_sitl
+    opts = SitlOptions(scenario=args.scenario, world=args.world, gps=not args.no_gps,
+                       speedup=args.speedup, out=args.out, tcp_port=args.tcp_port,
+                       udp_out=args.udp_out, perception=args.perception, lockstep=args.lockstep,
+                       overrides=tuple(args.set or ()))
+    summary = run_sitl(opts, announce=lambda text: print(text, flush=True))
+    from scenenav.evaluation import format_summary
+    print(format_summary(summary))
+    return 0 if not summary.get("failed_nodes") else 1
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -124,7 +137,35 @@ def build_parser() -> argparse.ArgumentParser:
                     help="a fix whose error exceeds this is false (default 5 m)")
     t2.add_argument("--set", action="append", metavar="KEY=VALUE", help="scenario override for every flight")
     t2.add_argument("--quiet", action="store_true", help="no progress bars")
+    t2.add_argument("--results-page", metavar="FILE.md",
+                    help="also write the table as a results page (e.g. docs/results.md) with its figures")
     t2.set_defaults(func=_table2)
+
+    st = sub.add_parser("sitl", help="a simulated vehicle for ground stations (like sim_vehicle.py)",
+                        description="Start the simulator, the autopilot (ArduCopter-compatible MAVLink on "
+                                    "TCP 127.0.0.1:5760 and UDP out to 127.0.0.1:14550), a perception node "
+                                    "and the recorder; the vehicle waits on the ground for a ground "
+                                    "station (MAVProxy, QGroundControl, MAVSDK). Runs until Ctrl-C, then "
+                                    "writes the run folder. See docs/autopilot.md.")
+    st.add_argument("--scenario", help="scenario YAML to start from (world, sensors, start point...)")
+    st.add_argument("--world", metavar="DIR", help="world folder (default: the scenario's, else the default world)")
+    st.add_argument("--no-gps", action="store_true",
+                    help="GPS off: the autopilot navigates on scene-matching fixes (EK3_SRC1_POSXY 6)")
+    st.add_argument("--speedup", type=float, default=1.0, metavar="N",
+                    help="simulated seconds per wall second (default 1)")
+    st.add_argument("--out", metavar="RUN_DIR", help="run folder to create (default runs/sitl-<time>)")
+    st.add_argument("--tcp-port", type=int, default=5760,
+                    help="MAVLink TCP server port on 127.0.0.1 (default 5760; 0 = off)")
+    st.add_argument("--udp-out", default="127.0.0.1:14550", metavar="HOST:PORT",
+                    help="MAVLink UDP output (default 127.0.0.1:14550; 0 or none = off)")
+    st.add_argument("--perception", choices=["cnn", "assistant-map", "statistical", "none", "off"],
+                    help="false-match method of the perception node, or off for no perception node "
+                         "(default: the scenario's; 'none' accepts every match)")
+    st.add_argument("--lockstep", action="store_true",
+                    help="lockstep clock: as fast as the nodes allow, deterministic (default realtime)")
+    st.add_argument("--set", action="append", metavar="KEY=VALUE",
+                    help="override a scenario key, e.g. --set autopilot.params_file=params.json")
+    st.set_defaults(func=_sitl)
 
     b = sub.add_parser("bench", help="benchmarks that print figures (never part of the tests)",
                        description="Benchmarks. Speed and accuracy targets live here, not in tests.")

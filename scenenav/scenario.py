@@ -90,6 +90,43 @@ class EvaluationConfig:
               self.false_fix_threshold_m, "> 0 m")
 
 
+class MissionEndMode(str, Enum):
+    """What an autopilot flight does after the last route waypoint."""
+
+    LAND = "land"    # land at the last waypoint
+    RTL = "rtl"      # return to the take-off point and land there
+
+
+UDP_OUT_OFF = ("none", "off", "0", "")
+
+
+def _udp_out_ok(text: str) -> bool:
+    if text.lower() in UDP_OUT_OFF:
+        return True
+    host, sep, port = text.rpartition(":")
+    return bool(sep and host and port.isdigit() and 0 < int(port) <= 65535)
+
+
+@dataclass(frozen=True)
+class AutopilotNodeConfig:
+    mavlink_tcp_port: int = 5760       # MAVLink TCP server on 127.0.0.1 (0 = off)
+    mavlink_udp_out: str = "127.0.0.1:14550"   # MAVLink UDP output HOST:PORT, or none
+    auto_start: bool = True            # autopilot flights: arm and start AUTO once the EKF is aligned
+    mission_end: MissionEndMode = MissionEndMode.LAND   # autopilot flights: after the last waypoint
+    params_file: str = ""              # JSON {"NAME": value} of ArduPilot parameters set at start
+    vision_wait_s: float = 5.0         # lockstep: wall seconds to wait for the fix of an acked frame
+    estimate_rate_hz: float = 20.0     # autopilot/estimate rate (simulated time)
+
+    def __post_init__(self) -> None:
+        check(0 <= self.mavlink_tcp_port <= 65535, "mavlink_tcp_port", self.mavlink_tcp_port,
+              "a TCP port 1..65535, or 0 for off")
+        check(_udp_out_ok(self.mavlink_udp_out), "mavlink_udp_out", self.mavlink_udp_out,
+              "HOST:PORT (e.g. 127.0.0.1:14550), or none")
+        check(self.vision_wait_s >= 0, "vision_wait_s", self.vision_wait_s, ">= 0 s")
+        check(0 < self.estimate_rate_hz <= 1000, "estimate_rate_hz", self.estimate_rate_hz,
+              "0 to 1000 Hz")
+
+
 @dataclass(frozen=True)
 class ScenarioConfig:
     name: str = "default"
@@ -102,6 +139,7 @@ class ScenarioConfig:
     perception: PerceptionNodeConfig = field(default_factory=PerceptionNodeConfig)
     recorder: RecorderConfig = field(default_factory=RecorderConfig)
     evaluation: EvaluationConfig = field(default_factory=EvaluationConfig)
+    autopilot: AutopilotNodeConfig = field(default_factory=AutopilotNodeConfig)
 
     def __post_init__(self) -> None:
         check(self.duration_s > 0, "duration_s", self.duration_s, "a positive number of seconds")

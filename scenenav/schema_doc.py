@@ -10,6 +10,7 @@ import dataclasses
 import enum
 import inspect
 import re
+import types
 import typing
 
 from scenenav.scenario import ScenarioConfig
@@ -38,7 +39,9 @@ def _type_text(tp) -> str:
         if len(args) == 2 and args[1] is Ellipsis:
             return f"list of {_type_text(args[0])}"
         return f"list of {len(args)} {_type_text(args[0])}"
-    return getattr(tp, "__name__", str(tp))
+    if origin in (typing.Union, types.UnionType):
+        return " or ".join(_type_text(a) for a in typing.get_args(tp))
+    return getattr(tp, "__name__", str(tp)).replace("|", "\\|")
 
 
 def _default(f: dataclasses.Field):

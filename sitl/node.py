@@ -171,6 +171,8 @@ class SimulatorNode:
         self.event(Severity.INFO, f"lockstep member {'joined' if alive else 'left'}: {parts[-1]}")
 
     def _on_status(self, msg: AutopilotStatus, _key: str) -> None:
+        if self.cfg.flight.mode != FlightMode.AUTOPILOT:
+            return   # ground-station sessions (idle) end only when the user stops them
         if msg.mission_complete and msg.landed and not msg.armed:
             self._mission_done.set()
 

@@ -108,7 +108,7 @@ def test_unrelated_capture_on_near_uniform_map_low_psr_wide_covariance():
     r = m.match(capture, predicted_uv=(130.0, 120.0), search_radius_px=30)
     ok = good.match(crop(good.reference, 100, 90, 48), predicted_uv=(124.0, 114.0),
                     search_radius_px=30)
-    assert r.psr < m.cfg.min_psr and not r.quality_ok
+    assert r.peak < m.cfg.min_peak and not r.quality_ok
     assert ok.quality_ok
     assert np.trace(r.covariance_m2) > 50.0 * np.trace(ok.covariance_m2)
     assert math.sqrt(r.covariance_m2[0, 0]) > 5.0 * M_PER_PX

@@ -1,0 +1,228 @@
+"""Failsafes of the flight core (pure: no zenoh, no pymavlink): GCS heartbeat loss and vision loss.
+
+``FailsafeMonitor.update(inputs, settings)`` is called once per control tick with simulated time and
+returns the :class:`FailsafeEvent` s of that tick; the flight core applies their ``action`` (mode
+change or position hold) and announces their ``text`` (STATUSTEXT to the ground stations, an Event
+on the bus).
+
+GCS failsafe (ArduCopter ``FS_GCS_ENABLE`` / ``FS_GCS_TIMEOUT``, ``ArduCopter/events.cpp``):
+
+* armed only once a heartbeat of the ground station ``SYSID_MYGCS`` has been seen;
+* triggers when no such heartbeat arrived for ``FS_GCS_TIMEOUT`` seconds while the vehicle is
+  armed and flying (on the ground nothing happens; ArduCopter would disarm there);
+* action by ``FS_GCS_ENABLE``: 1 RTL, 3 SmartRTL-or-RTL (no SmartRTL here: RTL), 4 SmartRTL-or-Land
+  (no SmartRTL: LAND), 5 LAND; 0 disables it (2, "continue mission", is deprecated in ArduCopter
+  and refused by the parameter store);
+* clears (announced, no mode change, as ArduCopter) when heartbeats come back.
+
+Vision failsafe (scenenav, GPS-denied flight with EK3_SRC1_POSXY = 6):
+
+* evaluated while armed, flying, in a position-controlled mode, not landing, and high enough for
+  scene matching (``SN_VIS_MIN_ALT``); the clock starts at the newest of the last usable fix and the
+  moment these conditions began to hold (so a take-off climb below the minimum height never trips);
+* no usable fix for ``SN_VIS_TIMEOUT`` s -> HOLD: stop and hold position on dead reckoning;
+* a usable fix during the hold -> RESUME; still none ``SN_VIS_FS_LAND`` s later -> LAND;
+* ``SN_VIS_TIMEOUT`` = 0 disables it. Disarming resets both failsafes.
+"""
+
+from __future__ import annotations
+
+import logging
+from dataclasses import dataclass
+from enum import Enum, IntEnum
+
+from autopilot_bridge.vehicle_interface import MavSeverity
+
+logger = logging.getLogger(__name__)
+
+
+class GcsFailsafeAction(IntEnum):
+    """FS_GCS_ENABLE values (ArduCopter 4.5)."""
+
+    DISABLED = 0
+    RTL = 1
+    CONTINUE_MISSION = 2      # deprecated in ArduCopter 4.0+, not accepted by the parameter store
+    SMARTRTL_OR_RTL = 3
+    SMARTRTL_OR_LAND = 4
+    LAND = 5
+
+
+class FailsafeKind(Enum):
+    GCS = "gcs"
+    VISION = "vision"
+
+
+class FailsafeAction(Enum):
+    """What the flight core must do for a failsafe event."""
+
+    RTL = "rtl"
+    LAND = "land"
+    HOLD = "hold"          # stop and hold the current position on dead reckoning
+    RESUME = "resume"      # release a HOLD (the position source is back)
+    CLEARED = "cleared"    # announcement only (GCS heartbeats are back)
+
+
+class VisionFailsafeState(Enum):
+    NORMAL = "normal"
+    HOLD = "hold"
+    LAND = "land"
+
+
+@dataclass(frozen=True)
+class FailsafeEvent:
+    kind: FailsafeKind
+    action: FailsafeAction
+    severity: MavSeverity
+    text: str
+
+
+@dataclass(frozen=True)
+class FailsafeSettings:
+    """The parameters the failsafes obey (read every tick, so changes apply at once)."""
+
+    gcs_action: int = int(GcsFailsafeAction.DISABLED)   # FS_GCS_ENABLE
+    gcs_timeout_s: float = 5.0                          # FS_GCS_TIMEOUT
+    vision_timeout_s: float = 5.0                       # SN_VIS_TIMEOUT (0 = off)
+    vision_land_after_s: float = 10.0                   # SN_VIS_FS_LAND
+
+
+@dataclass(frozen=True)
+class FailsafeInputs:
+    """The vehicle state the failsafes look at, all times in simulated seconds."""
+
+    now_s: float
+    armed: bool
+    flying: bool
+    position_mode: bool                 # a position-controlled mode (GUIDED, AUTO, LOITER, RTL, LAND)
+    landing: bool                       # in a landing descent (LAND, RTL/AUTO final descent)
+    gcs_last_heartbeat_s: float | None  # newest heartbeat of SYSID_MYGCS (None: never seen)
+    vision_required: bool               # the horizontal position source is external navigation
+    vision_height_ok: bool              # high enough above home for scene matching
+    last_vision_fix_s: float | None     # newest usable fix (None: none yet)
+
+
+def gcs_action_of(value: int) -> FailsafeAction | None:
+    """The action for an FS_GCS_ENABLE value (None: disabled or unknown)."""
+    try:
+        setting = GcsFailsafeAction(int(value))
+    except ValueError:
+        return None
+    if setting in (GcsFailsafeAction.RTL, GcsFailsafeAction.SMARTRTL_OR_RTL,
+                   GcsFailsafeAction.CONTINUE_MISSION):
+        return FailsafeAction.RTL
+    if setting in (GcsFailsafeAction.SMARTRTL_OR_LAND, GcsFailsafeAction.LAND):
+        return FailsafeAction.LAND
+    return None
+
+
+class FailsafeMonitor:
+    """GCS and vision failsafe state machines (see the module docstring)."""
+
+    def __init__(self) -> None:
+        self._gcs_active = False
+        self._vision = VisionFailsafeState.NORMAL
+        self._vision_since_s: float | None = None   # when vision became expected
+        self._hold_start_s = 0.0
+
+    @property
+    def gcs_active(self) -> bool:
+        return self._gcs_active
+
+    @property
+    def vision_state(self) -> VisionFailsafeState:
+        return self._vision
+
+    @property
+    def any_active(self) -> bool:
+        return self._gcs_active or self._vision != VisionFailsafeState.NORMAL
+
+    def reset(self) -> None:
+        """Disarmed: forget both failsafes."""
+        self._gcs_active = False
+        self._vision = VisionFailsafeState.NORMAL
+        self._vision_since_s = None
+
+    def update(self, inp: FailsafeInputs, settings: FailsafeSettings) -> list[FailsafeEvent]:
+        events: list[FailsafeEvent] = []
+        if not inp.armed:
+            self.reset()
+            return events
+        self._update_gcs(inp, settings, events)
+        self._update_vision(inp, settings, events)
+        return events
+
+    # ------------------------------------------------------------------ GCS
+    def _update_gcs(self, inp: FailsafeInputs, settings: FailsafeSettings,
+                    events: list[FailsafeEvent]) -> None:
+        action = gcs_action_of(settings.gcs_action)
+        last = inp.gcs_last_heartbeat_s
+        if action is None or last is None:
+            if self._gcs_active:
+                self._gcs_active = False
+                events.append(FailsafeEvent(FailsafeKind.GCS, FailsafeAction.CLEARED,
+                                            MavSeverity.INFO, "GCS Failsafe Cleared"))
+            return
+        lost = inp.now_s - last > settings.gcs_timeout_s
+        if lost and not self._gcs_active and inp.flying:
+            self._gcs_active = True
+            name = "RTL" if action == FailsafeAction.RTL else "Land"
+            logger.warning("GCS failsafe: no heartbeat for %.1f s -> %s", inp.now_s - last, name)
+            events.append(FailsafeEvent(FailsafeKind.GCS, action, MavSeverity.CRITICAL,
+                                        f"GCS Failsafe: no heartbeat for "
+                                        f"{inp.now_s - last:.0f}s, {name}"))
+        elif not lost and self._gcs_active:
+            self._gcs_active = False
+            events.append(FailsafeEvent(FailsafeKind.GCS, FailsafeAction.CLEARED,
+                                        MavSeverity.INFO, "GCS Failsafe Cleared"))
+
+    # ------------------------------------------------------------------ vision
+    def _update_vision(self, inp: FailsafeInputs, settings: FailsafeSettings,
+                       events: list[FailsafeEvent]) -> None:
+        if not inp.vision_required or settings.vision_timeout_s <= 0.0:
+            if self._vision == VisionFailsafeState.HOLD:
+                self._vision = VisionFailsafeState.NORMAL
+                events.append(FailsafeEvent(FailsafeKind.VISION, FailsafeAction.RESUME,
+                                            MavSeverity.INFO,
+                                            "Vision failsafe cleared: not required"))
+            self._vision_since_s = None
+            return
+        expected = (inp.flying and inp.position_mode and not inp.landing
+                    and inp.vision_height_ok)
+        if self._vision == VisionFailsafeState.LAND:
+            return
+        if self._vision == VisionFailsafeState.NORMAL:
+            if not expected:
+                self._vision_since_s = None
+                return
+            if self._vision_since_s is None:
+                self._vision_since_s = inp.now_s
+            ref = self._vision_since_s
+            if inp.last_vision_fix_s is not None:
+                ref = max(ref, inp.last_vision_fix_s)
+            stale = inp.now_s - ref
+            if stale > settings.vision_timeout_s:
+                self._vision = VisionFailsafeState.HOLD
+                self._hold_start_s = inp.now_s
+                logger.warning("vision failsafe: no usable fix for %.1f s -> hold", stale)
+                events.append(FailsafeEvent(
+                    FailsafeKind.VISION, FailsafeAction.HOLD, MavSeverity.CRITICAL,
+                    f"Vision Failsafe: no fix for {stale:.0f}s, holding"))
+            return
+        # HOLD
+        fresh = (inp.last_vision_fix_s is not None
+                 and inp.now_s - inp.last_vision_fix_s <= settings.vision_timeout_s
+                 and inp.last_vision_fix_s >= self._hold_start_s)
+        if fresh:
+            self._vision = VisionFailsafeState.NORMAL
+            self._vision_since_s = inp.now_s
+            events.append(FailsafeEvent(FailsafeKind.VISION, FailsafeAction.RESUME,
+                                        MavSeverity.INFO, "Vision Failsafe Cleared: fixes are back"))
+            return
+        held = inp.now_s - self._hold_start_s
+        if inp.landing or held > settings.vision_land_after_s:
+            self._vision = VisionFailsafeState.LAND
+            logger.warning("vision failsafe: still no fix after %.1f s of hold -> land", held)
+            events.append(FailsafeEvent(FailsafeKind.VISION, FailsafeAction.LAND,
+                                        MavSeverity.CRITICAL,
+                                        f"Vision Failsafe: no fix for {held:.0f}s more, Land"))
+
