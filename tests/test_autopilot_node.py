@@ -99,15 +99,8 @@ def test_gps_mission_lands_at_the_last_waypoint(gps_runs):
 def test_identical_runs_give_identical_truth(gps_runs):
     (_, a), (_, b) = gps_runs
     ta, tb = (a / "truth.csv").read_bytes(), (b / "truth.csv").read_bytes()
-    if ta == tb:
-        return
-    # Tell apart "the autopilot computed something else" (a failure here) from "the simulator
-    # applied the same commands differently" (its motor and ack subscribers run on separate
-    # threads, so an ack can overtake the motor command it follows).
-    first = first_divergence(a, b)
-    assert first["motor_tick"] is None or first["motor_tick"] >= first["imu_tick"], first
-    pytest.xfail(f"simulator-side nondeterminism: identical motor commands up to tick "
-                 f"{first['imu_tick']}, where the IMU first differs ({first})")
+    # Lockstep: the same scenario and seed give the same flight, byte for byte.
+    assert ta == tb, f"runs diverge: {first_divergence(a, b)}"
 
 
 def first_divergence(a: Path, b: Path) -> dict:
