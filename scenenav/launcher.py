@@ -94,6 +94,29 @@ def _stop(c: Child) -> None:
             log.warning("%s did not stop on %s", c.name, sig.name)
 
 
+def _port_free(port: int) -> bool:
+    import socket
+    with socket.socket(socket.AF_INET, socket.SOCK_STREAM) as s:
+        s.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)
+        try:
+            s.bind(("127.0.0.1", port))
+        except OSError:
+            return False
+    return True
+
+
+def _free_mavlink_port(cfg: ScenarioConfig) -> ScenarioConfig:
+    """Scenario runs are independent: if the autopilot's MAVLink TCP port is taken (another run,
+    a real SITL), use a free one instead (written to scenario.yaml and run.json)."""
+    import dataclasses
+    port = cfg.autopilot.mavlink_tcp_port
+    if cfg.flight.mode != FlightMode.AUTOPILOT or port == 0 or _port_free(port):
+        return cfg
+    new = free_port()
+    log.warning("MAVLink TCP port %d is in use: this run serves MAVLink on %d", port, new)
+    return dataclasses.replace(cfg, autopilot=dataclasses.replace(cfg.autopilot, mavlink_tcp_port=new))
+
+
 def resolve_world(cfg: ScenarioConfig):
     from scenenav.nodes import load_world_for
     return load_world_for(cfg)
@@ -103,6 +126,7 @@ def run(scenario_path: str | None, out_dir: str, overrides: tuple[str, ...] = ()
         progress: bool = True) -> dict:
     cfg = load_scenario(scenario_path, overrides)
     world = resolve_world(cfg)          # fail early, with a one-line error, on a bad world
+    cfg = _free_mavlink_port(cfg)
     run_dir = Path(out_dir)
     if run_dir.exists() and any(run_dir.iterdir()):
         raise UserError(f"{run_dir}: run folder exists and is not empty (choose a new --out)")
@@ -112,6 +136,7 @@ def run(scenario_path: str | None, out_dir: str, overrides: tuple[str, ...] = ()
     launch = Launch(run_dir, namespace, free_port())
     meta = {"scenario": scenario_path or "(defaults)", "namespace": namespace,
             "hub_port": launch.hub_port, "world": world.manifest.name,
+            "mavlink_tcp_port": cfg.autopilot.mavlink_tcp_port,
             "started_utc": time.strftime("%Y-%m-%dT%H:%M:%SZ", time.gmtime())}
     (run_dir / "run.json").write_text(json.dumps(meta, indent=2))
 
