@@ -35,7 +35,7 @@ from scenenav.keys import Keys
 log = logging.getLogger(__name__)
 
 
-def make_pipeline(world, method: str, assistant_map_path: str | None):
+def make_pipeline(world, method: str, assistant_map_path: str | None, weights: str | None = None):
     """The pure perception pipeline for a world and a false-match method."""
     from perception.config import PerceptionConfig
     from perception.decision import FalseMatchMethod
@@ -45,7 +45,7 @@ def make_pipeline(world, method: str, assistant_map_path: str | None):
     amap = None
     if m in (FalseMatchMethod.CNN, FalseMatchMethod.ASSISTANT_MAP):
         from perception.cnn import MatchClassifier
-        clf = MatchClassifier.default()
+        clf = MatchClassifier.from_file(weights) if weights else MatchClassifier.default()
         classify = clf.predict_proba
     if m == FalseMatchMethod.ASSISTANT_MAP or m == FalseMatchMethod.CNN:
         from perception.assistant_map import AssistantMap
@@ -61,7 +61,8 @@ def make_pipeline(world, method: str, assistant_map_path: str | None):
 class PerceptionNode:
     def __init__(self, world, bus_cfg: BusConfig, node_id: str, method: str,
                  assistant_map_path: str | None = None, lockstep: bool = True,
-                 out_dir: Path | None = None, expected_size_px: tuple[int, int] = (200, 200)):
+                 out_dir: Path | None = None, expected_size_px: tuple[int, int] = (200, 200),
+                 weights: str | None = None):
         self.world = world
         self.node_id = node_id
         self.method = method
@@ -69,7 +70,7 @@ class PerceptionNode:
         self.out_dir = out_dir
         self.expected_size_px = expected_size_px
         self.keys = Keys(bus_cfg.namespace)
-        self.pipeline = make_pipeline(world, method, assistant_map_path)
+        self.pipeline = make_pipeline(world, method, assistant_map_path, weights)
         self.stats: Counter[str] = Counter()
         # (timestamp_us, value) of recent compass and baro samples: frames arrive after a camera
         # latency, so alignment uses the samples taken at or just before the capture time.

@@ -122,8 +122,20 @@ def resolve_world(cfg: ScenarioConfig):
     return load_world_for(cfg)
 
 
+def _interrupt(signum, _frame):
+    raise KeyboardInterrupt(f"signal {signum}")
+
+
+def install_interrupt_handlers() -> None:
+    """Ctrl-C and SIGTERM both stop a run cleanly, even when the launcher was started with
+    SIGINT ignored (as background jobs of non-interactive shells are)."""
+    signal.signal(signal.SIGINT, _interrupt)
+    signal.signal(signal.SIGTERM, _interrupt)
+
+
 def run(scenario_path: str | None, out_dir: str, overrides: tuple[str, ...] = (),
         progress: bool = True) -> dict:
+    install_interrupt_handlers()
     cfg = load_scenario(scenario_path, overrides)
     world = resolve_world(cfg)          # fail early, with a one-line error, on a bad world
     cfg = _free_mavlink_port(cfg)

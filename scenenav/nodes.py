@@ -84,7 +84,7 @@ def run_perception(run_dir: Path | None, bus_cfg: BusConfig, method: str | None,
         world, bus_cfg, node_id=node_id, method=method or pcfg.method,
         assistant_map_path=assistant_map if assistant_map is not None else (pcfg.assistant_map or None),
         lockstep=pcfg.lockstep if lockstep is None else lockstep,
-        out_dir=run_dir)
+        out_dir=run_dir, weights=pcfg.weights or None)
     stop = _stop_event()
     stop.wait()
     node.close()

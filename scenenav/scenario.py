@@ -63,6 +63,7 @@ class PerceptionNodeConfig:
     enabled: bool = True
     method: str = "none"               # cnn | assistant-map | statistical | none
     assistant_map: str = ""            # .npz for method assistant-map (empty: built online)
+    weights: str = ""                  # CNN weights .pt (empty: perception/weights/default.pt)
     lockstep: bool = True              # the simulator waits for this node's answer to each frame
 
     def __post_init__(self) -> None:

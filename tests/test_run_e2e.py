@@ -88,11 +88,14 @@ def test_lockstep_runs_are_deterministic(two_runs):
                {k: v for k, v in rb.items() if not k.startswith("time_")}
 
 
-def test_ctrl_c_stops_everything_and_keeps_the_folder(tmp_path):
+@pytest.mark.parametrize("sig", [signal.SIGINT, signal.SIGTERM], ids=["ctrl-c", "sigterm"])
+def test_interrupt_stops_everything_and_keeps_the_folder(tmp_path, sig):
     out = tmp_path / "int"
+    # started with SIGINT ignored, like a background job of a non-interactive shell
     proc = subprocess.Popen([sys.executable, "-m", "scenenav.cli", "run", "--out", str(out),
                              "--set", "duration_s=600", "--quiet"],
-                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
+                            preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_IGN))
     truth = out / "truth.csv"
     t0 = time.monotonic()
     while time.monotonic() - t0 < 120:
@@ -103,7 +106,7 @@ def test_ctrl_c_stops_everything_and_keeps_the_folder(tmp_path):
         proc.kill()
         pytest.fail("the run never started flying")
     pids = json.loads((out / "logs" / "pids.json").read_text())
-    proc.send_signal(signal.SIGINT)
+    proc.send_signal(sig)
     _, err = proc.communicate(timeout=90)
     assert proc.returncode == 130, err[-2000:]
     assert "Traceback" not in err
