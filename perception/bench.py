@@ -44,6 +44,22 @@ def _captures(world, n: int, altitude_m: float = 100.0, speed_m_s: float = 10.0,
     return frames
 
 
+def _grown_reference(ref: np.ndarray, side: int) -> np.ndarray:
+    """A side x side map holding ``ref`` once, in its centre, surrounded by mirrored copies (so
+    the original content, which the captures show, appears exactly once: no ambiguity is added)."""
+    h, w = ref.shape[:2]
+    variants = [np.flip(ref, 0), np.flip(ref, 1), np.flip(ref, (0, 1))]
+    reps_y, reps_x = math.ceil(side / h) + 1, math.ceil(side / w) + 1
+    rows = []
+    for i in range(reps_y):
+        rows.append(np.concatenate([variants[(i + j) % 3] for j in range(reps_x)], axis=1))
+    big = np.concatenate(rows, axis=0)
+    oy, ox = (big.shape[0] - h) // 2, (big.shape[1] - w) // 2
+    big[oy:oy + h, ox:ox + w] = ref
+    cy, cx = oy + h // 2, ox + w // 2
+    return np.ascontiguousarray(big[cy - side // 2:cy - side // 2 + side, cx - side // 2:cx - side // 2 + side])
+
+
 def _raw_match_ms(pipe) -> float:
     m, a = pipe.last_match, pipe.last_aligned
     u0, v0, w, h = m.window_px
@@ -109,9 +125,7 @@ def run_perception_bench(n_frames: int = 60, sizes_px: tuple[int, ...] = (1000, 
     # flatness with map size: tile the reference to bigger maps, track the same frames
     scaling = []
     for side in sizes_px:
-        reps_y = math.ceil(side / world.height_px)
-        reps_x = math.ceil(side / world.width_px)
-        big_ref = np.tile(world.reference, (reps_y, reps_x, 1))[:side, :side]
+        big_ref = _grown_reference(world.reference, side)
         from types import SimpleNamespace
         big = SimpleNamespace(reference=big_ref, m_per_px=world.m_per_px, width_px=side, height_px=side)
         # place the path at the same place relative to the first tile: shift frames' truth is irrelevant,
