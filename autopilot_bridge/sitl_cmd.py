@@ -15,18 +15,15 @@ import logging
 import signal
 import socket
 import time
-import uuid
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, Callable
 
-import yaml
 
-from scenenav.bus import free_port
 from scenenav.config import apply_overrides, load_config, load_yaml
 from scenenav.errors import UserError
-from scenenav.launcher import Launch, resolve_world
-from scenenav.scenario import ScenarioConfig, scenario_to_dict
+from scenenav.launcher import Launch, prepare_run, resolve_world
+from scenenav.scenario import ScenarioConfig
 
 log = logging.getLogger(__name__)
 
@@ -132,16 +129,8 @@ def run_sitl(opts: SitlOptions, announce: Callable[[str], None]) -> dict:
     world = resolve_world(cfg)
     _check_tcp_port(cfg.autopilot.mavlink_tcp_port)
     run_dir = Path(opts.out) if opts.out else Path("runs") / time.strftime("sitl-%Y%m%d-%H%M%S")
-    if run_dir.exists() and any(run_dir.iterdir()):
-        raise UserError(f"{run_dir}: run folder exists and is not empty (choose a new --out)")
-    run_dir.mkdir(parents=True, exist_ok=True)
-    (run_dir / "scenario.yaml").write_text(yaml.safe_dump(scenario_to_dict(cfg), sort_keys=False))
-    namespace = f"sitl-{uuid.uuid4().hex[:12]}"
-    launch = Launch(run_dir, namespace, free_port())
-    meta = {"scenario": opts.scenario or "(sitl)", "namespace": namespace,
-            "hub_port": launch.hub_port, "world": world.manifest.name,
-            "started_utc": time.strftime("%Y-%m-%dT%H:%M:%SZ", time.gmtime())}
-    (run_dir / "run.json").write_text(json.dumps(meta, indent=2))
+    launch = prepare_run(cfg, world, run_dir, opts.scenario or "(sitl)", "sitl")
+    meta = json.loads((run_dir / "run.json").read_text())
 
     # Ctrl-C and SIGTERM end the session cleanly (SIGINT explicitly: a shell may start us with it
     # ignored, e.g. as a background job).

@@ -28,21 +28,13 @@ from enum import IntEnum, IntFlag
 from typing import NamedTuple, Protocol, runtime_checkable
 
 from autopilot_bridge.modes import CopterMode
+from scenenav.contracts import Severity
 
 # --------------------------------------------------------------------------- enums
 
 
-class MavSeverity(IntEnum):
-    """MAV_SEVERITY: STATUSTEXT severity (RFC-5424)."""
-
-    EMERGENCY = 0
-    ALERT = 1
-    CRITICAL = 2
-    ERROR = 3
-    WARNING = 4
-    NOTICE = 5
-    INFO = 6
-    DEBUG = 7
+# MAV_SEVERITY (STATUSTEXT severity, RFC-5424): the bus's Event severity is the same enum.
+MavSeverity = Severity
 
 
 class LandedState(IntEnum):

@@ -17,7 +17,6 @@ All times are simulated time in microseconds since the start of the run unless a
 from __future__ import annotations
 
 import dataclasses
-import json
 import math
 import struct
 import typing

@@ -117,6 +117,21 @@ def _free_mavlink_port(cfg: ScenarioConfig) -> ScenarioConfig:
     return dataclasses.replace(cfg, autopilot=dataclasses.replace(cfg.autopilot, mavlink_tcp_port=new))
 
 
+def prepare_run(cfg: ScenarioConfig, world, run_dir: Path, label: str, prefix: str) -> Launch:
+    """Create the run folder (must be new or empty) with scenario.yaml and run.json, and the
+    Launch holding the run's own namespace and hub port."""
+    if run_dir.exists() and any(run_dir.iterdir()):
+        raise UserError(f"{run_dir}: run folder exists and is not empty (choose a new --out)")
+    run_dir.mkdir(parents=True, exist_ok=True)
+    (run_dir / "scenario.yaml").write_text(yaml.safe_dump(scenario_to_dict(cfg), sort_keys=False))
+    launch = Launch(run_dir, f"{prefix}-{uuid.uuid4().hex[:12]}", free_port())
+    meta = {"scenario": label, "namespace": launch.namespace, "hub_port": launch.hub_port,
+            "world": world.manifest.name, "mavlink_tcp_port": cfg.autopilot.mavlink_tcp_port,
+            "started_utc": time.strftime("%Y-%m-%dT%H:%M:%SZ", time.gmtime())}
+    (run_dir / "run.json").write_text(json.dumps(meta, indent=2))
+    return launch
+
+
 def resolve_world(cfg: ScenarioConfig):
     from scenenav.nodes import load_world_for
     return load_world_for(cfg)
@@ -139,18 +154,8 @@ def run(scenario_path: str | None, out_dir: str, overrides: tuple[str, ...] = ()
     cfg = load_scenario(scenario_path, overrides)
     world = resolve_world(cfg)          # fail early, with a one-line error, on a bad world
     cfg = _free_mavlink_port(cfg)
-    run_dir = Path(out_dir)
-    if run_dir.exists() and any(run_dir.iterdir()):
-        raise UserError(f"{run_dir}: run folder exists and is not empty (choose a new --out)")
-    run_dir.mkdir(parents=True, exist_ok=True)
-    (run_dir / "scenario.yaml").write_text(yaml.safe_dump(scenario_to_dict(cfg), sort_keys=False))
-    namespace = f"run-{uuid.uuid4().hex[:12]}"
-    launch = Launch(run_dir, namespace, free_port())
-    meta = {"scenario": scenario_path or "(defaults)", "namespace": namespace,
-            "hub_port": launch.hub_port, "world": world.manifest.name,
-            "mavlink_tcp_port": cfg.autopilot.mavlink_tcp_port,
-            "started_utc": time.strftime("%Y-%m-%dT%H:%M:%SZ", time.gmtime())}
-    (run_dir / "run.json").write_text(json.dumps(meta, indent=2))
+    launch = prepare_run(cfg, world, Path(out_dir), scenario_path or "(defaults)", "run")
+    run_dir = launch.run_dir
 
     expect = ["recorder"]
     interrupted = False
