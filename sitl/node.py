@@ -133,6 +133,8 @@ class SimulatorNode:
         self._motor = np.zeros(4)
         self._stop = threading.Event()
         self._mission_done = threading.Event()
+        self._landed_early = threading.Event()
+        self._has_flown = False
         self.stats = {"ticks": 0, "camera_frames": 0, "ack_timeouts": 0,
                       "time_physics_s": 0.0, "time_render_s": 0.0, "time_bus_wait_s": 0.0,
                       "time_publish_s": 0.0}
@@ -173,8 +175,13 @@ class SimulatorNode:
     def _on_status(self, msg: AutopilotStatus, _key: str) -> None:
         if self.cfg.flight.mode != FlightMode.AUTOPILOT:
             return   # ground-station sessions (idle) end only when the user stops them
-        if msg.mission_complete and msg.landed and not msg.armed:
-            self._mission_done.set()
+        if msg.armed:
+            self._has_flown = True
+        if msg.landed and not msg.armed:
+            if msg.mission_complete:
+                self._mission_done.set()
+            elif self._has_flown:      # e.g. a failsafe landing: nothing more will happen
+                self._landed_early.set()
 
     def stop(self) -> None:
         self._stop.set()
@@ -215,6 +222,9 @@ class SimulatorNode:
                 break
             if self._mission_done.is_set():
                 reason = "mission complete"
+                break
+            if self._landed_early.is_set():
+                reason = "landed before completing the mission"
                 break
             t_us = tick * self.tick_us
             t_s = t_us * 1e-6
