@@ -30,9 +30,23 @@ def cache_root() -> Path:
     return Path(env).expanduser() if env else Path.home() / ".cache" / "scenenav"
 
 
+def _generator_fingerprint() -> str:
+    """Short hash of the generator's own source: any change to how worlds are drawn gives the
+    default world a new cache folder, so no machine keeps flying a stale one."""
+    import hashlib
+    here = Path(__file__).resolve().parent
+    h = hashlib.sha256()
+    for name in ("generator.py", "reference.py", "landcover.py"):
+        try:
+            h.update((here / name).read_bytes())
+        except OSError:
+            pass
+    return h.hexdigest()[:10]
+
+
 def default_world_dir() -> Path:
     """Folder of the cached default world (may not exist yet)."""
-    return cache_root() / "worlds" / f"default-v{GENERATOR_VERSION}"
+    return cache_root() / "worlds" / f"default-v{GENERATOR_VERSION}-{_generator_fingerprint()}"
 
 
 def load_default_world() -> World:
