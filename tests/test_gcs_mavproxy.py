@@ -16,28 +16,16 @@ import os
 import signal
 import subprocess
 import sys
-import threading
-import time
 from pathlib import Path
 
 import numpy as np
 
+from lineproc import LineProcess, MavproxyProcess, wait_until
 from scenenav.bus import free_port
 
-VENV_BIN = Path(sys.executable).parent
-MAVPROXY = VENV_BIN / "mavproxy.py"
 REPO = Path(__file__).resolve().parents[1]
 TIMEOUT_S = 120.0
 STOP_TIMEOUT_S = 90.0
-
-
-def wait_until(predicate, timeout_s: float = TIMEOUT_S, period_s: float = 0.05) -> bool:
-    deadline = time.monotonic() + timeout_s
-    while time.monotonic() < deadline:
-        if predicate():
-            return True
-        time.sleep(period_s)
-    return False
 
 
 def world_origin() -> tuple[float, float]:
@@ -61,17 +49,9 @@ class SitlSession:
         self.run_dir = tmp_path / "run"
         cmd = [sys.executable, "-m", "scenenav.cli", "--log-level", "INFO", "sitl",
                "--out", str(self.run_dir), "--tcp-port", str(self.port), "--udp-out", "0", *extra]
-        self.proc = subprocess.Popen(cmd, cwd=REPO, stdin=subprocess.DEVNULL,
-                                     stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True,
-                                     bufsize=1)
-        self.lines: list[str] = []
-        self._reader = threading.Thread(target=self._read, daemon=True)
-        self._reader.start()
-
-    def _read(self) -> None:
-        assert self.proc.stdout is not None
-        for line in self.proc.stdout:
-            self.lines.append(line.rstrip("\n"))
+        self.out = LineProcess(cmd, name="scenenav sitl", timeout_s=TIMEOUT_S, cwd=REPO,
+                               stdin=subprocess.DEVNULL)
+        self.proc, self.lines = self.out.proc, self.out.lines
 
     def wait_ready(self) -> None:
         ok = wait_until(lambda: any("Ctrl-C stops" in ln for ln in self.lines)
@@ -97,7 +77,7 @@ class SitlSession:
                         os.kill(pid, signal.SIGKILL)
                 self.proc.kill()
                 self.proc.wait(10)
-        self._reader.join(timeout=5)
+        self.out.join_reader()
 
     def param(self, name: str) -> float | None:
         """A parameter as the autopilot stored it (``<run>/params.json``, written on every change)."""
@@ -143,57 +123,6 @@ def relative_alt_m(conn) -> float | None:
     return None if msg is None else msg.relative_alt * 1e-3
 
 
-class MavproxyProcess:
-    """mavproxy.py scripted through stdin; its output collected by a thread."""
-
-    def __init__(self, port: int, workdir: Path) -> None:
-        cmd = [sys.executable, str(MAVPROXY), f"--master=tcp:127.0.0.1:{port}", "--no-state"]
-        env = {"HOME": str(workdir), "PATH": str(VENV_BIN) + ":/usr/bin:/bin",
-               "PYTHONUNBUFFERED": "1", "TERM": "dumb"}
-        self.proc = subprocess.Popen(cmd, cwd=workdir, env=env, stdin=subprocess.PIPE,
-                                     stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True,
-                                     bufsize=1)
-        self.lines: list[str] = []
-        self._reader = threading.Thread(target=self._read, daemon=True)
-        self._reader.start()
-
-    def _read(self) -> None:
-        assert self.proc.stdout is not None
-        for line in self.proc.stdout:
-            self.lines.append(line.rstrip("\n"))
-
-    def send(self, line: str) -> int:
-        """Send a command; returns the output mark to search from."""
-        mark = len(self.lines)
-        assert self.proc.stdin is not None
-        self.proc.stdin.write(line + "\n")
-        self.proc.stdin.flush()
-        return mark
-
-    def expect(self, text: str, start: int = 0, timeout_s: float = TIMEOUT_S) -> int:
-        found: list[int] = []
-
-        def seen() -> bool:
-            for i in range(start, len(self.lines)):
-                if text in self.lines[i]:
-                    found.append(i)
-                    return True
-            return False
-
-        assert wait_until(seen, timeout_s), (f"MAVProxy never printed {text!r}:\n"
-                                             + "\n".join(self.lines[-40:]))
-        return found[0]
-
-    def close(self) -> None:
-        if self.proc.poll() is None:
-            try:
-                self.send("exit")
-                self.proc.wait(timeout=5)
-            except (subprocess.TimeoutExpired, BrokenPipeError, OSError):
-                self.proc.kill()
-                self.proc.wait(timeout=15)
-
-
 def wpl_file(path: Path, home: tuple[float, float], points_enu: list[tuple[float, float]],
              alt_m: float) -> None:
     """A QGC WPL 110 mission: home, then one NAV_WAYPOINT (GLOBAL_RELATIVE_ALT) per point."""
@@ -213,7 +142,7 @@ def test_mavproxy_guided_takeoff_mission_and_rtl(tmp_path):
     mp = monitor = None
     try:
         sitl.wait_ready()
-        mp = MavproxyProcess(sitl.port, tmp_path)
+        mp = MavproxyProcess(sitl.port, tmp_path, timeout_s=TIMEOUT_S)
         mp.expect("parameters")
         for name, value in (("RTL_LOIT_TIME", 1000), ("LAND_SPEED", 100), ("DISARM_DELAY", 30)):
             mp.send(f"param set {name} {value}")

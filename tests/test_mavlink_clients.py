@@ -5,17 +5,14 @@ from __future__ import annotations
 import socket
 import subprocess
 import sys
-import threading
-import time
 from pathlib import Path
 
 import pytest
 from fake_vehicle import HOME, free_port, gcs_connection, running_server, wait_for
+from lineproc import VENV_BIN, MavproxyProcess, wait_until
 
 from autopilot_bridge.modes import CopterMode
 
-VENV_BIN = Path(sys.executable).parent
-MAVPROXY = VENV_BIN / "mavproxy.py"
 MAVLOGDUMP = VENV_BIN / "mavlogdump.py"
 TIMEOUT_S = 60.0
 
@@ -29,76 +26,18 @@ WPL = """QGC WPL 110
 
 
 def _wait_until(predicate, timeout_s: float = TIMEOUT_S) -> bool:
-    deadline = time.monotonic() + timeout_s
-    while time.monotonic() < deadline:
-        if predicate():
-            return True
-        time.sleep(0.05)
-    return False
+    return wait_until(predicate, timeout_s)
 
 
-class MavproxyProcess:
-    """mavproxy.py in a subprocess, scripted through stdin, its output collected by a thread."""
-
-    def __init__(self, port: int, workdir: Path) -> None:
-        cmd = [sys.executable, str(MAVPROXY), f"--master=tcp:127.0.0.1:{port}",
-               f"--out=udp:127.0.0.1:{free_port()}", "--no-state"]
-        env = {"HOME": str(workdir), "PATH": str(VENV_BIN) + ":/usr/bin:/bin",
-               "PYTHONUNBUFFERED": "1", "TERM": "dumb"}
-        self.proc = subprocess.Popen(cmd, cwd=workdir, env=env, stdin=subprocess.PIPE,
-                                     stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True,
-                                     bufsize=1)
-        self.lines: list[str] = []
-        self._reader = threading.Thread(target=self._read, daemon=True)
-        self._reader.start()
-
-    def _read(self) -> None:
-        assert self.proc.stdout is not None
-        for line in self.proc.stdout:
-            self.lines.append(line.rstrip("\n"))
-
-    def send(self, line: str) -> None:
-        assert self.proc.stdin is not None
-        self.proc.stdin.write(line + "\n")
-        self.proc.stdin.flush()
-
-    def expect(self, text: str, start: int = 0, timeout_s: float = TIMEOUT_S) -> int:
-        """Index of the first output line from ``start`` on containing ``text``."""
-        found: list[int] = []
-
-        def seen() -> bool:
-            for i in range(start, len(self.lines)):
-                if text in self.lines[i]:
-                    found.append(i)
-                    return True
-            return False
-
-        assert _wait_until(seen, timeout_s), f"MAVProxy never printed {text!r}:\n" + \
-            "\n".join(self.lines[-40:])
-        return found[0]
-
-    def close(self) -> None:
-        """End of input makes MAVProxy quit; terminate it if it does not."""
-        if self.proc.poll() is None:
-            try:
-                assert self.proc.stdin is not None
-                self.proc.stdin.close()
-                self.proc.wait(timeout=15)
-            except (subprocess.TimeoutExpired, BrokenPipeError, OSError):
-                self.proc.terminate()
-                try:
-                    self.proc.wait(timeout=5)
-                except subprocess.TimeoutExpired:
-                    self.proc.kill()
-                    self.proc.wait(timeout=5)
-        self._reader.join(timeout=5)
+def _mavproxy(port: int, workdir: Path) -> MavproxyProcess:
+    return MavproxyProcess(port, workdir, f"--out=udp:127.0.0.1:{free_port()}", timeout_s=TIMEOUT_S)
 
 
 def test_mavproxy_params_and_waypoints(tmp_path):
     wpl = tmp_path / "mission.txt"
     wpl.write_text(WPL.format(lat=HOME[0], lon=HOME[1], alt=HOME[2]))
     with running_server() as (server, vehicle):
-        mp = MavproxyProcess(server.tcp_port, tmp_path)
+        mp = _mavproxy(server.tcp_port, tmp_path)
         try:
             mp.expect(f"Received {server.params.count} parameters")
             mark = len(mp.lines)
