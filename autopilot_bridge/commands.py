@@ -27,6 +27,7 @@ from typing import Callable, Protocol
 from pymavlink.dialects.v20 import ardupilotmega as mavlink2
 
 from autopilot_bridge.modes import SUPPORTED_MODES, CopterMode, mode_from_number
+from autopilot_bridge.params import DEFAULT_PARAM_SPECS
 from autopilot_bridge.vehicle_interface import (
     AltFrame,
     MavFrame,
@@ -42,6 +43,11 @@ logger = logging.getLogger(__name__)
 FORCE_ARM_MAGIC = 2989.0
 FORCE_ARM_DISARM_MAGIC = 21196.0
 MAX_TAKEOFF_ALT_M = 10_000.0
+# DO_CHANGE_SPEED above the range of the parameter it overrides is DENIED (cm/s -> m/s; ArduCopter
+# accepts any positive speed): WPNAV_SPEED 20 m/s, WPNAV_SPEED_UP 10 m/s, WPNAV_SPEED_DN 5 m/s.
+_SPEED_PARAMS = {0: "WPNAV_SPEED", 1: "WPNAV_SPEED", 2: "WPNAV_SPEED_UP", 3: "WPNAV_SPEED_DN"}
+MAX_CHANGE_SPEED_M_S = {kind: next(s.max_value for s in DEFAULT_PARAM_SPECS if s.name == name) / 100.0
+                        for kind, name in _SPEED_PARAMS.items()}
 MAX_MSG_ID = 2 ** 24 - 1
 
 
@@ -288,7 +294,7 @@ class CommandHandler:
     def _change_speed(self, req: CommandRequest, link: object) -> CommandResult:
         kind = _as_int(req.p(1), 0, max(SpeedType))
         speed = req.p(2)
-        if kind is None or not (math.isfinite(speed) and speed > 0.0):
+        if kind is None or not (math.isfinite(speed) and 0.0 < speed <= MAX_CHANGE_SPEED_M_S[kind]):
             return CommandResult(MavResult.DENIED)
         return CommandResult(self._outcome(self._vehicle.change_speed(SpeedType(kind), speed)))
 

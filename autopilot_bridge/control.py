@@ -346,8 +346,15 @@ class FlightController:
                 ix *= c.vel_xy_imax_m_s2 / mag
                 iy *= c.vel_xy_imax_m_s2 / mag
             self._vel_xy_i = [ix, iy]
-        ax = float(accel_ff[0]) + c.vel_xy_p_1_s * ex + ix - c.vel_xy_d_unitless * self._vel_xy_d[0]
-        ay = float(accel_ff[1]) + c.vel_xy_p_1_s * ey + iy - c.vel_xy_d_unitless * self._vel_xy_d[1]
+        # Feed-forward within the acceleration limits: a GUIDED acceleration target (up to 1000
+        # m/s^2 passes the MAVLink sanity check) must not override the velocity loop.
+        ffx, ffy = float(accel_ff[0]), float(accel_ff[1])
+        ff_h = math.hypot(ffx, ffy)
+        if ff_h > c.max_accel_xy_m_s2:
+            ffx *= c.max_accel_xy_m_s2 / ff_h
+            ffy *= c.max_accel_xy_m_s2 / ff_h
+        ax = ffx + c.vel_xy_p_1_s * ex + ix - c.vel_xy_d_unitless * self._vel_xy_d[0]
+        ay = ffy + c.vel_xy_p_1_s * ey + iy - c.vel_xy_d_unitless * self._vel_xy_d[1]
         az = self._vertical_velocity_loop(nav, vz_t, float(accel_ff[2]), dt_s)
         # Acceleration and lean limits.
         a_h = math.hypot(ax, ay)
@@ -380,6 +387,7 @@ class FlightController:
         if not frozen:
             self._vel_z_i = min(max(self._vel_z_i + c.vel_z_i_1_s2 * ez * dt_s, -c.vel_z_imax_m_s2),
                                 c.vel_z_imax_m_s2)
+        az_ff = min(max(az_ff, -c.max_accel_z_m_s2), c.max_accel_z_m_s2)
         return az_ff + c.vel_z_p_1_s * ez + self._vel_z_i
 
     def _collective_thrust(self, nav: NavState, az: float) -> float:

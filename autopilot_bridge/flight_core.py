@@ -1162,7 +1162,7 @@ class FlightCore:
                 break
             if item.command == MissionCommand.DO_CHANGE_SPEED and item.param1 in (
                     SpeedType.AIRSPEED, SpeedType.GROUNDSPEED) and item.param2 > 0:
-                speed = float(item.param2)
+                speed = self._speed_limit(SpeedType.GROUNDSPEED, float(item.param2))
         return speed
 
     def _run_do_commands_after(self, nav_index: int) -> None:
@@ -1177,7 +1177,14 @@ class FlightCore:
                 kind = SpeedType(int(item.param1))
             except ValueError:
                 kind = SpeedType.GROUNDSPEED
-            self._apply_speed(kind, float(item.param2))
+            self._apply_speed(kind, self._speed_limit(kind, float(item.param2)))
+
+    def _speed_limit(self, kind: SpeedType, speed_m_s: float) -> float:
+        """A DO_CHANGE_SPEED speed capped at the range of the parameter it overrides (a mission item
+        may carry any finite value)."""
+        name = {SpeedType.CLIMB_SPEED: "WPNAV_SPEED_UP",
+                SpeedType.DESCENT_SPEED: "WPNAV_SPEED_DN"}.get(kind, "WPNAV_SPEED")
+        return min(speed_m_s, self.params.spec(name).max_value / 100.0)
 
     def _auto_events(self, events: list, est: NavState) -> None:
         stage = self._auto_stage
@@ -1500,7 +1507,8 @@ class FlightCore:
     def change_speed(self, speed_type: SpeedType, speed_m_s: float) -> Outcome:
         if not (math.isfinite(speed_m_s) and speed_m_s > 0):
             return self._refuse("Change speed: bad speed")
-        self._apply_speed(SpeedType(speed_type), min(float(speed_m_s), 50.0))
+        kind = SpeedType(speed_type)
+        self._apply_speed(kind, self._speed_limit(kind, float(speed_m_s)))
         return Outcome(True)
 
     def set_position_target_local_ned(self, target: LocalPositionTarget) -> None:

@@ -84,6 +84,9 @@ MAV_COMP_ID_AUTOPILOT1 = 1
 MAV_COMP_ID_MISSIONPLANNER = 190
 MAX_SETPOINT_VEL_ACC = 1000.0      # ArduCopter sane_vel_or_acc_vector limit (m/s, m/s^2)
 LOCATION_ALT_MAX_M = 83000.0
+# A local (NED, metres) position target beyond this is no place on Earth (half its circumference);
+# rejected like an out-of-range latitude in a global target.
+MAX_LOCAL_TARGET_XY_M = 2.0e7
 # MAVLink FTP header: seq u16, session, opcode, size, req_opcode, burst_complete, padding, offset
 FTP_HEADER = struct.Struct("<HBBBBBBI")
 FTP_ERR_UNKNOWN_COMMAND = 7
@@ -977,7 +980,8 @@ def local_position_target(msg: mavlink2.MAVLink_message) -> LocalPositionTarget 
         return None
     pos = _NAN3
     if not int(msg.type_mask) & POSITION_IGNORE:
-        if not _finite3(msg.x, msg.y, msg.z):
+        if not (_finite3(msg.x, msg.y, msg.z) and abs(msg.x) <= MAX_LOCAL_TARGET_XY_M
+                and abs(msg.y) <= MAX_LOCAL_TARGET_XY_M and abs(msg.z) < LOCATION_ALT_MAX_M):
             return None
         pos = (msg.x, msg.y, msg.z)
     rest = _vel_acc_yaw(msg)
