@@ -59,6 +59,7 @@ _TWO_PI = 2.0 * math.pi
 ALT_HOLD_LEASH_M = 2.0              # ALT_HOLD altitude target stays within this of the current altitude
 PILOT_HEADING_LEASH_RAD = math.radians(30.0)   # pilot heading target stays within this of the heading
 MIN_VERTICAL_SPECIFIC_FORCE_G = 0.2  # the thrust vector keeps at least this much upward specific force
+TRACK_PRIORITY_MIN_SPEED_M_S = 0.5   # below this velocity target the accel limit scales uniformly
 
 
 class VerticalMode(Enum):
@@ -123,6 +124,33 @@ def stopping_point(position_enu_m, velocity_enu_m_s, accel_m_s2: float) -> np.nd
     return p
 
 
+def limit_accel_xy(ax: float, ay: float, vx_target: float, vy_target: float,
+                   accel_max: float) -> tuple[float, float]:
+    """Horizontal acceleration cut to ``accel_max`` with cross-track priority.
+
+    The component across the velocity target is kept (up to ``accel_max``) and the along-track one
+    gives way, so a vehicle at its lean limit slows down instead of drifting off the track (a
+    uniform cut scales the crosswind-holding part down with the rest). ArduPilot does the same
+    (``AC_PosControl::limit_accel_corner_xy``). Below ``TRACK_PRIORITY_MIN_SPEED_M_S`` of velocity
+    target there is no track: uniform cut.
+    """
+    a = math.hypot(ax, ay)
+    if a <= accel_max:
+        return ax, ay
+    speed = math.hypot(vx_target, vy_target)
+    if speed < TRACK_PRIORITY_MIN_SPEED_M_S:
+        k = accel_max / a
+        return ax * k, ay * k
+    ux, uy = vx_target / speed, vy_target / speed
+    along = ax * ux + ay * uy
+    cross = -ax * uy + ay * ux
+    if abs(cross) >= accel_max:
+        cross, along = math.copysign(accel_max, cross), 0.0
+    else:
+        along = math.copysign(min(abs(along), math.sqrt(accel_max * accel_max - cross * cross)), along)
+    return along * ux - cross * uy, along * uy + cross * ux
+
+
 def _wrap_pi(angle: float) -> float:
     return (angle + math.pi) % _TWO_PI - math.pi
 
@@ -182,6 +210,7 @@ class FlightController:
         self._rate_d = [0.0, 0.0, 0.0]
         self._prev_rate: tuple[float, float, float] | None = None
         self._lean_limited_xy = False
+        self._limited_track_u: tuple[float, float] | None = None   # track direction of a priority cut
         self._thrust_at_max = False
         self._thrust_at_min = False
 
@@ -338,9 +367,20 @@ class FlightController:
         self._vel_xy_d[0] += alpha * (dvx - self._vel_xy_d[0])
         self._vel_xy_d[1] += alpha * (dvy - self._vel_xy_d[1])
         ix, iy = self._vel_xy_i
-        if not (self._lean_limited_xy and (ex * ix + ey * iy) > 0.0):
-            ix += c.vel_xy_i_1_s2 * ex * dt_s
-            iy += c.vel_xy_i_1_s2 * ey * dt_s
+        dix, diy = c.vel_xy_i_1_s2 * ex * dt_s, c.vel_xy_i_1_s2 * ey * dt_s
+        if self._lean_limited_xy and self._limited_track_u is not None:
+            # cross-track priority cut (limit_accel_xy): only the along-track part was limited, so
+            # only its growth is frozen; the crosswind part keeps integrating
+            ux, uy = self._limited_track_u
+            d_along = dix * ux + diy * uy
+            if d_along * (ix * ux + iy * uy) > 0.0:
+                dix -= d_along * ux
+                diy -= d_along * uy
+        elif self._lean_limited_xy and (ex * ix + ey * iy) > 0.0:
+            dix = diy = 0.0
+        if dix != 0.0 or diy != 0.0:
+            ix += dix
+            iy += diy
             mag = math.hypot(ix, iy)
             if mag > c.vel_xy_imax_m_s2:
                 ix *= c.vel_xy_imax_m_s2 / mag
@@ -361,9 +401,14 @@ class FlightController:
         f_up = max(self._g + az, MIN_VERTICAL_SPECIFIC_FORCE_G * self._g)
         a_h_max = min(c.max_accel_xy_m_s2, f_up * self._tan_lean)
         lean_limited = a_h > a_h_max
+        self._limited_track_u = None
         if lean_limited:
-            ax *= a_h_max / a_h
-            ay *= a_h_max / a_h
+            ax, ay = limit_accel_xy(ax, ay, vx_t, vy_t, a_h_max)
+            speed_t = math.hypot(vx_t, vy_t)
+            if speed_t >= TRACK_PRIORITY_MIN_SPEED_M_S:
+                ux, uy = vx_t / speed_t, vy_t / speed_t
+                if abs(ax * uy - ay * ux) < a_h_max * (1.0 - 1e-9):   # the cross part fitted
+                    self._limited_track_u = (ux, uy)
         self._lean_limited_xy = lean_limited
         # Thrust vector -> attitude target (Euler in the heading frame, so the heading is exact).
         yaw = 0.5 * math.pi - self._heading_target
