@@ -5,7 +5,9 @@ lost heartbeat would show as an RTL) uploads take-off to 10 m, three 30 m legs a
 in GUIDED and starts the mission. While the vehicle flies, a second TCP client throws 10,400 fuzz
 inputs (``mavlink_fuzzgen``: random bytes, bit-flipped, truncated and valid-CRC frames of random
 types with random/NaN/extreme fields; deliberate flight changes such as SET_MODE, arming and mode
-commands, mission uploads and clears are left out) as fast as the autopilot reads them.
+commands, mission uploads and clears are left out) as fast as the autopilot reads them, after
+absurd mission uploads from that client (65535 items; items with latitude, longitude or altitude
+out of range or NaN), each of which must get its MISSION_ACK error and leave the mission alone.
 
 Checked: the fuzz was all sent before the mission ended; the mission completes (MISSION_ITEM_REACHED
 of the last item, disarmed); the ground-truth track (``truth.csv``) stays on the planned path with no
@@ -16,14 +18,16 @@ afterwards; its counters (``autopilot_stats.json``) show the garbage dropped and
 from __future__ import annotations
 
 import json
+import math
 import socket
 import threading
 import time
 
 import numpy as np
-from mavlink_fuzzgen import FLIGHT_EXCLUDED_TYPES, build_inputs
+from mavlink_fuzzgen import FLIGHT_EXCLUDED_TYPES, M, build_inputs
 from test_failsafe import Gcs, write_params
-from test_gcs_mavproxy import SitlSession, enu_to_latlon, final_position, world_origin
+from test_gcs_mavproxy import (SitlSession, enu_to_latlon, final_position, wait_until,
+                               world_origin)
 
 SEED = 20240917
 N_PER_KIND = 2600                       # four kinds -> 10,400 inputs
@@ -45,8 +49,13 @@ class FuzzClient:
         self.chunks = [int(c) for c in rng.integers(1, 4096, len(stream) // 512 + 8)]
         self.sent_bytes = 0
         self.received_bytes = 0
+        self.mission_acks: list[int] = []
+        self.param_values: list[str] = []
+        self._parser = M.MAVLink(None)
+        self._parser.robust_parsing = True
         self.error: BaseException | None = None
-        self.done = threading.Event()
+        self.done = threading.Event()             # the whole stream is written
+        self._stop = threading.Event()
         self._thread = threading.Thread(target=self._run, name="fuzz", daemon=True)
 
     def start(self) -> None:
@@ -60,6 +69,11 @@ class FuzzClient:
                 if not data:
                     raise ConnectionError("the autopilot closed the fuzz link")
                 self.received_bytes += len(data)
+                for msg in self._parser.parse_buffer(data) or ():
+                    if msg.get_type() == "MISSION_ACK":
+                        self.mission_acks.append(int(msg.type))
+                    elif msg.get_type() == "PARAM_VALUE":
+                        self.param_values.append(msg.param_id)
         except BlockingIOError:
             pass
         finally:
@@ -75,14 +89,53 @@ class FuzzClient:
                 pos += size
                 self.sent_bytes = min(pos, len(self.stream))
                 self._drain()
+            self.done.set()
+            while not self._stop.wait(0.05):          # keep reading the replies, like a GCS
+                self._drain()
         except (OSError, ConnectionError) as exc:
             self.error = exc
         finally:
             self.done.set()
 
     def close(self) -> None:
+        self._stop.set()
         self._thread.join(timeout=30)
         self.sock.close()
+
+
+def absurd_uploads(home) -> tuple[bytes, list[int]]:
+    """Mission uploads a ground station must never get through, and the MISSION_ACK each gets."""
+    mav = M.MAVLink(None, 255, 190)
+    rel = M.MAV_FRAME_GLOBAL_RELATIVE_ALT_INT
+    frames, expected = [], []
+
+    def send(msg) -> None:
+        frames.append(msg.pack(mav))
+        mav.seq = (mav.seq + 1) % 256
+
+    send(M.MAVLink_mission_count_message(1, 1, 65535, 0))
+    expected.append(M.MAV_MISSION_NO_SPACE)
+    for lat_e7, lon_e7, alt, result in ((2_000_000_000, 0, 10.0, M.MAV_MISSION_INVALID_PARAM5_X),
+                                        (0, -2_000_000_000, 10.0, M.MAV_MISSION_INVALID_PARAM6_Y),
+                                        (0, 0, math.nan, M.MAV_MISSION_INVALID_PARAM7),
+                                        (0, 0, 1.0e9, M.MAV_MISSION_INVALID_PARAM7)):
+        send(M.MAVLink_mission_count_message(1, 1, 3, 0))
+        send(home)
+        send(M.MAVLink_mission_item_int_message(1, 1, 1, rel, M.MAV_CMD_NAV_WAYPOINT, 0, 1, 0, 0, 0,
+                                                0, lat_e7, lon_e7, alt, 0))
+        expected.append(result)
+    return b"".join(frames), expected
+
+
+def tail_requests() -> bytes:
+    """PARAM_REQUEST_READs after the fuzz: their answer on the fuzz link means every byte before
+    them was handled (one TCP stream, parsed in order)."""
+    mav = M.MAVLink(None, 255, 190)
+    out = b""
+    for _ in range(3):
+        out += M.MAVLink_param_request_read_message(1, 1, b"WPNAV_SPEED", -1).pack(mav)
+        mav.seq += 1
+    return out
 
 
 def mission_items(m) -> list:
@@ -130,7 +183,7 @@ def test_fuzz_while_flying_a_mission(tmp_path):
     rng = np.random.default_rng(SEED)
     inputs = build_inputs(rng, N_PER_KIND, FLIGHT_EXCLUDED_TYPES)
     assert len(inputs) >= 10_000
-    stream = b"".join(inputs)
+    fuzz_stream = b"".join(inputs)
     sitl = SitlSession(tmp_path, "--lockstep", "--perception", "off",
                        "--set", f"autopilot.params_file={params}")
     gcs = fuzz = None
@@ -139,6 +192,8 @@ def test_fuzz_while_flying_a_mission(tmp_path):
         gcs = Gcs(sitl.port)
         m = gcs.m
         items = mission_items(m)
+        absurd, expected_acks = absurd_uploads(items[0])
+        stream = absurd + fuzz_stream + tail_requests()
         assert upload(gcs, items) == m.MAV_MISSION_ACCEPTED
         assert wait_until_accepted(gcs, m.MAV_CMD_DO_SET_MODE, m.MAV_MODE_FLAG_CUSTOM_MODE_ENABLED,
                                    COPTER_GUIDED), "GUIDED refused"
@@ -151,7 +206,9 @@ def test_fuzz_while_flying_a_mission(tmp_path):
         fuzz.start()
         assert fuzz.done.wait(60), "the fuzz stream was not taken within 60 s"
         assert fuzz.error is None, f"fuzz link failed: {fuzz.error!r}"
-        # the vehicle was still flying the mission when the last fuzz byte went out
+        assert wait_until(lambda: "WPNAV_SPEED" in fuzz.param_values, 60), \
+            "the autopilot never got through the fuzz stream"
+        # the vehicle was still flying the mission when the autopilot had handled all of it
         hb = gcs.wait("HEARTBEAT", timeout_s=10, fresh=True)
         assert hb is not None and hb.custom_mode == COPTER_AUTO
         assert hb.base_mode & MAV_MODE_FLAG_SAFETY_ARMED, "mission over before the fuzz was sent"
@@ -181,9 +238,11 @@ def test_fuzz_while_flying_a_mission(tmp_path):
 
     stats = json.loads((sitl.run_dir / "autopilot_stats.json").read_text())
     mav, node = stats["mavlink"], stats["node"]
-    print(f"fuzz flight: {len(inputs)} inputs, {len(stream)} bytes, {wall_s:.1f} s wall; "
+    print(f"fuzz flight: {len(inputs)} inputs, {len(fuzz_stream)} bytes, {wall_s:.1f} s wall; "
+          f"fuzz link: {fuzz.received_bytes} bytes back, mission acks {fuzz.mission_acks}; "
           f"mavlink {mav}; node {node}")
     assert fuzz.sent_bytes == len(stream)
+    assert fuzz.mission_acks[:len(expected_acks)] == expected_acks, fuzz.mission_acks
     assert mav["handler_errors"] == 0 and mav["encode_errors"] == 0, mav
     assert node.get("worker_errors", 0) == 0, node
     assert mav["bad_crc"] > 1000 and mav["garbage_bytes"] > 10_000, mav
@@ -193,6 +252,8 @@ def test_fuzz_while_flying_a_mission(tmp_path):
 
     events = sitl.events()
     assert "Mission complete" in events
+    assert [f"Reached command #{i}" in events for i in range(1, len(LEGS_ENU) + 3)] == \
+        [True] * (len(LEGS_ENU) + 2)                # the uploaded mission, every item
     assert not any(e.startswith("GCS Failsafe") for e in events), events
     assert any(e.startswith("disarmed") for e in events)
     # ground truth: on the planned path, no jumps, landed at the last waypoint
