@@ -207,7 +207,7 @@ class BenchFlight:
                 nav.fuse_gps_velocity(fix[2], self.gps_velocity_std_m_s)
             est = nav.state()
         with self.control_cpu:
-            target = law.update(est, self.dt) if hasattr(law, "update") else law
+            target = law.update(est, self.dt)
             out = self.fc.update_position(est, gyro, target, self.dt)
             mix = self.mixer.mix(out.thrust_n, out.torque_flu_n_m)
             self.fc.set_mixer_limits(mix.limits)
@@ -217,9 +217,19 @@ class BenchFlight:
 
 # ------------------------------------------------------------------ the runs
 
+class _HoldLaw:
+    """A fixed position target (LOITER at a point)."""
+
+    def __init__(self, target: PositionTarget) -> None:
+        self.target = target
+
+    def update(self, nav, dt_s: float) -> PositionTarget:
+        return self.target
+
+
 def _hold(flight: BenchFlight, cfg: AutopilotBenchConfig) -> dict:
     hold_point = (0.0, 0.0, cfg.altitude_m)
-    target = PositionTarget(hold_point, heading_rad=0.0)
+    target = _HoldLaw(PositionTarget(hold_point, heading_rad=0.0))
     for _ in range(int(round(cfg.settle_s * cfg.control_rate_hz))):
         flight.tick(target)
     err_h, err_z = [], []
