@@ -111,15 +111,9 @@ class WorldOrigin:
 
 def world_manifest(cfg: ScenarioConfig):
     """The scenario world's manifest (no images loaded)."""
-    from worlds.default import default_world_dir, load_default_world
+    from worlds.default import world_folder
     from worlds.world import MANIFEST_FILE, WorldManifest
-    if cfg.world == "default":
-        folder = default_world_dir()
-        if not (folder / MANIFEST_FILE).is_file():
-            load_default_world()
-    else:
-        folder = Path(cfg.world)
-    path = folder / MANIFEST_FILE
+    path = world_folder(cfg.world) / MANIFEST_FILE
     try:
         text = path.read_text(encoding="utf-8")
     except OSError as exc:
@@ -213,7 +207,9 @@ class AutopilotNode:
         self._last_fix_t_s: dict[str, float] = {}
         self._swap_gap_from: tuple[str, float] | None = None
         # scenario flight
-        self._auto_start = (scenario.flight.mode == FlightMode.AUTOPILOT and self.acfg.auto_start)
+        # With a guidance node the mission comes over MAVLink from that node instead.
+        self._auto_start = (scenario.flight.mode == FlightMode.AUTOPILOT and self.acfg.auto_start
+                            and not scenario.guidance.enabled)
         self._auto_started = False
         self._mission_loaded = False
         self._next_auto_try_us = 0

@@ -15,6 +15,8 @@ from dataclasses import dataclass
 os.environ.setdefault("MAVLINK20", "1")
 from pymavlink import mavutil  # noqa: E402
 
+from guidance.config import RouteEnd  # noqa: E402
+
 log = logging.getLogger(__name__)
 
 COPTER_MODES = {"STABILIZE": 0, "ALT_HOLD": 2, "AUTO": 3, "GUIDED": 4, "LOITER": 5, "RTL": 6, "LAND": 9}
@@ -83,19 +85,19 @@ class AutopilotLink:
             raise MavlinkClientError(f"mode {name} refused (MAV_RESULT {result})")
 
     def arm(self, retry_s: float = 60.0) -> None:
-        """Arm, retrying while pre-arm checks fail (e.g. the EKF still aligning)."""
+        """Arm, retrying for ``retry_s`` wall seconds while pre-arm checks fail (0: one try)."""
         deadline = time.monotonic() + retry_s
         while True:
             result = self.command(mavutil.mavlink.MAV_CMD_COMPONENT_ARM_DISARM, 1)
             if result == mavutil.mavlink.MAV_RESULT_ACCEPTED:
                 return
-            if time.monotonic() > deadline:
+            if time.monotonic() >= deadline:
                 raise MavlinkClientError(f"arming refused (MAV_RESULT {result})")
             time.sleep(0.5)
 
     def upload_mission(self, items: list[MissionWaypoint], takeoff_alt_m: float | None = None,
-                       land_at_end: bool = True) -> int:
-        """Upload home placeholder + [takeoff] + waypoints + [land]; returns the item count."""
+                       end: RouteEnd = RouteEnd.LAND) -> int:
+        """Upload home placeholder + [takeoff] + waypoints + [land or RTL]; returns the item count."""
         m = mavutil.mavlink
         rows: list[tuple[int, int, float, float, float, float]] = []  # (cmd, frame, p1, lat, lon, alt)
         first = items[0]
@@ -105,9 +107,11 @@ class AutopilotLink:
                          first.lat_deg, first.lon_deg, takeoff_alt_m))
         for it in items:
             rows.append((it.command, m.MAV_FRAME_GLOBAL_RELATIVE_ALT, 0, it.lat_deg, it.lon_deg, it.alt_rel_m))
-        if land_at_end:
-            last = items[-1]
+        last = items[-1]
+        if end is RouteEnd.LAND:
             rows.append((m.MAV_CMD_NAV_LAND, m.MAV_FRAME_GLOBAL_RELATIVE_ALT, 0, last.lat_deg, last.lon_deg, 0.0))
+        elif end is RouteEnd.RTL:
+            rows.append((m.MAV_CMD_NAV_RETURN_TO_LAUNCH, m.MAV_FRAME_GLOBAL_RELATIVE_ALT, 0, 0.0, 0.0, 0.0))
         ts, tc = self.conn.target_system, self.conn.target_component
         self.conn.mav.mission_count_send(ts, tc, len(rows), m.MAV_MISSION_TYPE_MISSION)
         sent = set()

@@ -1,176 +1,363 @@
-"""Guidance node: plans a potential-field route over the assistant map, uploads it to the
-autopilot as a MAVLink mission, starts it, and replans when the map changes under the route or
-the vehicle drifts off it.
+"""Guidance node: plans a potential-field route over the assistant map, uploads it to the autopilot
+as a MAVLink mission, starts it, and replans when the map changes under the route or the vehicle
+drifts off it.
 
 Inputs
-  ``autopilot/estimate``   NavEstimate (bus) — where the autopilot thinks it is
-  the assistant-map file   (.npz; reloaded when it changes on disk, e.g. written by a perception node)
-  MAVLink from the autopilot (HEARTBEAT, COMMAND_ACK, MISSION_* , MISSION_ITEM_REACHED)
+  ``clock``                ClockTick     simulated time; in lockstep the node is a TICK member until
+                                          its mission runs, so the upload happens at a fixed tick
+  ``autopilot/estimate``   NavEstimate   where the autopilot thinks it is (drift checks, replans)
+  ``autopilot/status``     AutopilotStatus  armed / mission progress / landed
+  the assistant-map file   .npz; re-read when it changes on disk (e.g. replaced by a later flight)
+  MAVLink from the autopilot (HEARTBEAT, COMMAND_ACK, MISSION_REQUEST_INT, MISSION_ACK)
 Outputs
-  MAVLink to the autopilot: the mission (takeoff, route waypoints, land), DO_SET_MODE AUTO, arming,
-  MISSION_START, and on replans a new mission continuing from the vehicle's position
+  MAVLink to the autopilot, as any companion computer would send: the mission (take-off, route
+  waypoints, land or RTL), GUIDED, arm, AUTO, MISSION_START; on a replan a new mission continuing
+  from the vehicle's position, then AUTO from its first waypoint
   ``events/guidance`` (Event: plans, replans and why), ``info/guidance``,
-  liveliness ``nodes/guidance/guidance``
-The planning itself is ``guidance.planner.plan_route`` (pure).
+  liveliness ``nodes/guidance/guidance`` and, in lockstep until the mission runs,
+  ``lockstep/member/tick/guidance`` + ``lockstep/ack/guidance`` (LockstepAck)
+  ``<run>/route.json`` and ``route.png`` (``route-<n>.json`` after the n-th replan)
+
+The planning itself is ``guidance.planner.plan_through`` (pure). Determinism: the first plan uses the
+scenario's take-off point and is uploaded while the simulator waits for this node, so lockstep runs
+without replans are reproducible. Replans happen while the simulation runs on (as on a real companion
+computer), at the first drift check after the trigger.
 """
 
 from __future__ import annotations
 
+import dataclasses
+import json
 import logging
 import math
+import queue
 import threading
-import time
 from dataclasses import dataclass
+from enum import Enum
 from pathlib import Path
 
 import numpy as np
 
-from guidance.config import PlannerConfig
-from guidance.mavlink_client import AutopilotLink, MissionWaypoint
-from guidance.planner import PlannedRoute, plan_route
+from guidance.config import PlannerConfig, RouteEnd
+from guidance.mavlink_client import AutopilotLink, MavlinkClientError, MissionWaypoint
+from guidance.planner import PlannedRoute, join_legs, plan_through
 from guidance.route import WorldInfo, load_assistant_map
+from guidance.smoothing import polyline_length
 from scenenav.bus import Bus, BusConfig
 from scenenav.config import check
-from scenenav.contracts import Event, NavEstimate, NodeInfo, Severity
+from scenenav.contracts import (AutopilotStatus, ClockMode, ClockTick, Event, LockstepAck,
+                                LockstepRole, NavEstimate, NodeInfo, RunState, Severity)
+from scenenav.errors import UserError
 from scenenav.keys import Keys
 from worlds.frames import enu_to_geodetic
 
 log = logging.getLogger(__name__)
 
 NODE_ID = "guidance"
+#: Within this distance of the final goal nothing is replanned (the vehicle is arriving).
+ARRIVING_M = 30.0
+
+
+class Phase(str, Enum):
+    WAITING = "waiting"      # before the mission is started
+    FLYING = "flying"        # mission running; drift and map checks
+    DONE = "done"            # landed, or gave up
 
 
 @dataclass(frozen=True)
 class GuidanceNodeConfig:
-    goal_enu_m: tuple[float, float] = (0.0, 0.0)   # where to fly, world metres (east, north)
-    assistant_map: str = ""                         # .npz; empty: the run's perception map
+    """What the node needs beyond the planner parameters (units in the names)."""
+
+    start_enu_m: tuple[float, float] = (0.0, 0.0)   # take-off point, world metres (east, north)
+    goals_enu_m: tuple[tuple[float, float], ...] = ((0.0, 0.0),)   # via-points and goal
+    assistant_map: str = ""                         # .npz with key ``probability``
     altitude_m: float = 100.0                       # cruise altitude above home
+    end: RouteEnd = RouteEnd.LAND                   # after the last waypoint
     replan_drift_m: float = 40.0                    # replan when this far off the route
-    check_period_s: float = 1.0                     # wall seconds between drift/map checks
-    land_at_goal: bool = True
+    check_period_s: float = 1.0                     # simulated seconds between checks
+    start_after_s: float = 1.0                      # simulated seconds before the first start try
+    retry_period_s: float = 1.0                     # simulated seconds between start tries
     mavlink_url: str = "tcp:127.0.0.1:5760"
+    lockstep: bool = True                           # hold the simulator while starting the mission
 
     def __post_init__(self) -> None:
+        check(len(self.goals_enu_m) >= 1, "goals_enu_m", self.goals_enu_m, "at least one goal")
         check(self.altitude_m > 0, "altitude_m", self.altitude_m, "a positive height in m")
         check(self.replan_drift_m > 0, "replan_drift_m", self.replan_drift_m, "> 0 m")
         check(self.check_period_s > 0, "check_period_s", self.check_period_s, "> 0 s")
+        check(self.start_after_s >= 0, "start_after_s", self.start_after_s, ">= 0 s")
+        check(self.retry_period_s > 0, "retry_period_s", self.retry_period_s, "> 0 s")
 
 
 def cross_track_m(route_xy: np.ndarray, p_xy: np.ndarray) -> float:
-    """Distance from a point to a polyline (metres)."""
+    """Distance (m) from a point to a polyline."""
+    route_xy = np.asarray(route_xy, dtype=float).reshape(-1, 2)
+    p_xy = np.asarray(p_xy, dtype=float).reshape(2)
+    if len(route_xy) == 1:
+        return float(np.hypot(*(route_xy[0] - p_xy)))
     a, b = route_xy[:-1], route_xy[1:]
     ab = b - a
-    t = np.clip(np.einsum("ij,ij->i", p_xy - a, ab) / np.maximum(np.einsum("ij,ij->i", ab, ab), 1e-9), 0, 1)
+    t = np.clip(np.einsum("ij,ij->i", p_xy - a, ab) / np.maximum(np.einsum("ij,ij->i", ab, ab), 1e-9),
+                0.0, 1.0)
     closest = a + ab * t[:, None]
     return float(np.min(np.hypot(*(closest - p_xy).T)))
 
 
+def replan_reason(route_xy: np.ndarray, here_xy, goal_xy, drift_limit_m: float,
+                  map_changed: bool) -> str | None:
+    """Why the route must be replanned from ``here_xy`` (None: keep flying it). Pure."""
+    here = np.asarray(here_xy, dtype=float).reshape(2)
+    if math.hypot(*(here - np.asarray(goal_xy, dtype=float))) < ARRIVING_M:
+        return None
+    drift = cross_track_m(route_xy, here)
+    if drift > drift_limit_m:
+        return f"drifted {drift:.0f} m off the route"
+    if map_changed:
+        return "assistant map changed"
+    return None
+
+
+def remaining_goals(goals: tuple[tuple[float, float], ...], reached: int) -> tuple[tuple[float, float], ...]:
+    """Goals not yet reached (the final goal is always kept)."""
+    return tuple(goals[min(reached, len(goals) - 1):])
+
+
 class GuidanceNode:
+    """See the module docstring. ``run()`` blocks until stopped or the vehicle has landed."""
+
     def __init__(self, world: WorldInfo, bus_cfg: BusConfig, cfg: GuidanceNodeConfig,
-                 planner_cfg: PlannerConfig | None = None):
+                 planner_cfg: PlannerConfig | None = None, out_dir: Path | None = None):
         self.world = world
         self.cfg = cfg
         self.planner_cfg = planner_cfg or PlannerConfig(altitude_m=cfg.altitude_m)
+        self.out_dir = out_dir
         self.keys = Keys(bus_cfg.namespace)
         self.bus = Bus(bus_cfg)
-        self._estimate: NavEstimate | None = None
-        self._stop = threading.Event()
-        self.route: PlannedRoute | None = None
+        self.phase = Phase.WAITING
+        self.route_xy: np.ndarray | None = None
+        self.legs: list[PlannedRoute] = []
         self.replans = 0
+        self.stats = {"ticks": 0, "start_tries": 0, "replans": 0, "replan_failures": 0}
+        self._estimate: NavEstimate | None = None
+        self._status: AutopilotStatus | None = None
+        self._ticks: queue.SimpleQueue = queue.SimpleQueue()
+        self._stop = threading.Event()
         self._map_mtime = 0.0
+        self._next_try_us = int(round(cfg.start_after_s * 1e6))
+        self._next_check_us = 0
+        self._last_t_us = 0
+        self._link: AutopilotLink | None = None
+        self._member_token = None
         self.bus.subscribe(self.keys.nav_estimate, NavEstimate, self._on_estimate)
+        self.bus.subscribe(self.keys.autopilot_status, AutopilotStatus, self._on_status)
+        self.bus.subscribe(self.keys.clock, ClockTick, self._on_tick)
         self.bus.declare_token(self.keys.node_alive("guidance", NODE_ID))
-        self.bus.publish(self.keys.node_info(NODE_ID), NodeInfo(0, NODE_ID, "guidance",
-                                                                f"goal {cfg.goal_enu_m}"))
+        if cfg.lockstep:
+            self._member_token = self.bus.declare_token(
+                self.keys.lockstep_member(LockstepRole.TICK, NODE_ID))
+        goals = " -> ".join(f"({x:.0f}, {y:.0f})" for x, y in cfg.goals_enu_m)
+        self.bus.publish(self.keys.node_info(NODE_ID), NodeInfo(0, NODE_ID, "guidance", f"goals {goals}"))
 
+    # ------------------------------------------------------------------ callbacks (Zenoh threads)
     def _on_estimate(self, msg: NavEstimate, _k: str) -> None:
         self._estimate = msg
 
+    def _on_status(self, msg: AutopilotStatus, _k: str) -> None:
+        self._status = msg
+
+    def _on_tick(self, msg: ClockTick, _k: str) -> None:
+        self._ticks.put(msg)
+
+    # ------------------------------------------------------------------ helpers
     def event(self, text: str, severity: Severity = Severity.INFO) -> None:
-        t = self._estimate.timestamp_us if self._estimate else 0
-        self.bus.publish(self.keys.events(NODE_ID), Event(t, NODE_ID, int(severity), text))
-        log.info("%s", text)
+        self.bus.publish(self.keys.events(NODE_ID), Event(self._last_t_us, NODE_ID, int(severity), text))
+        log.log(logging.WARNING if severity <= Severity.WARNING else logging.INFO, "%s", text)
 
     def _probability(self) -> np.ndarray:
         path = Path(self.cfg.assistant_map)
         self._map_mtime = path.stat().st_mtime
         return load_assistant_map(path).probability
 
-    def _plan_from(self, start_xy: tuple[float, float]) -> PlannedRoute:
-        route = plan_route(self._probability(), self.world.m_per_px, start_xy, self.cfg.goal_enu_m,
-                           self.planner_cfg)
-        self.event(f"planned {route.length_m:.0f} m route ({len(route.waypoints_xy_m)} waypoints, "
-                   f"min clearance {route.min_clearance_m:.1f} m, {route.method.value})")
-        return route
+    def _map_changed(self) -> bool:
+        try:
+            return Path(self.cfg.assistant_map).stat().st_mtime != self._map_mtime
+        except OSError:
+            return False
 
-    def _mission(self, route: PlannedRoute) -> list[MissionWaypoint]:
-        lat, lon = enu_to_geodetic(route.waypoints_xy_m[:, 0], route.waypoints_xy_m[:, 1],
+    def plan(self, start_xy: tuple[float, float], goals: tuple[tuple[float, float], ...]) -> np.ndarray:
+        """Plan through ``goals`` from ``start_xy``; sets ``self.route_xy`` and writes the route file."""
+        legs = plan_through(self._probability(), self.world.m_per_px, (start_xy, *goals),
+                            self.planner_cfg)
+        self.legs = legs
+        self.route_xy = join_legs(legs)
+        length = polyline_length(self.route_xy)
+        clearance = min(leg.min_clearance_m for leg in legs)
+        methods = ", ".join(sorted({leg.method.value for leg in legs}))
+        self.event(f"planned {length:.0f} m route ({len(self.route_xy)} waypoints, {len(legs)} legs, "
+                   f"min clearance {clearance:.1f} m, {methods})")
+        self._write_route(length, clearance)
+        return self.route_xy
+
+    def _write_route(self, length_m: float, clearance_m: float) -> None:
+        if self.out_dir is None:
+            return
+        name = "route.json" if self.replans == 0 else f"route-{self.replans}.json"
+        lat, lon = enu_to_geodetic(self.route_xy[:, 0], self.route_xy[:, 1],
                                    self.world.origin_lat_deg, self.world.origin_lon_deg)
+        doc = {
+            "format_version": 1, "replan": self.replans, "sim_time_s": self._last_t_us * 1e-6,
+            "length_m": round(float(length_m), 2), "min_clearance_m": _finite(clearance_m),
+            "straight_line_bad_fraction": [round(leg.straight_line_bad_fraction, 4) for leg in self.legs],
+            "route_bad_fraction": [round(leg.route_bad_fraction, 4) for leg in self.legs],
+            "waypoints": [{"x_m": round(float(x), 3), "y_m": round(float(y), 3),
+                           "lat": float(a), "lon": float(o)}
+                          for (x, y), a, o in zip(self.route_xy, lat, lon)],
+            "assistant_map": str(self.cfg.assistant_map),
+            "planner": self.legs[0].planner_params(),
+        }
+        (self.out_dir / name).write_text(json.dumps(doc, indent=2))
+
+    def _mission(self) -> list[MissionWaypoint]:
+        # The first point is the take-off (or replan) position: not a waypoint to fly to.
+        pts = self.route_xy[1:]
+        lat, lon = enu_to_geodetic(pts[:, 0], pts[:, 1], self.world.origin_lat_deg,
+                                   self.world.origin_lon_deg)
         return [MissionWaypoint(float(a), float(o), self.cfg.altitude_m) for a, o in zip(lat, lon)]
 
-    def _wait_estimate(self, timeout_s: float = 120.0) -> NavEstimate:
-        t0 = time.monotonic()
-        while self._estimate is None and not self._stop.is_set():
-            if time.monotonic() - t0 > timeout_s:
-                raise TimeoutError("no autopilot estimate on the bus")
-            time.sleep(0.05)
-        return self._estimate
-
+    # ------------------------------------------------------------------ main loop
     def run(self) -> None:
-        link = AutopilotLink(self.cfg.mavlink_url)
+        self._link = AutopilotLink(self.cfg.mavlink_url)
         try:
-            link.wait_heartbeat()
-            est = self._wait_estimate()
-            start = (est.position_enu_m[0], est.position_enu_m[1])
-            self.route = self._plan_from(start)
-            link.upload_mission(self._mission(self.route), takeoff_alt_m=self.cfg.altitude_m,
-                                land_at_end=self.cfg.land_at_goal)
+            self._link.wait_heartbeat()
+            while not self._stop.is_set() and self.phase is not Phase.DONE:
+                try:
+                    tick = self._ticks.get(timeout=0.05)
+                except queue.Empty:
+                    self._link.heartbeat()
+                    self._drain_mavlink()
+                    continue
+                self._on_clock(tick)
+        finally:
+            self._leave_lockstep()
+            self._link.close()
+
+    def _drain_mavlink(self) -> None:
+        while self._link.poll() is not None:
+            pass
+
+    def _on_clock(self, tick: ClockTick) -> None:
+        self._last_t_us = tick.timestamp_us
+        if tick.state == RunState.FINISHED.value:
+            self.phase = Phase.DONE
+            return
+        self.stats["ticks"] += 1
+        try:
+            if self.phase is Phase.WAITING and tick.timestamp_us >= self._next_try_us:
+                self._try_start(tick)
+            elif self.phase is Phase.FLYING and tick.timestamp_us >= self._next_check_us:
+                self._next_check_us = tick.timestamp_us + int(round(self.cfg.check_period_s * 1e6))
+                self._check(tick)
+        finally:
+            if self._member_token is not None and tick.mode == ClockMode.LOCKSTEP.value:
+                self.bus.publish(self.keys.lockstep_ack(NODE_ID), LockstepAck(
+                    tick.timestamp_us, NODE_ID, LockstepRole.TICK.value, tick.tick))
+        if self.phase is Phase.FLYING:
+            self._leave_lockstep()
+
+    def _leave_lockstep(self) -> None:
+        if self._member_token is not None:
+            self._member_token.undeclare()
+            self._member_token = None
+
+    def _try_start(self, tick: ClockTick) -> None:
+        """Plan (once), upload, GUIDED, arm, AUTO, MISSION_START; while lockstep holds the clock."""
+        self.stats["start_tries"] += 1
+        self._next_try_us = tick.timestamp_us + int(round(self.cfg.retry_period_s * 1e6))
+        link = self._link
+        if self.route_xy is None:
+            try:
+                self.plan(self.cfg.start_enu_m, self.cfg.goals_enu_m)
+            except UserError as exc:
+                self.event(f"no route: {exc}", Severity.ERROR)
+                self.phase = Phase.DONE
+                return
+            link.upload_mission(self._mission(), takeoff_alt_m=self.cfg.altitude_m,
+                                end=self.cfg.end)
+            self.event(f"mission uploaded: {len(self.route_xy) - 1} waypoints at "
+                       f"{self.cfg.altitude_m:.0f} m, then {self.cfg.end.value}")
+        try:
             link.set_mode("GUIDED")
-            link.arm()
+            link.arm(retry_s=0.0)
             link.set_mode("AUTO")
             link.start_mission()
-            self.event("mission started")
-            self._watch(link)
-        finally:
-            link.close()
+        except MavlinkClientError as exc:
+            log.info("start not possible yet (%s); retrying in %.1f s", exc, self.cfg.retry_period_s)
+            return
+        self.phase = Phase.FLYING
+        self._next_check_us = tick.timestamp_us + int(round(self.cfg.check_period_s * 1e6))
+        self.event("mission started")
 
-    def _watch(self, link: AutopilotLink) -> None:
-        next_check = time.monotonic()
-        while not self._stop.is_set():
-            msg = link.poll()
-            if msg is None:
-                time.sleep(0.02)
-            if time.monotonic() < next_check:
-                continue
-            next_check = time.monotonic() + self.cfg.check_period_s
-            est = self._estimate
-            if est is None or self.route is None or est.position_enu_m[2] < 0.5 * self.cfg.altitude_m:
-                continue
-            here = np.array(est.position_enu_m[:2])
-            if math.hypot(*(here - self.route.waypoints_xy_m[-1])) < 30.0:
-                continue   # arriving: nothing to replan
-            why = None
-            drift = cross_track_m(self.route.waypoints_xy_m, here)
-            if drift > self.cfg.replan_drift_m:
-                why = f"drifted {drift:.0f} m off the route"
-            elif Path(self.cfg.assistant_map).stat().st_mtime != self._map_mtime:
-                why = "assistant map changed"
-            if why is None:
-                continue
-            try:
-                route = self._plan_from((float(here[0]), float(here[1])))
-            except Exception as exc:   # keep flying the old route; say why
-                self.event(f"replan failed ({why}): {exc}", Severity.WARNING)
-                continue
+    def _check(self, tick: ClockTick) -> None:
+        st = self._status
+        if st is not None and st.landed and not st.armed:
+            self.event("landed: guidance done")
+            self.phase = Phase.DONE
+            return
+        est = self._estimate
+        if est is None or self.route_xy is None or est.position_enu_m[2] < 0.5 * self.cfg.altitude_m:
+            return
+        here = (float(est.position_enu_m[0]), float(est.position_enu_m[1]))
+        why = replan_reason(self.route_xy, here, self.cfg.goals_enu_m[-1], self.cfg.replan_drift_m,
+                            self._map_changed())
+        if why is None:
+            return
+        goals = remaining_goals(self.cfg.goals_enu_m, self._goals_reached(here))
+        try:
             self.replans += 1
-            self.route = route
-            link.upload_mission(self._mission(route), takeoff_alt_m=None, land_at_end=self.cfg.land_at_goal)
-            link.set_current(1)
-            link.set_mode("AUTO")
-            self.event(f"replanned ({why})", Severity.NOTICE)
+            self.plan(here, goals)
+            self._link.upload_mission(self._mission(), takeoff_alt_m=None, end=self.cfg.end)
+            self._link.set_current(1)
+            self._link.set_mode("AUTO")
+        except (UserError, MavlinkClientError) as exc:   # keep flying the old mission; say why
+            self.stats["replan_failures"] += 1
+            self.event(f"replan failed ({why}): {exc}", Severity.WARNING)
+            return
+        self.stats["replans"] += 1
+        self.event(f"replanned ({why})", Severity.NOTICE)
+
+    def _goals_reached(self, here: tuple[float, float]) -> int:
+        """How many via-points lie behind the vehicle: the index of the leg it is closest to."""
+        if not self.legs:
+            return 0
+        dists = [cross_track_m(leg.waypoints_xy_m, np.array(here)) for leg in self.legs]
+        # legs are planned from the current start; leg i ends at goal i of the remaining goals
+        done_before = len(self.cfg.goals_enu_m) - len(self.legs)
+        return done_before + int(np.argmin(dists))
 
     def stop(self) -> None:
         self._stop.set()
 
-    def close(self) -> None:
+    def close(self) -> dict:
+        self.stop()
         self.bus.close()
+        return dict(self.stats, phase=self.phase.value, replans=self.replans)
+
+
+def _finite(value: float) -> float | None:
+    return round(float(value), 3) if math.isfinite(value) else None
+
+
+def node_config_from_scenario(cfg, mavlink_port: int, lockstep: bool) -> tuple[GuidanceNodeConfig, PlannerConfig]:
+    """GuidanceNodeConfig + PlannerConfig from a ScenarioConfig (flight and guidance sections)."""
+    g = cfg.guidance
+    end = RouteEnd.RTL if cfg.autopilot.mission_end.value == "rtl" else RouteEnd.LAND
+    node_cfg = GuidanceNodeConfig(
+        start_enu_m=tuple(cfg.flight.start_enu_m), goals_enu_m=tuple(tuple(p) for p in g.goals_enu_m),
+        assistant_map=g.assistant_map, altitude_m=cfg.flight.altitude_m, end=end,
+        replan_drift_m=g.replan_drift_m, check_period_s=g.check_period_s,
+        start_after_s=g.start_after_s, mavlink_url=f"tcp:127.0.0.1:{mavlink_port}", lockstep=lockstep)
+    planner_cfg = dataclasses.replace(
+        PlannerConfig(), altitude_m=cfg.flight.altitude_m, camera_fov_deg=cfg.sim.camera.fov_deg,
+        footprint_m=g.footprint_m, clearance_m=g.clearance_m, unvisited_weight=g.unvisited_weight,
+        cruise_speed_m_s=cfg.flight.speed_m_s, waypoint_spacing_m=g.waypoint_spacing_m)
+    return node_cfg, planner_cfg

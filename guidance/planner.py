@@ -364,3 +364,26 @@ def plan_route(probability: np.ndarray, m_per_px: float, start_xy_m, goal_xy_m,
         fallback_used=method is PlannerMethod.NAVIGATION_FUNCTION, fallback_reason=reason,
         grid_cell_m=grid.cell_m, plan_time_s=elapsed, cfg=cfg, raw_path_xy_m=path,
         shortest_path_xy_m=shortest_pts)
+
+
+def plan_through(probability: np.ndarray, m_per_px: float, points_xy_m,
+                 cfg: PlannerConfig | None = None) -> list[PlannedRoute]:
+    """Plan one route per leg through ``points_xy_m`` (start, via-points..., goal), in order.
+
+    Each leg is :func:`plan_route` between consecutive points (so each keeps the clearance and says
+    clearly when no route exists); :func:`join_legs` turns the legs into one waypoint list.
+    """
+    pts = np.asarray(points_xy_m, dtype=float).reshape(-1, 2)
+    if len(pts) < 2:
+        raise UserError(f"{len(pts)} point(s): expected a start and at least one goal")
+    names = ["start"] + [f"goal {i + 1}" for i in range(len(pts) - 1)]
+    return [plan_route(probability, m_per_px, pts[i], pts[i + 1], cfg, names=(names[i], names[i + 1]))
+            for i in range(len(pts) - 1)]
+
+
+def join_legs(legs: list[PlannedRoute]) -> np.ndarray:
+    """(N, 2) waypoints of consecutive legs, the shared end/start points kept once."""
+    parts = [legs[0].waypoints_xy_m]
+    for leg in legs[1:]:
+        parts.append(leg.waypoints_xy_m[1:])
+    return np.vstack(parts)

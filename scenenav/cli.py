@@ -8,6 +8,7 @@ from __future__ import annotations
 import argparse
 import json
 import logging
+import re
 import sys
 from pathlib import Path
 
@@ -42,6 +43,10 @@ def _node(args: argparse.Namespace) -> int:
     if args.kind == "autopilot":
         from autopilot_bridge.node import run_autopilot_node
         return run_autopilot_node(run_dir, bus, args)
+    if args.kind == "guidance":
+        if run_dir is None:
+            raise UserError("node guidance: --run-dir is required (the run's scenario.yaml names the goals)")
+        return nodes.run_guidance(run_dir, bus)
     raise UserError(f"unknown node kind {args.kind!r}")
 
 
@@ -107,7 +112,7 @@ def build_parser() -> argparse.ArgumentParser:
                        description="Run a single bus node. Normally started by `scenenav run` or "
                                    "`scenenav sitl`; start one by hand to swap a node in a live run "
                                    "(same --namespace and --hub-port as the run, see its run.json).")
-    n.add_argument("kind", choices=["sim", "recorder", "perception", "autopilot"])
+    n.add_argument("kind", choices=["sim", "recorder", "perception", "autopilot", "guidance"])
     n.add_argument("--namespace", required=True, help="key namespace of the run (run.json: namespace)")
     n.add_argument("--hub-port", required=True, type=int, help="the simulator's Zenoh port (run.json: hub_port)")
     n.add_argument("--run-dir", help="run folder (reads scenario.yaml from it)")
@@ -204,11 +209,36 @@ def _register_optional(sub, bsub) -> None:
         register_bench(bsub)
     except ImportError as exc:
         log.debug("no guidance bench: %s", exc)
+    try:
+        from autopilot_bridge.bench import register_bench as register_autopilot_bench
+        register_autopilot_bench(bsub)
+    except ImportError as exc:
+        log.debug("no autopilot bench: %s", exc)
+
+
+_NEGATIVE_LIST = re.compile(r"^-\d[\d.eE+-]*(,\s*[-+]?[\d.eE+-]+)+$")
+
+
+def glue_negative_values(argv: list[str]) -> list[str]:
+    """``--start -150,200`` -> ``--start=-150,200``: argparse would take a value that starts with
+    '-' and holds a comma for an option. Only comma lists of numbers are glued."""
+    out: list[str] = []
+    i = 0
+    while i < len(argv):
+        a = argv[i]
+        if (a.startswith("--") and "=" not in a and i + 1 < len(argv)
+                and _NEGATIVE_LIST.match(argv[i + 1])):
+            out.append(f"{a}={argv[i + 1]}")
+            i += 2
+            continue
+        out.append(a)
+        i += 1
+    return out
 
 
 def main(argv: list[str] | None = None) -> int:
     parser = build_parser()
-    args = parser.parse_args(argv)
+    args = parser.parse_args(glue_negative_values(list(sys.argv[1:] if argv is None else argv)))
     logging.basicConfig(level=getattr(logging, args.log_level),
                         format="%(asctime)s %(levelname)s %(name)s: %(message)s")
     try:

@@ -81,6 +81,7 @@ def fix_metrics(fx: dict[str, np.ndarray]) -> dict[str, Any]:
         "fixes_total": int(len(valid)),
         "fixes_valid": int(valid.sum()),
         "fixes_accepted": int(acc.sum()),
+        "fixes_accepted_true": int((acc & ~false).sum()),
         "false_fixes": int(false.sum()),
         "false_fixes_rejected": int((false & rejected).sum()),
         "true_fixes_rejected": int((~false & valid & rejected).sum()),
@@ -128,12 +129,35 @@ def evaluate_run(run_dir: Path, cfg, world, wall_time_s: float, interrupted: boo
         "false_fix_threshold_m": cfg.evaluation.false_fix_threshold_m,
         "distance_flown_m": _distance(truth),
     })
+    summary.update(_guidance_metrics(run_dir))
     (run_dir / "summary.json").write_text(json.dumps(summary, indent=2))
     try:
         plot_run(run_dir, world, fx)
     except Exception:  # a plot must never lose the summary
         log.exception("could not draw trajectory.png")
     return summary
+
+
+def _routes(run_dir: Path) -> list[dict]:
+    """The guidance node's route files (route.json, route-1.json, ...) in order."""
+    files = sorted(Path(run_dir).glob("route*.json"),
+                   key=lambda p: int(p.stem.split("-")[1]) if "-" in p.stem else 0)
+    out = []
+    for f in files:
+        try:
+            out.append(json.loads(f.read_text()))
+        except (OSError, ValueError):
+            log.warning("unreadable route file %s", f)
+    return out
+
+
+def _guidance_metrics(run_dir: Path) -> dict[str, Any]:
+    routes = _routes(run_dir)
+    if not routes:
+        return {}
+    return {"route_length_m": routes[0].get("length_m"),
+            "route_min_clearance_m": routes[0].get("min_clearance_m"),
+            "replans": len(routes) - 1}
 
 
 def _distance(truth: dict) -> float:
@@ -156,6 +180,11 @@ def plot_run(run_dir: Path, world, fx: dict) -> None:
     step = max(1, max(m.width_px, m.height_px) // 1500)
     ax.imshow(world.orthophoto[::step, ::step], extent=(-half_w, half_w, -half_h, half_h),
               origin="upper", alpha=0.8)
+    for i, route in enumerate(_routes(run_dir)):
+        xy = np.array([[w["x_m"], w["y_m"]] for w in route.get("waypoints", [])])
+        if len(xy):
+            ax.plot(xy[:, 0], xy[:, 1], "--", c="magenta" if i == 0 else "purple", lw=1.2,
+                    label="planned route" if i == 0 else ("replanned route" if i == 1 else None))
     if truth:
         ax.plot(truth["x_m"], truth["y_m"], "k-", lw=1.5, label="truth")
     if est and len(est.get("t_s", [])):

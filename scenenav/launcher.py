@@ -21,6 +21,7 @@ from pathlib import Path
 import yaml
 
 from scenenav.bus import free_port
+from scenenav.contracts import ClockMode
 from scenenav.errors import UserError
 from scenenav.scenario import FlightMode, ScenarioConfig, load_scenario, scenario_to_dict
 
@@ -117,6 +118,27 @@ def _free_mavlink_port(cfg: ScenarioConfig) -> ScenarioConfig:
     return dataclasses.replace(cfg, autopilot=dataclasses.replace(cfg.autopilot, mavlink_tcp_port=new))
 
 
+def _resolve_guidance_map(cfg: ScenarioConfig, progress: bool) -> ScenarioConfig:
+    """Guidance without a named assistant map plans over the world's map built with the CNN
+    (cached); the run's scenario.yaml records which file was used."""
+    import dataclasses
+    g = cfg.guidance
+    if not g.enabled:
+        return cfg
+    if g.assistant_map:
+        if not Path(g.assistant_map).is_file():
+            raise UserError(f"guidance.assistant_map = {g.assistant_map!r}: no such file; expected an "
+                            "assistant map .npz (scenenav assistant-map build), or empty to build one")
+        return cfg
+    from perception.map_cache import cached_assistant_map
+    from worlds.default import world_folder
+    path = cached_assistant_map(world_folder(cfg.world), g.assistant_map_stride_px,
+                                cfg.flight.altitude_m, cfg.sim.camera.fov_deg,
+                                cfg.perception.weights or None,
+                                progress=progress and sys.stderr.isatty())
+    return dataclasses.replace(cfg, guidance=dataclasses.replace(g, assistant_map=str(path)))
+
+
 def prepare_run(cfg: ScenarioConfig, world, run_dir: Path, label: str, prefix: str) -> Launch:
     """Create the run folder (must be new or empty) with scenario.yaml and run.json, and the
     Launch holding the run's own namespace and hub port."""
@@ -154,6 +176,7 @@ def run(scenario_path: str | None, out_dir: str, overrides: tuple[str, ...] = ()
     cfg = load_scenario(scenario_path, overrides)
     world = resolve_world(cfg)          # fail early, with a one-line error, on a bad world
     cfg = _free_mavlink_port(cfg)
+    cfg = _resolve_guidance_map(cfg, progress)
     launch = prepare_run(cfg, world, Path(out_dir), scenario_path or "(defaults)", "run")
     run_dir = launch.run_dir
 
@@ -170,13 +193,17 @@ def run(scenario_path: str | None, out_dir: str, overrides: tuple[str, ...] = ()
         if cfg.flight.mode == FlightMode.AUTOPILOT:
             launch.spawn("autopilot", ["autopilot", "--run-dir", str(run_dir)])
             expect.append("tick")
+        if cfg.guidance.enabled:
+            launch.spawn("guidance", ["guidance", "--run-dir", str(run_dir)])
+            if cfg.clock.mode == ClockMode.LOCKSTEP:
+                expect.append("tick")
         sim = launch.spawn("sim", ["sim", "--run-dir", str(run_dir), "--expect", ",".join(expect)])
         _wait_sim(sim, launch, cfg, progress)
     except KeyboardInterrupt:
         interrupted = True
         log.warning("interrupted: stopping every node")
     finally:
-        launch.stop_all(order=["sim", "autopilot", "perception", "recorder"])
+        launch.stop_all(order=["sim", "guidance", "autopilot", "perception", "recorder"])
     wall = time.time() - wall0
     from scenenav.evaluation import evaluate_run
     summary = evaluate_run(run_dir, cfg, world, wall_time_s=wall, interrupted=interrupted)

@@ -32,9 +32,9 @@ def _stop_event() -> threading.Event:
 
 
 def load_world_for(cfg: ScenarioConfig):
-    from worlds.default import load_default_world
+    from worlds.default import is_generated_spec, load_world_spec
     from worlds.world import load_world
-    return load_default_world() if cfg.world == "default" else load_world(cfg.world)
+    return load_world_spec(cfg.world) if is_generated_spec(cfg.world) else load_world(cfg.world)
 
 
 def run_sim(run_dir: Path, bus_cfg: BusConfig, expect: tuple[str, ...]) -> int:
@@ -88,4 +88,25 @@ def run_perception(run_dir: Path | None, bus_cfg: BusConfig, method: str | None,
     stop = _stop_event()
     stop.wait()
     node.close()
+    return 0
+
+
+def run_guidance(run_dir: Path, bus_cfg: BusConfig) -> int:
+    from guidance.node import GuidanceNode, node_config_from_scenario
+    from guidance.route import load_world_manifest
+    from scenenav.contracts import ClockMode
+    from worlds.default import world_folder
+    cfg = load_scenario(run_dir / "scenario.yaml")
+    world = load_world_manifest(world_folder(cfg.world))
+    node_cfg, planner_cfg = node_config_from_scenario(
+        cfg, cfg.autopilot.mavlink_tcp_port, lockstep=cfg.clock.mode == ClockMode.LOCKSTEP)
+    node = GuidanceNode(world, bus_cfg, node_cfg, planner_cfg, out_dir=run_dir)
+    stop = _stop_event()
+    threading.Thread(target=lambda: (stop.wait(), node.stop()), daemon=True).start()
+    try:
+        node.run()
+        stop.wait()          # stay up (liveliness) until the launcher stops the run
+    finally:
+        stats = node.close()
+        (run_dir / "guidance_stats.json").write_text(json.dumps(stats, indent=2))
     return 0

@@ -129,10 +129,45 @@ class AutopilotNodeConfig:
 
 
 @dataclass(frozen=True)
+class GuidanceConfig:
+    """The guidance node (guidance/node.py): plans a route over the assistant map around bad
+    matching areas and flies it as a MAVLink mission. Needs ``flight.mode: autopilot``; the
+    autopilot then waits for this node instead of starting ``flight.route_enu_m`` by itself."""
+
+    enabled: bool = False              # start the guidance node (needs flight.mode autopilot)
+    # Each leg (take-off point -> first goal -> second ...) is planned around bad areas; the
+    # mission ends with autopilot.mission_end.
+    goals_enu_m: tuple[tuple[float, float], ...] = ()   # via-points and goal, [x east, y north] m
+    assistant_map: str = ""            # .npz; empty: the world's map built with the CNN (cached)
+    assistant_map_stride_px: int = 10  # stride of that built map
+    start_after_s: float = 1.0         # simulated seconds before the mission is uploaded and started
+    check_period_s: float = 1.0        # simulated seconds between drift / map-change checks
+    replan_drift_m: float = 40.0       # replan when the estimate is this far from the route
+    footprint_m: float | None = None   # camera-footprint width kept clear; None: from altitude and FOV
+    clearance_m: float = 10.0          # extra distance kept between footprint edge and bad area
+    unvisited_weight: float = 0.5      # unvisited map cells as obstacles: 0 free .. 1 hard
+    waypoint_spacing_m: float = 50.0   # spacing of the mission's waypoints along the route
+
+    def __post_init__(self) -> None:
+        check(not self.enabled or len(self.goals_enu_m) >= 1, "goals_enu_m", self.goals_enu_m,
+              "at least one [x, y] goal in metres when guidance is enabled")
+        check(self.assistant_map_stride_px >= 1, "assistant_map_stride_px",
+              self.assistant_map_stride_px, "a positive number of pixels")
+        check(self.start_after_s >= 0, "start_after_s", self.start_after_s, ">= 0 s")
+        check(self.check_period_s > 0, "check_period_s", self.check_period_s, "> 0 s")
+        check(self.replan_drift_m > 0, "replan_drift_m", self.replan_drift_m, "> 0 m")
+        check(self.footprint_m is None or self.footprint_m >= 0, "footprint_m", self.footprint_m,
+              "a width >= 0 m, or null for the camera footprint")
+        check(self.clearance_m >= 0, "clearance_m", self.clearance_m, ">= 0 m")
+        check(0 <= self.unvisited_weight <= 1, "unvisited_weight", self.unvisited_weight, "0 to 1")
+        check(self.waypoint_spacing_m > 0, "waypoint_spacing_m", self.waypoint_spacing_m, "> 0 m")
+
+
+@dataclass(frozen=True)
 class ScenarioConfig:
     name: str = "default"
     seed: int = 0
-    world: str = "default"             # a world folder, or "default" (generated on first use)
+    world: str = "default"             # a world folder, "default", or "generated:seed=N,width_px=W,..."
     duration_s: float = 90.0           # simulated seconds at most
     clock: ClockConfig = field(default_factory=ClockConfig)
     sim: SimConfig = field(default_factory=SimConfig)
@@ -141,9 +176,13 @@ class ScenarioConfig:
     recorder: RecorderConfig = field(default_factory=RecorderConfig)
     evaluation: EvaluationConfig = field(default_factory=EvaluationConfig)
     autopilot: AutopilotNodeConfig = field(default_factory=AutopilotNodeConfig)
+    guidance: GuidanceConfig = field(default_factory=GuidanceConfig)
 
     def __post_init__(self) -> None:
         check(self.duration_s > 0, "duration_s", self.duration_s, "a positive number of seconds")
+        check(not self.guidance.enabled or self.flight.mode == FlightMode.AUTOPILOT,
+              "guidance.enabled", self.guidance.enabled,
+              "false unless flight.mode is autopilot (the guidance node flies through the autopilot)")
         check(self.seed >= 0, "seed", self.seed, "a non-negative integer")
 
 

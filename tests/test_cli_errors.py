@@ -18,6 +18,15 @@ def scenenav(*args):
     (["run", "--out", "{tmp}/w", "--set", "world=/nonexistent/world"], "/nonexistent/world"),
     (["run", "--out", "{tmp}/v", "--set", "novalue"], "KEY=VALUE"),
     (["bench", "sim", "--sizes", "12xfoo"], "WIDTHxHEIGHT"),
+    (["run", "--out", "{tmp}/u", "--set", "world=generated:seed=1,warp=9"], "warp"),
+    (["run", "--out", "{tmp}/t", "--set", "world=generated:seed=x"], "seed"),
+    (["run", "--out", "{tmp}/s", "--set", "world=generated:width_px=10"], "width_px"),
+    (["run", "--out", "{tmp}/r", "--set", "guidance.enabled=true",
+      "--set", "guidance.goals_enu_m=[[0,0]]"], "flight.mode is autopilot"),
+    (["run", "--out", "{tmp}/q", "--set", "guidance.enabled=true", "--set", "flight.mode=autopilot"],
+     "goals_enu_m"),
+    (["run", "--out", "{tmp}/p", "--set", "guidance.enabled=true", "--set", "flight.mode=autopilot",
+      "--set", "guidance.goals_enu_m=[[0,0]]", "--set", "guidance.assistant_map=/nope.npz"], "/nope.npz"),
 ])
 def test_one_line_error_exit_2(tmp_path, args, needle):
     bad = tmp_path / "bad.yaml"

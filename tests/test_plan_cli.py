@@ -161,3 +161,23 @@ def test_bench_small_json():
     assert json.loads(buf.getvalue()) == report
     row = report["results"][0]
     assert row["width_px"] == 300 and row["plan_time_s"] >= 0.0
+
+
+def test_negative_coordinates_as_separate_arguments(world):
+    """`--start -150,0` (no '=') works through the scenenav command, as users type it."""
+    args = plan_args(world)
+    i = args.index("--start=-150,0")
+    args[i:i + 2] = ["--start", "-150,0", "--goal", "150,-0.5"]
+    proc = subprocess.run([sys.executable, "-m", "scenenav.cli", *args], cwd=REPO, capture_output=True,
+                          text=True, timeout=120)
+    assert proc.returncode == 0, proc.stderr
+    doc = json.loads((world["tmp"] / "route.json").read_text())
+    assert doc["start_xy_m"] == [-150.0, 0.0] and doc["goal_xy_m"] == [150.0, -0.5]
+
+
+def test_glue_negative_values_only_touches_number_lists():
+    from scenenav.cli import glue_negative_values
+    assert glue_negative_values(["plan", "--start", "-1,2", "--goal", "3,-4"]) == \
+        ["plan", "--start=-1,2", "--goal", "3,-4"]
+    assert glue_negative_values(["run", "--out", "x", "-h"]) == ["run", "--out", "x", "-h"]
+    assert glue_negative_values(["--set", "-1"]) == ["--set", "-1"]

@@ -382,6 +382,24 @@ def test_default_world_is_cached(tmp_path, monkeypatch, default_world):
     assert [p.name for p in d.parent.iterdir()] == [d.name]   # no temporary folders left
 
 
+def test_generated_world_spec_is_cached_by_config(tmp_path, monkeypatch):
+    from worlds import default
+    from worlds.generator import CityConfig
+    monkeypatch.setenv("SCENENAV_CACHE_DIR", str(tmp_path / "cache"))
+    spec = "generated:seed=4,width_px=300,height_px=260,water_share=0.2"
+    cfg = default.parse_generated_spec(spec)
+    assert cfg == CityConfig(seed=4, width_px=300, height_px=260, water_share=0.2)
+    folder = default.world_folder(spec)
+    assert (folder / "manifest.json").is_file() and folder.name.startswith("generated-s4-300x260-")
+    world = default.load_world_spec(spec)
+    assert world.width_px == 300 and world.manifest.name == "generated-s4"
+    other = default.world_folder("generated:seed=4,width_px=300,height_px=260")
+    assert other != folder                          # another configuration, another folder
+    assert default.world_folder(str(tmp_path)) == tmp_path   # a plain folder is left alone
+    with pytest.raises(UserError, match="lake_diametre"):
+        default.parse_generated_spec("generated:lake_diametre=3")
+
+
 def _cli(argv: list[str]) -> int:
     from worlds.cli import register
     parser = argparse.ArgumentParser(prog="scenenav")

@@ -1,7 +1,12 @@
-"""The default world: ``CityConfig()`` (seed 0), generated once and cached on disk.
+"""The default world and other generated worlds named in a scenario, generated once and cached.
 
-Location: ``$SCENENAV_CACHE_DIR/worlds/default-v<N>`` (``~/.cache/scenenav`` when the variable is
-unset), where N is the generator version, so a changed generator never serves a stale world.
+``world: default`` is ``CityConfig()`` (seed 0, 900x1000 px). ``world: generated:seed=3,width_px=1500``
+is any ``CityConfig`` given as comma-separated ``key=value`` pairs (unnamed keys keep their defaults),
+so a scenario can name a reproducible world without shipping its images.
+
+Location: ``$SCENENAV_CACHE_DIR/worlds/<name>-v<N>-<hash>`` (``~/.cache/scenenav`` when the variable is
+unset), where N is the generator version and the hash covers the generator's source (and, for
+``generated:`` worlds, the configuration), so a changed generator never serves a stale world.
 Generation writes into a temporary sibling folder that is renamed into place, so several processes
 asking at once are safe: one rename wins, the others load the winner's folder.
 """
@@ -22,6 +27,7 @@ log = logging.getLogger(__name__)
 
 CACHE_ENV = "SCENENAV_CACHE_DIR"
 DEFAULT_WORLD_NAME = "default"
+GENERATED_PREFIX = "generated:"
 
 
 def cache_root() -> Path:
@@ -49,14 +55,78 @@ def default_world_dir() -> Path:
     return cache_root() / "worlds" / f"default-v{GENERATOR_VERSION}-{_generator_fingerprint()}"
 
 
+def is_generated_spec(spec: str) -> bool:
+    """``default`` or ``generated:...``: a world the generator makes on first use."""
+    return spec == DEFAULT_WORLD_NAME or spec.startswith(GENERATED_PREFIX)
+
+
+def parse_generated_spec(spec: str) -> CityConfig:
+    """``generated:seed=3,width_px=1500,height_px=900`` -> CityConfig (one-line UserError if bad)."""
+    import dataclasses
+    body = spec[len(GENERATED_PREFIX):].strip()
+    fields = {f.name: f for f in dataclasses.fields(CityConfig)}
+    kwargs: dict = {}
+    for item in filter(None, (part.strip() for part in body.split(","))):
+        key, sep, text = item.partition("=")
+        key = key.strip()
+        if not sep or key not in fields:
+            known = "seed, width_px, height_px, m_per_px, water_share, lake_diameter_m, ..."
+            raise UserError(f"world {spec!r}: {item!r} is not KEY=VALUE with a CityConfig key "
+                            f"(e.g. {known}; see worlds/generator.py)")
+        default = getattr(CityConfig(), key)
+        try:
+            kwargs[key] = type(default)(text.strip()) if not isinstance(default, bool) else \
+                text.strip().lower() in ("1", "true", "yes")
+        except ValueError:
+            raise UserError(f"world {spec!r}: {key} = {text!r}: expected "
+                            f"{type(default).__name__}") from None
+    try:
+        return CityConfig(**kwargs)
+    except (ValueError, TypeError) as exc:
+        raise UserError(f"world {spec!r}: {exc}") from None
+
+
+def generated_world_dir(cfg: CityConfig) -> Path:
+    """Cache folder of a generated (non-default) world."""
+    import dataclasses
+    import hashlib
+    import json
+    digest = hashlib.sha256(json.dumps(dataclasses.asdict(cfg), sort_keys=True).encode()).hexdigest()
+    return (cache_root() / "worlds" /
+            f"generated-s{cfg.seed}-{cfg.width_px}x{cfg.height_px}-v{GENERATOR_VERSION}-"
+            f"{_generator_fingerprint()}-{digest[:8]}")
+
+
+def load_world_spec(spec: str) -> World:
+    """A world named by ``default`` or ``generated:KEY=VALUE,...`` (generated and cached on first use)."""
+    if spec == DEFAULT_WORLD_NAME:
+        return load_default_world()
+    cfg = parse_generated_spec(spec)
+    return _load_or_generate(generated_world_dir(cfg), cfg, f"generated-s{cfg.seed}")
+
+
+def world_folder(spec: str) -> Path:
+    """Folder of the world named by a scenario's ``world`` value (generated ones: made if missing)."""
+    if not is_generated_spec(spec):
+        return Path(spec)
+    folder = default_world_dir() if spec == DEFAULT_WORLD_NAME else \
+        generated_world_dir(parse_generated_spec(spec))
+    if not (folder / MANIFEST_FILE).is_file():
+        load_world_spec(spec)
+    return folder
+
+
 def load_default_world() -> World:
     """Load the default world, generating and caching it on first use."""
-    final = default_world_dir()
+    return _load_or_generate(default_world_dir(), CityConfig(), DEFAULT_WORLD_NAME)
+
+
+def _load_or_generate(final: Path, cfg: CityConfig, name: str) -> World:
     if (final / MANIFEST_FILE).is_file():
         try:
             return World.load(final)
         except UserError as exc:
-            log.warning("cached default world is damaged (%s); regenerating", exc)
+            log.warning("cached world %s is damaged (%s); regenerating", final.name, exc)
             _move_aside(final)
     parent = final.parent
     try:
@@ -64,8 +134,8 @@ def load_default_world() -> World:
     except OSError as exc:
         raise UserError(f"{parent}: cannot create the world cache ({exc.strerror}); "
                         f"set {CACHE_ENV} to a writable folder") from None
-    log.info("generating the default world into %s (first use)", final)
-    world = generate_world(CityConfig(), name=DEFAULT_WORLD_NAME)
+    log.info("generating world %s into %s (first use)", name, final)
+    world = generate_world(cfg, name=name)
     tmp = Path(tempfile.mkdtemp(prefix=f".{final.name}-", dir=parent))
     try:
         world.save(tmp)
@@ -74,9 +144,9 @@ def load_default_world() -> World:
         except OSError as exc:
             # Another process finished first (the target exists and is not empty): use its copy.
             if not (final / MANIFEST_FILE).is_file():
-                raise UserError(f"{final}: cannot install the default world ({exc.strerror}); "
+                raise UserError(f"{final}: cannot install world {name} ({exc.strerror}); "
                                 f"remove that folder or set {CACHE_ENV}") from None
-            log.info("default world was cached concurrently by another process")
+            log.info("world %s was cached concurrently by another process", name)
             return World.load(final)
     finally:
         if tmp.exists():
