@@ -146,6 +146,40 @@ def _bench(args: argparse.Namespace) -> int:
     return 0
 
 
+def _decision_data(args: argparse.Namespace) -> int:
+    from perception.decision_fit import collect
+    runs = collect(args.out, args.worlds, args.world_size, args.weights or "", progress=not args.quiet,
+                   command=_command_line())
+    print(f"decision data {args.out}: {len(runs)} cnn flights: " + ", ".join(str(r) for r in runs))
+    return 0
+
+
+def _fit_decision(args: argparse.Namespace) -> int:
+    from perception.decision_fit import evaluate_flights, fit_decision, flight_dirs_under
+    flights = flight_dirs_under(args.data)
+    man_path = Path(args.data) / "manifest.json"
+    manifest = json.loads(man_path.read_text(encoding="utf-8")) if man_path.is_file() else None
+    model = fit_decision(flights, args.out, args.weights, l2=args.l2,
+                         target_recall=args.target_recall, command=_command_line(),
+                         data_manifest=manifest)
+    cv = model.meta["cross_validation"]
+    print(f"decision model {args.out} ({model.model_id}): threshold {model.threshold:.4g}, "
+          f"{model.meta['samples']} samples ({model.meta['false_samples']} false) from "
+          f"{len(flights)} training flights")
+    for src, sc in cv.items():
+        c = sc["t=chosen"]
+        print(f"  leave-one-world-out {src:<14} precision {c['precision']:.3f} recall {c['recall']:.3f} "
+              f"rms accepted {c['rms_accepted_m']:.2f} m")
+    if args.eval:
+        res = evaluate_flights(model, flight_dirs_under(args.eval))
+        for world, row in res.items():
+            for src, r in row.items():
+                c, pp = r["combined"], r["paper"]
+                print(f"  held-out {world:<10} {src:<14} combined P {c['precision']:.3f} R {c['recall']:.3f} "
+                      f"| paper P {pp['precision']:.3f} R {pp['recall']:.3f}")
+    return 0
+
+
 def register(subparsers) -> None:
     """Add `dataset`, `train` and `cnn` to the scenenav command."""
     from perception.cnn import DEFAULT_INPUT_PX
@@ -242,6 +276,40 @@ def register(subparsers) -> None:
     cb.add_argument("--crop-px", type=_positive_int, default=217, help="crop side in px (default 217)")
     cb.add_argument("--json", action="store_true", help="print JSON")
     cb.set_defaults(func=_bench)
+
+    from perception.decision_fit import DEFAULT_TRAIN_SEEDS
+    dd = csub.add_parser(
+        "decision-data", help="fly training worlds with the online CNN (data for fit-decision)",
+        description="Generate each training world (seeded) and fly the Table-2 path over it once with "
+                    "method cnn (a full lockstep `scenenav run`); the run folders (fixes.csv, "
+                    "perception_diag_perception.csv, assistant map) are the combined rule's training "
+                    "data. Seeds 0 (default world) and 9001-9003 (held out) are refused.")
+    dd.add_argument("--out", required=True, metavar="DIR", help="data folder (worlds/ and flights/)")
+    dd.add_argument("--worlds", type=_seeds, default=DEFAULT_TRAIN_SEEDS, metavar="SEEDS",
+                    help="training world seeds (default " + ",".join(map(str, DEFAULT_TRAIN_SEEDS)) + ")")
+    dd.add_argument("--world-size", type=_size, default=(900, 1000), metavar="WxH",
+                    help="world size in px (default 900x1000, the paper's map)")
+    dd.add_argument("--weights", metavar="PT", help="CNN weights (default: the shipped default.pt)")
+    dd.add_argument("--quiet", action="store_true", help="no progress bars")
+    dd.set_defaults(func=_decision_data)
+
+    fd = csub.add_parser(
+        "fit-decision", help="fit the combined decision rule on training flights",
+        description="Fit the combined rule's logistic P(false fix) on the flights under DATA (from "
+                    "`scenenav cnn decision-data`): leave-one-world-out cross-validation picks the "
+                    "threshold (largest with pooled out-of-world recall >= --target-recall), then one "
+                    "fit on all flights. Writes the decision-model JSON (coefficients, threshold, CNN "
+                    "weights it belongs to, fit record). --eval scores it on other flights.")
+    fd.add_argument("--data", required=True, metavar="DIR", help="folder written by decision-data")
+    fd.add_argument("--out", required=True, metavar="MODEL.json", help="decision model to write")
+    fd.add_argument("--weights", required=True, metavar="PT",
+                    help="the CNN weights the flights used (recorded relative to the model file)")
+    fd.add_argument("--l2", type=float, default=1.0, help="L2 penalty on standardised weights (default 1)")
+    fd.add_argument("--target-recall", type=float, default=0.987,
+                    help="pooled out-of-world recall the threshold must reach (default 0.987, the "
+                         "issue's target)")
+    fd.add_argument("--eval", metavar="DIR", help="score the model on the flights under DIR as well")
+    fd.set_defaults(func=_fit_decision)
 
 
 def main(argv: list[str] | None = None) -> int:

@@ -12,7 +12,7 @@ from enum import Enum
 
 from scenenav.config import check
 
-from perception.decision import P_BAD_THRESHOLD, FalseMatchMethod
+from perception.decision import P_BAD_THRESHOLD, DecisionRule, FalseMatchMethod
 
 
 class NccMethod(str, Enum):
@@ -123,6 +123,10 @@ class PerceptionConfig:
     crop_mode: CropMode = CropMode.INSCRIBED_SQUARE
     cnn_input_px: int = 200                    # the classifier sees (N, cnn_input_px, cnn_input_px)
     p_bad_threshold: float = P_BAD_THRESHOLD   # paper 5.4: reject when P(bad) > 0.5
+    # cnn / assistant-map verdict: paper = P(bad) > p_bad_threshold; combined = the logistic
+    # P(false fix) of decision_model (area P(bad) + NCC quality + innovation), docs/perception.md.
+    decision_rule: DecisionRule = DecisionRule.PAPER
+    decision_model: str = ""                   # combined-rule JSON ("": the shipped model)
     statistical_window: int = 30               # paper 6.3
     statistical_threshold_m2: float = 1.4      # paper 6.3 / Figure 8
     unknown_policy: UnknownPolicy = UnknownPolicy.REJECT

@@ -11,8 +11,12 @@ Classifier outputs come in two shapes and both are understood by :func:`split_cl
 
 from __future__ import annotations
 
+import hashlib
+import json
 import math
+from dataclasses import dataclass, field
 from enum import Enum
+from pathlib import Path
 
 import numpy as np
 
@@ -72,3 +76,192 @@ def split_classifier_output(output: np.ndarray, n_images: int) -> tuple[np.ndarr
         raise ValueError("classifier returned non-finite probabilities")
     p_bad = np.clip(p_bad, 0.0, 1.0)
     return p_bad, (np.clip(classes, 0.0, 1.0) if classes is not None else None)
+
+
+# ------------------------------------------------------------------------------ combined rule
+class DecisionRule(str, Enum):
+    """How the cnn / assistant-map methods turn their evidence into a verdict.
+
+    ``paper``: the paper's rule (5.4), REJECT when P(bad) > p_bad_threshold, whatever the match.
+    ``combined``: a logistic model of P(false fix) from the area's P(bad) (map value or online
+    CNN) *and* the fix's own evidence (NCC peak, PSR, second-peak ratio, innovation against the
+    tracker's constant-velocity prediction); coefficients fitted on flights over training worlds
+    (``scenenav cnn fit-decision``) and stored in a decision-model file. See docs/perception.md.
+    """
+
+    PAPER = "paper"
+    COMBINED = "combined"
+
+
+#: Features of the combined rule, in coefficient order (all known at flight time, no truth):
+#: ``bad_logit``  logit of the area's P(bad), P clipped to [P_CLIP, 1 - P_CLIP];
+#: ``peak``       NCC peak; ``log_psr`` ln(max(PSR, 1)); ``spr`` second-peak ratio;
+#: ``innov``      ln(1 + innovation / 1 m) when the tracker predicted from a known velocity, else 0;
+#: ``no_track``   1 when there was no such prediction (global search, re-acquisition, one fix);
+#: ``log_track``  ln(1 + good fixes in the track the prediction came from) (0 without one);
+#: ``dr_innov``   ln(1 + distance / 1 m) between the fix and the dead-reckoned position of the last
+#:                established track (:class:`DeadReckoning`), 0 without one;
+#: ``dr_age``     ln(1 + seconds since that track's last fix), 0 without one;
+#: ``no_dr``      1 when there is no established track yet;
+#: ``log_var30``  ln(1e-3 + the paper's statistical indicator: detrended variance (m^2) of the last
+#:                30 fixes, this one included; perception.statistical), 0 before 3 fixes;
+#: ``log_var10``  the same over the last 10 fixes (reacts faster).
+COMBINED_FEATURES = ("bad_logit", "peak", "log_psr", "spr", "innov", "no_track", "log_track",
+                     "dr_innov", "dr_age", "no_dr", "log_var30", "log_var10")
+#: Windows of the two statistical-indicator features.
+VARIANCE_WINDOWS = (30, 10)
+P_CLIP = 0.005
+
+
+def combined_features(p_bad: float, peak: float, psr: float, second_peak_ratio: float,
+                      innovation_m: float, track_fixes: int = 0, dr_innovation_m: float = math.nan,
+                      dr_age_s: float = math.nan, variance30_m2: float = math.nan,
+                      variance10_m2: float = math.nan) -> np.ndarray:
+    """The feature vector of :data:`COMBINED_FEATURES` (``innovation_m`` NaN = no prediction,
+    ``dr_innovation_m`` / ``dr_age_s`` NaN = no established track)."""
+    dr = math.isfinite(dr_innovation_m) and math.isfinite(dr_age_s)
+    p = min(1.0 - P_CLIP, max(P_CLIP, p_bad if math.isfinite(p_bad) else 0.5))
+    tracked = math.isfinite(innovation_m)
+    return np.array([
+        math.log(p / (1.0 - p)),
+        peak if math.isfinite(peak) else 0.0,
+        math.log(max(psr, 1.0)) if math.isfinite(psr) else 0.0,
+        second_peak_ratio if math.isfinite(second_peak_ratio) else 1.0,
+        math.log1p(innovation_m) if tracked else 0.0,
+        0.0 if tracked else 1.0,
+        math.log1p(max(track_fixes, 0)) if tracked else 0.0,
+        math.log1p(dr_innovation_m) if dr else 0.0,
+        math.log1p(max(dr_age_s, 0.0)) if dr else 0.0,
+        0.0 if dr else 1.0,
+        math.log(1e-3 + variance30_m2) if math.isfinite(variance30_m2) else 0.0,
+        math.log(1e-3 + variance10_m2) if math.isfinite(variance10_m2) else 0.0,
+    ])
+
+
+class DeadReckoning:
+    """The last *established* track, extrapolated at constant velocity (no truth, no decisions).
+
+    A track is established once the matcher's tracker has ``min_track_fixes`` consecutive good
+    (quality-ok) fixes since its last (re-)acquisition: false locks rarely keep matching that
+    long. Each good fix of an established track stores (t, u, v, velocity). ``predict(t)`` gives
+    where that track would be now and how old it is; a fix far from it, after a loss, is more
+    likely a false lock than a re-acquisition. Pixels and seconds; the pipeline converts to metres.
+    """
+
+    def __init__(self, min_track_fixes: int = 10) -> None:
+        self.min_track_fixes = int(min_track_fixes)
+        self._state: tuple[float, float, float, float, float] | None = None
+
+    def reset(self) -> None:
+        self._state = None
+
+    def predict(self, t_s: float) -> tuple[tuple[float, float], float] | None:
+        if self._state is None:
+            return None
+        t0, u, v, vu, vv = self._state
+        dt = max(0.0, t_s - t0)
+        return (u + vu * dt, v + vv * dt), dt
+
+    def update(self, t_s: float, uv: tuple[float, float], velocity_px_s: tuple[float, float] | None,
+               track_fixes: int) -> None:
+        if track_fixes >= self.min_track_fixes and velocity_px_s is not None:
+            self._state = (float(t_s), float(uv[0]), float(uv[1]), float(velocity_px_s[0]),
+                           float(velocity_px_s[1]))
+
+
+#: The shipped combined-rule model (fitted by ``scenenav cnn fit-decision``, see docs/perception.md).
+DEFAULT_DECISION_MODEL = Path(__file__).resolve().parent / "weights" / "decision_combined.json"
+DECISION_MODEL_FORMAT = 1
+
+
+@dataclass(frozen=True)
+class CombinedDecisionModel:
+    """Logistic P(false fix) over :data:`COMBINED_FEATURES`; REJECT when P(false) > ``threshold``.
+
+    ``weights`` are ``(mean, std)``-standardised coefficients: z_i = (x_i - mean_i) / std_i,
+    P(false) = sigmoid(intercept + sum w_i z_i). ``cnn_weights`` names the CNN file (relative to the
+    model file's folder) whose P(bad) the model was fitted with; ``meta`` holds the fit record
+    (training worlds, counts, held-out figures, command).
+    """
+
+    intercept: float
+    weights: tuple[float, ...]
+    mean: tuple[float, ...]
+    std: tuple[float, ...]
+    threshold: float = 0.5
+    features: tuple[str, ...] = COMBINED_FEATURES
+    cnn_weights: str = ""
+    meta: dict = field(default_factory=dict, compare=False)
+    source: str = field(default="", compare=False)
+
+    def __post_init__(self) -> None:
+        n = len(self.features)
+        if tuple(self.features) != COMBINED_FEATURES:
+            raise ValueError(f"decision model features {list(self.features)}: expected "
+                             f"{list(COMBINED_FEATURES)}")
+        if not (len(self.weights) == len(self.mean) == len(self.std) == n):
+            raise ValueError(f"decision model: {n} features need {n} weights, means and stds")
+        vals = (self.intercept, self.threshold) + tuple(self.weights) + tuple(self.mean) + tuple(self.std)
+        if not all(math.isfinite(v) for v in vals) or min(self.std) <= 0.0:
+            raise ValueError("decision model: non-finite coefficient or non-positive std")
+        if not 0.0 < self.threshold < 1.0:
+            raise ValueError(f"decision model threshold {self.threshold}: expected in (0, 1)")
+        object.__setattr__(self, "_w", np.asarray(self.weights, dtype=np.float64)
+                           / np.asarray(self.std, dtype=np.float64))
+        object.__setattr__(self, "_b", float(self.intercept - np.dot(self._w, self.mean)))
+
+    def logit(self, x: np.ndarray) -> np.ndarray | float:
+        """The model's log-odds of a false fix for feature rows ``x`` ((K,) or (N, K))."""
+        return np.asarray(x, dtype=np.float64) @ self._w + self._b
+
+    def p_false(self, x: np.ndarray) -> np.ndarray | float:
+        z = np.clip(self.logit(x), -50.0, 50.0)
+        return 1.0 / (1.0 + np.exp(-z))
+
+    def decide(self, x: np.ndarray) -> tuple[Decision, float]:
+        p = float(self.p_false(x))
+        return (Decision.REJECT if p > self.threshold else Decision.ACCEPT), p
+
+    @property
+    def model_id(self) -> str:
+        text = json.dumps([self.intercept, list(self.weights), list(self.mean), list(self.std),
+                           self.threshold], sort_keys=True)
+        return hashlib.sha256(text.encode()).hexdigest()[:16]
+
+    def to_dict(self) -> dict:
+        return {"format_version": DECISION_MODEL_FORMAT, "rule": DecisionRule.COMBINED.value,
+                "features": list(self.features), "intercept": self.intercept,
+                "weights": list(self.weights), "mean": list(self.mean), "std": list(self.std),
+                "threshold": self.threshold, "cnn_weights": self.cnn_weights,
+                "model_id": self.model_id, "meta": self.meta}
+
+    def save(self, path: str | Path) -> None:
+        Path(path).write_text(json.dumps(self.to_dict(), indent=2) + "\n")
+
+    @classmethod
+    def load(cls, path: str | Path | None = None) -> "CombinedDecisionModel":
+        """Read a decision-model JSON (default: the shipped one). Raises UserError on a bad file."""
+        from scenenav.errors import UserError
+        p = Path(path) if path else DEFAULT_DECISION_MODEL
+        try:
+            d = json.loads(p.read_text())
+        except (OSError, ValueError) as exc:
+            raise UserError(f"decision model {p}: cannot read ({exc})") from None
+        try:
+            if d.get("format_version") != DECISION_MODEL_FORMAT or d.get("rule") != "combined":
+                raise ValueError("not a combined decision model (format_version/rule)")
+            return cls(intercept=float(d["intercept"]), weights=tuple(map(float, d["weights"])),
+                       mean=tuple(map(float, d["mean"])), std=tuple(map(float, d["std"])),
+                       threshold=float(d.get("threshold", 0.5)),
+                       features=tuple(d.get("features", COMBINED_FEATURES)),
+                       cnn_weights=str(d.get("cnn_weights", "")), meta=dict(d.get("meta", {})),
+                       source=str(p))
+        except (KeyError, TypeError, ValueError) as exc:
+            raise UserError(f"decision model {p}: {exc}") from None
+
+    def cnn_weights_path(self) -> Path | None:
+        """The CNN weights file the model was fitted with (None when not recorded)."""
+        if not self.cnn_weights:
+            return None
+        base = Path(self.source).parent if self.source else DEFAULT_DECISION_MODEL.parent
+        return (base / self.cnn_weights).resolve()

@@ -582,10 +582,13 @@ class MatchTracker:
         self.state = TrackState.ACQUIRING
         self.misses = 0
         self.last_prediction: Prediction | None = None
+        #: Good fixes since the track was last (re-)acquired (a long track is rarely a false one).
+        self.track_fixes = 0
 
     def reset(self) -> None:
         """Forget the track (next match is global)."""
         self._fixes.clear()
+        self.track_fixes = 0
         self.state = TrackState.ACQUIRING
         self.misses = 0
         self.last_prediction = None
@@ -650,6 +653,8 @@ class MatchTracker:
         if result.quality_ok:
             if result.search is not SearchMode.WINDOW or self.state is not TrackState.TRACKING:
                 self._fixes.clear()          # (re-)acquired: old velocity no longer applies
+                self.track_fixes = 0
+            self.track_fixes += 1
             if self._fixes and t_s <= self._fixes[-1][0]:
                 self._fixes.pop()            # same or older timestamp: keep the newest only
             self._fixes.append((t_s, result.position_px[0], result.position_px[1]))

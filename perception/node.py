@@ -36,11 +36,23 @@ log = logging.getLogger(__name__)
 
 
 def make_pipeline(world, method: str, assistant_map_path: str | None, weights: str | None = None):
-    """The pure perception pipeline for a world and a false-match method."""
+    """The pure perception pipeline for a world and a false-match method.
+
+    ``weights``: a CNN ``.pt`` (the paper's rule, P(bad) > 0.5) or a combined decision-model
+    ``.json`` (perception.decision.CombinedDecisionModel): that file selects the combined rule and
+    names the CNN weights it was fitted with. Empty: ``perception/weights/default.pt``, paper rule.
+    """
     from perception.config import PerceptionConfig
-    from perception.decision import FalseMatchMethod
+    from perception.decision import CombinedDecisionModel, DecisionRule, FalseMatchMethod
     from perception.pipeline import PerceptionPipeline
     m = FalseMatchMethod(method)
+    cfg = PerceptionConfig()
+    decision_model = None
+    if weights and str(weights).endswith(".json"):
+        decision_model = CombinedDecisionModel.load(weights)
+        cfg = PerceptionConfig(decision_rule=DecisionRule.COMBINED, decision_model=str(weights))
+        cnn = decision_model.cnn_weights_path()
+        weights = str(cnn) if cnn is not None else None
     classify = None
     amap = None
     if m in (FalseMatchMethod.CNN, FalseMatchMethod.ASSISTANT_MAP):
@@ -54,8 +66,16 @@ def make_pipeline(world, method: str, assistant_map_path: str | None, weights: s
         else:
             amap = AssistantMap.empty(world.width_px, world.height_px, world.m_per_px,
                                       world_name=world.manifest.name)
-    return PerceptionPipeline(world.reference, world.m_per_px, m, PerceptionConfig(),
-                              classify=classify, assistant_map=amap)
+    return PerceptionPipeline(world.reference, world.m_per_px, m, cfg,
+                              classify=classify, assistant_map=amap, decision_model=decision_model)
+
+
+#: Per-fix diagnostics the VisionFix message does not carry, written to ``perception_diag.csv``
+#: in the run folder (decision-model fitting and audits; nothing here is used in flight).
+DIAG_COLUMNS = ("t_s", "frame_seq", "valid", "accepted", "rule", "reason", "search", "track_state",
+                "quality_ok", "u_px", "v_px", "drone_u_px", "drone_v_px", "innovation_px", "track_fixes",
+                "dr_innovation_px", "dr_age_s",
+                "p_true", "p_false", "ncc_peak", "ncc_psr", "ncc_second_peak_ratio")
 
 
 class PerceptionNode:
@@ -71,6 +91,14 @@ class PerceptionNode:
         self.expected_size_px = expected_size_px
         self.keys = Keys(bus_cfg.namespace)
         self.pipeline = make_pipeline(world, method, assistant_map_path, weights)
+        self._diag = None
+        if out_dir is not None:
+            try:
+                self._diag = open(Path(out_dir) / f"perception_diag_{node_id}.csv", "w",
+                                  encoding="utf-8")
+                self._diag.write(",".join(DIAG_COLUMNS) + "\n")
+            except OSError as exc:
+                log.warning("no diagnostics file: %s", exc)
         self.stats: Counter[str] = Counter()
         # (timestamp_us, value) of recent compass and baro samples: frames arrive after a camera
         # latency, so alignment uses the samples taken at or just before the capture time.
@@ -149,6 +177,7 @@ class PerceptionNode:
                     else:
                         self.bus.publish(self.keys.vision_fix(self.node_id),
                                          self._fix_message(msg, res))
+                        self._write_diag(msg, res)
                         self.stats["fixes"] += 1
             except Exception:   # keep serving frames whatever one frame did
                 log.exception("frame %d failed", msg.seq)
@@ -175,9 +204,24 @@ class PerceptionNode:
             time_cnn_ms=float(t.get("cnn", 0.0)), time_lookup_ms=float(t.get("lookup", 0.0)),
             time_total_ms=float(t.get("total", 0.0)))
 
+    def _write_diag(self, msg: CameraFrame, r) -> None:
+        if self._diag is None:
+            return
+        m = r.metrics
+        vals = (r.timestamp_s, msg.seq, int(r.valid), int(r.accepted), r.decision_rule.value,
+                r.reason.value, r.search.value if r.search is not None else "",
+                r.track_state.value, int(r.quality_ok), r.position_px[0], r.position_px[1],
+                r.drone_px[0], r.drone_px[1], r.innovation_px, r.track_fixes,
+                r.dr_innovation_px, r.dr_age_s, r.p_true, r.p_false,
+                m.get("peak", math.nan), m.get("psr", math.nan), m.get("second_peak_ratio", math.nan))
+        self._diag.write(",".join(f"{v:.6g}" if isinstance(v, float) else str(v) for v in vals) + "\n")
+
     def close(self) -> None:
         self._stop.set()
         self._worker.join(timeout=5)
+        if self._diag is not None:
+            self._diag.close()
+            self._diag = None
         if self.out_dir is not None and getattr(self.pipeline, "assistant_map", None) is not None:
             try:
                 self.pipeline.assistant_map.save(Path(self.out_dir) / f"assistant_map_{self.node_id}.npz")

@@ -37,8 +37,9 @@ from perception.alignment import (AlignedCapture, BadInput, TemplateTooLarge, al
                                   to_gray_float32)
 from perception.assistant_map import AssistantMap
 from perception.config import PerceptionConfig, UnknownPolicy
-from perception.decision import (N_PAPER_CLASSES, Decision, FalseMatchMethod, decide_from_p_bad,
-                                 split_classifier_output)
+from perception.decision import (N_PAPER_CLASSES, VARIANCE_WINDOWS, CombinedDecisionModel,
+                                 DeadReckoning, Decision, DecisionRule, FalseMatchMethod,
+                                 combined_features, decide_from_p_bad, split_classifier_output)
 from perception.matcher import MatchResult, MatchTracker, SceneMatcher, SearchMode, TrackState
 from perception.statistical import StatisticalDetector
 from scenenav.errors import UserError
@@ -59,6 +60,7 @@ class Reason(str, Enum):
     NO_DETECTION = "no-detection"            # method none: accepted without a check
     CNN_BAD_AREA = "cnn-bad-area"
     MAP_BAD_AREA = "map-bad-area"
+    LIKELY_FALSE = "likely-false"            # combined rule: P(false fix) above the model threshold
     MAP_UNKNOWN = "map-unknown"              # unknown_policy REJECT and no classifier
     STATISTICAL_VARIANCE = "statistical-variance"
     LOW_QUALITY = "low-quality"              # quality_gate on and the matcher rated it low
@@ -96,6 +98,13 @@ class FixResult:
     statistical_variance_m2: float
     template_side_px: int
     timings_ms: dict[str, float] = field(default_factory=dict)
+    innovation_px: float = _NAN
+    track_fixes: int = 0
+    dr_innovation_px: float = _NAN
+    dr_age_s: float = _NAN
+    drone_px: tuple[float, float] = (_NAN, _NAN)
+    p_false: float = _NAN
+    decision_rule: DecisionRule = DecisionRule.PAPER
 
     @property
     def covariance_row_major(self) -> tuple[float, float, float, float]:
@@ -117,7 +126,8 @@ class PerceptionPipeline:
     def __init__(self, reference_rgb: np.ndarray, m_per_px: float,
                  method: FalseMatchMethod | str | None = None, cfg: PerceptionConfig | None = None,
                  classify: Classifier | None = None, assistant_map: AssistantMap | None = None,
-                 world_name: str = "", model_id: str = "") -> None:
+                 world_name: str = "", model_id: str = "",
+                 decision_model: CombinedDecisionModel | None = None) -> None:
         self.cfg = cfg if cfg is not None else PerceptionConfig()
         try:
             self.method = FalseMatchMethod(method) if method is not None else self.cfg.method
@@ -133,6 +143,7 @@ class PerceptionPipeline:
         self.m_per_px = float(m_per_px)
         self.matcher = SceneMatcher(gray, self.m_per_px, self.cfg.matcher)
         self.tracker = MatchTracker(self.matcher, self.cfg.matcher)
+        self.dead_reckoning = DeadReckoning()
         self.last_aligned: AlignedCapture | None = None
         self.last_match: MatchResult | None = None
         self.classify = classify
@@ -147,6 +158,13 @@ class PerceptionPipeline:
             raise UserError(f"assistant map resolution {assistant_map.m_per_px} m/px: expected "
                             f"{self.m_per_px} m/px (the reference map's)")
         self.assistant_map = assistant_map
+        self.decision_model: CombinedDecisionModel | None = None
+        if self.cfg.decision_rule is DecisionRule.COMBINED and self.method in (
+                FalseMatchMethod.CNN, FalseMatchMethod.ASSISTANT_MAP):
+            self.decision_model = (decision_model if decision_model is not None
+                                   else CombinedDecisionModel.load(self.cfg.decision_model or None))
+        # The statistical indicator over two windows: features of the combined rule.
+        self._variance = [StatisticalDetector(w) for w in VARIANCE_WINDOWS]
         self._detector: StatisticalDetector | None = None
         if self.method is FalseMatchMethod.STATISTICAL:
             self._detector = StatisticalDetector(self.cfg.statistical_window,
@@ -159,6 +177,9 @@ class PerceptionPipeline:
     def reset(self) -> None:
         """Forget the track and the statistical window (keeps the assistant map)."""
         self.tracker.reset()
+        self.dead_reckoning.reset()
+        for det in self._variance:
+            det.reset()
         if self._detector is not None:
             self._detector.reset()
 
@@ -199,7 +220,26 @@ class PerceptionPipeline:
         if prior_enu_m is not None and all(math.isfinite(c) for c in prior_enu_m):
             prior_uv = self.matcher.world_to_pixel(prior_enu_m[0], prior_enu_m[1])
         mask = None if aligned.mask_is_full else aligned.mask
+        # A prediction from a known velocity (tracking with two good fixes) is what the innovation
+        # is measured against; a prior or a one-fix prediction says little about where to be.
+        predicted = (self.tracker.state is TrackState.TRACKING
+                     and self.tracker.velocity_px_s is not None)
+        track_fixes = self.tracker.track_fixes if predicted else 0
         match = self.tracker.match(aligned.template, t_s, mask=mask, prior_uv=prior_uv)
+        pred = self.tracker.last_prediction
+        innovation_px = _NAN
+        if predicted and pred is not None:
+            innovation_px = math.hypot(match.position_px[0] - pred.uv[0],
+                                       match.position_px[1] - pred.uv[1])
+        dr = self.dead_reckoning.predict(t_s)
+        dr_innovation_px, dr_age_s = _NAN, _NAN
+        if dr is not None:
+            dr_innovation_px = math.hypot(match.position_px[0] - dr[0][0],
+                                          match.position_px[1] - dr[0][1])
+            dr_age_s = dr[1]
+        if match.quality_ok:
+            self.dead_reckoning.update(t_s, match.position_px, self.tracker.velocity_px_s,
+                                       self.tracker.track_fixes)
         t_match = time.perf_counter()
         self.last_aligned, self.last_match = aligned, match   # for benchmarks and inspection
         timings["ncc"] = (t_match - t_align) * _MS
@@ -207,7 +247,10 @@ class PerceptionPipeline:
             timings["total"] = (time.perf_counter() - t_start) * _MS
             return self._invalid(t_s, Reason.FLAT_CAPTURE, side, timings)
 
-        decision, reason, p_true, p_classes, variance = self._decide(aligned, match, t_s, timings)
+        innovation_m = innovation_px * self.m_per_px
+        decision, reason, p_true, p_classes, variance, p_false, drone = self._decide(
+            aligned, match, t_s, timings, innovation_m, track_fixes,
+            dr_innovation_px * self.m_per_px, dr_age_s)
         if cfg.quality_gate and not match.quality_ok and decision is Decision.ACCEPT:
             decision, reason = Decision.REJECT, Reason.LOW_QUALITY
         timings["total"] = (time.perf_counter() - t_start) * _MS
@@ -218,46 +261,68 @@ class PerceptionPipeline:
             p_classes=p_classes,
             metrics=_metrics(match.peak, match.psr, match.second_peak_ratio),
             quality_ok=match.quality_ok, search=match.search, track_state=self.tracker.state,
-            statistical_variance_m2=variance, template_side_px=side, timings_ms=timings)
+            statistical_variance_m2=variance, template_side_px=side, timings_ms=timings,
+            innovation_px=innovation_px, track_fixes=track_fixes,
+            dr_innovation_px=dr_innovation_px, dr_age_s=dr_age_s, drone_px=drone, p_false=p_false,
+            decision_rule=self.rule)
+
+    @property
+    def rule(self) -> DecisionRule:
+        """The rule that decides (combined only for cnn / assistant-map with a model)."""
+        return DecisionRule.COMBINED if self.decision_model is not None else DecisionRule.PAPER
 
     # ------------------------------------------------------------------------------ decisions
     def _decide(self, aligned: AlignedCapture, match: MatchResult, t_s: float,
-                timings: dict[str, float]) -> tuple[Decision, Reason, float, tuple, float]:
+                timings: dict[str, float], innovation_m: float, track_fixes: int,
+                dr_innovation_m: float, dr_age_s: float) -> tuple[Decision, Reason, float, tuple, float, float, tuple[float, float]]:
         method = self.method
+        no_px = (_NAN, _NAN)
         if method is FalseMatchMethod.NONE:
-            return Decision.ACCEPT, Reason.NO_DETECTION, _NAN, _NAN_CLASSES, _NAN
+            return Decision.ACCEPT, Reason.NO_DETECTION, _NAN, _NAN_CLASSES, _NAN, _NAN, no_px
         if method is FalseMatchMethod.STATISTICAL:
             t0 = time.perf_counter()
             flag, var = self._detector.update(match.position_enu_m[0], match.position_enu_m[1], t_s)
             timings["lookup"] = (time.perf_counter() - t0) * _MS
             if flag:
-                return Decision.REJECT, Reason.STATISTICAL_VARIANCE, _NAN, _NAN_CLASSES, var
-            return Decision.ACCEPT, Reason.ACCEPTED, _NAN, _NAN_CLASSES, var
+                return (Decision.REJECT, Reason.STATISTICAL_VARIANCE, _NAN, _NAN_CLASSES, var, _NAN,
+                        no_px)
+            return Decision.ACCEPT, Reason.ACCEPTED, _NAN, _NAN_CLASSES, var, _NAN, no_px
 
         u, v = self._drone_pixel(match)
+        var = [_NAN] * len(self._variance)
+        if self.decision_model is not None:      # every valid fix enters the indicators
+            var = [det.update(match.position_enu_m[0], match.position_enu_m[1], t_s)[1]
+                   for det in self._variance]
+        p_classes = _NAN_CLASSES
+        bad_reason = Reason.MAP_BAD_AREA
+        p_bad = _NAN
         if method is FalseMatchMethod.ASSISTANT_MAP:
             t0 = time.perf_counter()
             p_true = self.assistant_map.lookup(u, v)
             timings["lookup"] = (time.perf_counter() - t0) * _MS
             if math.isfinite(p_true):
-                decision = decide_from_p_bad(1.0 - p_true, self.cfg.p_bad_threshold)
-                reason = Reason.ACCEPTED if decision is Decision.ACCEPT else Reason.MAP_BAD_AREA
-                return decision, reason, p_true, _NAN_CLASSES, _NAN
-            if self.classify is None:
+                p_bad = 1.0 - p_true
+            elif self.classify is None:
                 if self.cfg.unknown_policy is UnknownPolicy.ACCEPT:
-                    return Decision.ACCEPT, Reason.ACCEPTED, _NAN, _NAN_CLASSES, _NAN
-                return Decision.REJECT, Reason.MAP_UNKNOWN, _NAN, _NAN_CLASSES, _NAN
-        # cnn, or assistant-map with an unknown pixel and a classifier: classify and write.
-        p_bad, p_classes = self._classify(aligned, timings)
-        t0 = time.perf_counter()
-        self.assistant_map.write_patch(u, v, self._patch_side_px(), 1.0 - p_bad)
-        timings["lookup"] += (time.perf_counter() - t0) * _MS
-        decision = decide_from_p_bad(p_bad, self.cfg.p_bad_threshold)
-        if decision is Decision.ACCEPT:
-            reason = Reason.ACCEPTED
+                    return Decision.ACCEPT, Reason.ACCEPTED, _NAN, _NAN_CLASSES, _NAN, _NAN, (u, v)
+                return Decision.REJECT, Reason.MAP_UNKNOWN, _NAN, _NAN_CLASSES, _NAN, _NAN, (u, v)
+        if not math.isfinite(p_bad):
+            # cnn, or assistant-map with an unknown pixel and a classifier: classify and write.
+            p_bad, p_classes = self._classify(aligned, timings)
+            t0 = time.perf_counter()
+            self.assistant_map.write_patch(u, v, self._patch_side_px(), 1.0 - p_bad)
+            timings["lookup"] += (time.perf_counter() - t0) * _MS
+            bad_reason = Reason.CNN_BAD_AREA
+        p_false = _NAN
+        if self.decision_model is None:
+            decision = decide_from_p_bad(p_bad, self.cfg.p_bad_threshold)
         else:
-            reason = Reason.CNN_BAD_AREA
-        return decision, reason, 1.0 - p_bad, p_classes, _NAN
+            feats = combined_features(p_bad, match.peak, match.psr, match.second_peak_ratio,
+                                      innovation_m, track_fixes, dr_innovation_m, dr_age_s, *var)
+            decision, p_false = self.decision_model.decide(feats)
+            bad_reason = Reason.LIKELY_FALSE
+        reason = Reason.ACCEPTED if decision is Decision.ACCEPT else bad_reason
+        return decision, reason, 1.0 - p_bad, p_classes, _NAN, p_false, (u, v)
 
     def _classify(self, aligned: AlignedCapture,
                   timings: dict[str, float]) -> tuple[float, tuple[float, float, float, float]]:

@@ -13,6 +13,15 @@ Definitions (printed in table2.md):
 * ``precision`` / ``recall`` of the rejection: share of rejected fixes that really are false /
   share of really-false fixes that were rejected;
 * ``fix_time_ms_median``: the perception node's per-fix time (align + NCC + CNN + lookup).
+
+Decision rule of the cnn and assistant-map rows (column ``rule``): ``combined`` by default, i.e.
+``perception.weights`` is the shipped combined decision model
+(``perception/weights/decision_combined.json``: the logistic P(false fix) from the area's P(bad),
+the NCC quality and the innovation against the tracker; docs/perception.md). The paper's rule
+(P(bad) > 0.5) is flown with ``decision_rule="paper"`` or ``--set perception.weights=<a CNN .pt>``
+(overrides come last). With the combined rule, two more flights repeat the cnn and assistant-map
+rows under the paper's rule (``paper_rows``; run folders ``run-*-paper``) for comparison. The rule
+each flight really used is read back from its ``perception_diag_perception.csv``.
 """
 
 from __future__ import annotations
@@ -34,6 +43,22 @@ PAPER = {  # Table 2 of the seed paper: RMS m, time ms, detected %
     "statistical": (1.5, 41.0, 112.0), "none": (3.1, 40.0, None),
 }
 METHODS = ("cnn", "assistant-map", "statistical", "none")
+DECISION_RULES = ("combined", "paper")
+
+
+def default_decision_model() -> Path:
+    from perception.decision import DEFAULT_DECISION_MODEL
+    return DEFAULT_DECISION_MODEL
+
+
+def flown_rule(run_dir: Path) -> str:
+    """The decision rule a flight's perception node used (its diagnostics), '—' when none."""
+    from scenenav.evaluation import read_csv
+    diag = read_csv(Path(run_dir) / "perception_diag_perception.csv")
+    rules = diag.get("rule") if diag else None
+    if rules is None or len(rules) == 0:
+        return "—"
+    return "+".join(sorted({str(r) for r in rules}))
 
 
 def rejection_metrics(fx: dict) -> dict:
@@ -60,11 +85,14 @@ def rejection_metrics(fx: dict) -> dict:
 
 def run_table2(world_dir: str | None, out: str, seed: int = 0, threshold_m: float = 5.0,
                overrides: tuple[str, ...] = (), progress: bool = True,
-               results_page: str | None = None) -> dict:
+               results_page: str | None = None, decision_rule: str = "combined",
+               paper_rows: bool = True) -> dict:
     from scenenav.evaluation import fix_table
     from scenenav.launcher import run
     from scenenav.nodes import load_world_for
     from scenenav.scenario import load_scenario, route_for
+    if decision_rule not in DECISION_RULES:
+        raise UserError(f"decision rule {decision_rule!r}: expected one of {', '.join(DECISION_RULES)}")
     out_dir = Path(out)
     if out_dir.exists() and any(out_dir.iterdir()):
         raise UserError(f"{out_dir}: output folder exists and is not empty (choose a new --out)")
@@ -78,34 +106,44 @@ def run_table2(world_dir: str | None, out: str, seed: int = 0, threshold_m: floa
     base.append("duration_s=100000")          # ends when the scripted route is done
     out_dir.mkdir(parents=True, exist_ok=True)
     rows = []
-    amap_path = out_dir / "assistant_map.npz"
-    for method in METHODS:
-        sets = list(base) + [f"perception.method={method}", f"name=table2-{method}"] + list(overrides)
+    flights = [(m, decision_rule) for m in METHODS]
+    if decision_rule == "combined" and paper_rows:
+        # The paper's rule on the same frames, for comparison (its own CNN flight and map).
+        flights += [("cnn", "paper"), ("assistant-map", "paper")]
+    for method, rule in flights:
+        suffix = "-paper" if rule == "paper" and decision_rule != "paper" else ""
+        sets = list(base) + [f"perception.method={method}", f"name=table2-{method}{suffix}"]
+        if rule == "combined" and method in ("cnn", "assistant-map"):
+            sets.append(f"perception.weights={default_decision_model()}")
+        sets += list(overrides)
+        map_path = out_dir / f"assistant_map{suffix}.npz"
         if method == "assistant-map":
-            if not amap_path.is_file():
+            if not map_path.is_file():
                 raise UserError("the online-CNN flight left no assistant map to reuse")
-            sets.append(f"perception.assistant_map={amap_path.resolve()}")
-        run_dir = out_dir / f"run-{method}"
-        log.info("table2: flying with method %s", method)
+            sets.append(f"perception.assistant_map={map_path.resolve()}")
+        run_dir = out_dir / f"run-{method}{suffix}"
+        log.info("table2: flying with method %s (%s)", method, rule)
         summary = run(None, str(run_dir), tuple(sets), progress=progress)
         if method == "cnn":
             built = run_dir / "assistant_map_perception.npz"
             if built.is_file():
-                shutil.copy(built, amap_path)
+                shutil.copy(built, map_path)
         fx = fix_table(run_dir, threshold_m)
         if not fx:
             raise UserError(f"{run_dir}: the flight produced no fixes (see {run_dir / 'logs'})")
-        row = {"method": method, **rejection_metrics(fx), "run_dir": str(run_dir),
+        row = {"method": method, "rule": flown_rule(run_dir) if method in ("cnn", "assistant-map")
+               else "—", **rejection_metrics(fx), "run_dir": str(run_dir),
                "real_time_factor": summary.get("real_time_factor")}
         rows.append(row)
     result = {"world": world.manifest.name, "threshold_m": threshold_m, "seed": seed,
+              "decision_rule": decision_rule,
               "rows": rows, "paper": {m: {"rms_error_m": p[0], "fix_time_ms": p[1],
                                           "detected_false_pct": p[2]} for m, p in PAPER.items()}}
     (out_dir / "table2.json").write_text(json.dumps(result, indent=2))
     md = table2_markdown(result)
     (out_dir / "table2.md").write_text(md)
     try:
-        plot_figures(out_dir, rows, threshold_m)
+        plot_figures(out_dir, rows[:len(METHODS)], threshold_m)
     except Exception:  # plots never lose the table
         log.exception("could not draw the figures")
     if results_page:
@@ -130,12 +168,14 @@ def table2_markdown(result: dict) -> str:
     lines = [f"# Table 2 reproduced — world `{result['world']}`", "",
              f"False fix: valid fix with horizontal error > {result['threshold_m']:g} m. "
              "RMS over accepted fixes. detected = flagged false / really false x 100.", "",
-             "| method | RMS error (m) | fix time median (ms) | detected false (%) | precision | recall "
+             "rule: the decision rule the flight used (paper = P(bad) > 0.5; combined = logistic "
+             "P(false fix) from P(bad), NCC quality and tracker innovation, docs/perception.md).", "",
+             "| method | rule | RMS error (m) | fix time median (ms) | detected false (%) | precision | recall "
              "| fixes | false fixes | false accepted | paper RMS (m) | paper time (ms) | paper detected (%) |",
-             "|---|---|---|---|---|---|---|---|---|---|---|---|"]
+             "|---|---|---|---|---|---|---|---|---|---|---|---|---|"]
     for r in result["rows"]:
         p = PAPER[r["method"]]
-        lines.append(f"| {r['method']} | {_f(r['rms_error_m'])} | {_f(r['fix_time_ms_median'], '{:.1f}')} "
+        lines.append(f"| {r['method']} | {r.get('rule', '—')} | {_f(r['rms_error_m'])} | {_f(r['fix_time_ms_median'], '{:.1f}')} "
                      f"| {_f(r['detected_false_pct'], '{:.1f}')} | {_f(r['precision'], '{:.3f}')} "
                      f"| {_f(r['recall'], '{:.3f}')} | {r['fixes_total']} | {r['false_fixes']} "
                      f"| {r['false_fixes_accepted']} | {p[0]} | {p[1]:g} | {_f(p[2], '{:g}')} |")
