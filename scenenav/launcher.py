@@ -198,12 +198,15 @@ def run(scenario_path: str | None, out_dir: str, overrides: tuple[str, ...] = ()
             if cfg.clock.mode == ClockMode.LOCKSTEP:
                 expect.append("tick")
         sim = launch.spawn("sim", ["sim", "--run-dir", str(run_dir), "--expect", ",".join(expect)])
-        _wait_sim(sim, launch, cfg, progress)
+        swap = PerceptionSwap(launch, cfg) if cfg.perception.enabled and cfg.perception.swap_at_s > 0 \
+            else None
+        _wait_sim(sim, launch, cfg, progress, swap)
     except KeyboardInterrupt:
         interrupted = True
         log.warning("interrupted: stopping every node")
     finally:
-        launch.stop_all(order=["sim", "guidance", "autopilot", "perception", "recorder"])
+        launch.stop_all(order=["sim", "guidance", "autopilot", "perception", SWAP_NODE_ID,
+                               "recorder"])
     wall = time.time() - wall0
     from scenenav.evaluation import evaluate_run
     summary = evaluate_run(run_dir, cfg, world, wall_time_s=wall, interrupted=interrupted)
@@ -216,7 +219,59 @@ def run(scenario_path: str | None, out_dir: str, overrides: tuple[str, ...] = ()
     return summary
 
 
-def _wait_sim(sim: Child, launch: Launch, cfg: ScenarioConfig, progress: bool) -> None:
+SWAP_NODE_ID = "perception-2"
+#: Wall seconds the first perception node is kept after the swap started when the second one has
+#: not produced a fix yet (it is stopped anyway then, with a warning).
+SWAP_HANDOVER_TIMEOUT_S = 60.0
+
+
+class PerceptionSwap:
+    """``perception.swap_at_s``: start a second perception node (``perception-2``, method
+    ``perception.swap_method``) on the live bus at that simulated time, and stop the first one as soon
+    as the second has published a fix (make-before-break, as an operator would swap nodes by hand)."""
+
+    def __init__(self, launch: Launch, cfg: ScenarioConfig) -> None:
+        self.launch = launch
+        self.cfg = cfg
+        self.started_wall: float | None = None
+        self.done = False
+
+    def poll(self, sim_t_s: float | None) -> None:
+        if self.done:
+            return
+        p = self.cfg.perception
+        if self.started_wall is None:
+            if sim_t_s is not None and sim_t_s >= p.swap_at_s:
+                self.launch.spawn(SWAP_NODE_ID, ["perception", "--run-dir", str(self.launch.run_dir),
+                                                 "--node-id", SWAP_NODE_ID, "--method", p.swap_method])
+                self.started_wall = time.monotonic()
+                log.info("perception swap at %.1f s: %s -> %s", sim_t_s, p.method, p.swap_method)
+            return
+        answered = _fixes_from(self.launch.run_dir, SWAP_NODE_ID)
+        late = time.monotonic() - self.started_wall > SWAP_HANDOVER_TIMEOUT_S
+        if answered or late:
+            if late and not answered:
+                log.warning("%s produced no fix within %.0f s; stopping the first node anyway",
+                            SWAP_NODE_ID, SWAP_HANDOVER_TIMEOUT_S)
+            for c in self.launch.children:
+                if c.name == "perception":
+                    _stop(c)
+            self.done = True
+
+
+def _fixes_from(run_dir: Path, node_id: str) -> bool:
+    """Has fixes.csv a row from ``node_id`` (read from the end of the file)?"""
+    p = run_dir / "fixes.csv"
+    try:
+        with p.open("rb") as f:
+            f.seek(max(0, p.stat().st_size - 20000))
+            return f",{node_id},".encode() in f.read()
+    except OSError:
+        return False
+
+
+def _wait_sim(sim: Child, launch: Launch, cfg: ScenarioConfig, progress: bool,
+              swap: PerceptionSwap | None = None) -> None:
     """Wait for the simulator to end; show progress from its log of simulated time."""
     bar = None
     if progress and sys.stderr.isatty():
@@ -224,9 +279,11 @@ def _wait_sim(sim: Child, launch: Launch, cfg: ScenarioConfig, progress: bool) -
         bar = tqdm(total=round(cfg.duration_s), unit="sim s", desc=cfg.name, leave=False)
     while sim.proc.poll() is None:
         for c in launch.children:
-            if c is not sim and c.proc.poll() is not None and c.proc.returncode != 0:
+            if c is not sim and c.proc.poll() is not None and c.proc.returncode not in (0, -2, 130):
                 log.error("%s exited with code %s (see logs/%s.log)", c.name, c.proc.returncode, c.name)
         time.sleep(0.25)
+        if swap is not None:
+            swap.poll(_sim_progress(launch.run_dir))
         if bar is not None:
             t = _sim_progress(launch.run_dir)
             if t is not None:

@@ -65,10 +65,15 @@ class PerceptionNodeConfig:
     assistant_map: str = ""            # .npz for method assistant-map (empty: built online)
     weights: str = ""                  # CNN weights .pt (empty: perception/weights/default.pt)
     lockstep: bool = True              # the simulator waits for this node's answer to each frame
+    swap_at_s: float = 0.0             # > 0: at this simulated time a second node takes over (swap)
+    swap_method: str = "statistical"   # method of that second node (perception-2)
 
     def __post_init__(self) -> None:
-        check(self.method in ("cnn", "assistant-map", "statistical", "none"), "method",
-              self.method, "one of cnn, assistant-map, statistical, none")
+        methods = ("cnn", "assistant-map", "statistical", "none")
+        check(self.method in methods, "method", self.method, "one of cnn, assistant-map, statistical, none")
+        check(self.swap_at_s >= 0, "swap_at_s", self.swap_at_s, ">= 0 s (0 = no swap)")
+        check(self.swap_method in methods, "swap_method", self.swap_method,
+              "one of cnn, assistant-map, statistical, none")
 
 
 @dataclass(frozen=True)
