@@ -98,15 +98,16 @@ class DecisionRule(str, Enum):
 #: ``peak``       NCC peak; ``log_psr`` ln(max(PSR, 1)); ``spr`` second-peak ratio;
 #: ``innov``      ln(1 + innovation / 1 m) when the tracker predicted from a known velocity, else 0;
 #: ``no_track``   1 when there was no such prediction (global search, re-acquisition, one fix);
-#: ``log_track``  ln(1 + good fixes in the track the prediction came from) (0 without one);
-#: ``dr_innov``   ln(1 + distance / 1 m) between the fix and the dead-reckoned position of the last
-#:                established track (:class:`DeadReckoning`), 0 without one;
-#: ``dr_age``     ln(1 + seconds since that track's last fix), 0 without one;
-#: ``no_dr``      1 when there is no established track yet;
+#: ``log_run``    ln(1 + length of the unbroken run of quality-ok matches this one continues)
+#:                (:class:`TrackEvidence`);
+#: ``dr_innov``   ln(1 + distance / 1 m) between the fix and the dead-reckoned anchor of the last
+#:                established run (:class:`TrackEvidence`), 0 without one;
+#: ``dr_age``     ln(1 + seconds since that anchor), 0 without one;
+#: ``no_dr``      1 when no run has been established yet;
 #: ``log_var30``  ln(1e-3 + the paper's statistical indicator: detrended variance (m^2) of the last
 #:                30 fixes, this one included; perception.statistical), 0 before 3 fixes;
 #: ``log_var10``  the same over the last 10 fixes (reacts faster).
-COMBINED_FEATURES = ("bad_logit", "peak", "log_psr", "spr", "innov", "no_track", "log_track",
+COMBINED_FEATURES = ("bad_logit", "peak", "log_psr", "spr", "innov", "no_track", "log_run",
                      "dr_innov", "dr_age", "no_dr", "log_var30", "log_var10")
 #: Windows of the two statistical-indicator features.
 VARIANCE_WINDOWS = (30, 10)
@@ -114,7 +115,7 @@ P_CLIP = 0.005
 
 
 def combined_features(p_bad: float, peak: float, psr: float, second_peak_ratio: float,
-                      innovation_m: float, track_fixes: int = 0, dr_innovation_m: float = math.nan,
+                      innovation_m: float, run: int = 0, dr_innovation_m: float = math.nan,
                       dr_age_s: float = math.nan, variance30_m2: float = math.nan,
                       variance10_m2: float = math.nan) -> np.ndarray:
     """The feature vector of :data:`COMBINED_FEATURES` (``innovation_m`` NaN = no prediction,
@@ -129,7 +130,7 @@ def combined_features(p_bad: float, peak: float, psr: float, second_peak_ratio: 
         second_peak_ratio if math.isfinite(second_peak_ratio) else 1.0,
         math.log1p(innovation_m) if tracked else 0.0,
         0.0 if tracked else 1.0,
-        math.log1p(max(track_fixes, 0)) if tracked else 0.0,
+        math.log1p(max(run, 0)),
         math.log1p(dr_innovation_m) if dr else 0.0,
         math.log1p(max(dr_age_s, 0.0)) if dr else 0.0,
         0.0 if dr else 1.0,
@@ -138,35 +139,61 @@ def combined_features(p_bad: float, peak: float, psr: float, second_peak_ratio: 
     ])
 
 
-class DeadReckoning:
-    """The last *established* track, extrapolated at constant velocity (no truth, no decisions).
+class TrackEvidence:
+    """How established the current match sequence is, from the matches alone (no truth, no verdicts).
 
-    A track is established once the matcher's tracker has ``min_track_fixes`` consecutive good
-    (quality-ok) fixes since its last (re-)acquisition: false locks rarely keep matching that
-    long. Each good fix of an established track stores (t, u, v, velocity). ``predict(t)`` gives
-    where that track would be now and how old it is; a fix far from it, after a loss, is more
-    likely a false lock than a re-acquisition. Pixels and seconds; the pipeline converts to metres.
+    Fed every valid match in order (``observe``). A *run* is an unbroken sequence of quality-ok
+    matches: any low-quality match ends it, a quality-ok global search (re-acquisition) starts a
+    new one. A run of ``min_run`` matches is *established* (false locks rarely keep matching
+    unbroken that long, while a track whose matches are mostly low quality never qualifies);
+    each further match of it moves the *anchor*: (t, u, v) and the velocity over its last
+    ``min_run`` matches. ``observe`` returns, from the state before the match, the length of the
+    run it continues and the distance / age to the anchor dead-reckoned at constant velocity.
+    Pixels and seconds; the pipeline converts to metres.
     """
 
-    def __init__(self, min_track_fixes: int = 10) -> None:
-        self.min_track_fixes = int(min_track_fixes)
-        self._state: tuple[float, float, float, float, float] | None = None
+    def __init__(self, min_run: int = 10) -> None:
+        self.min_run = int(min_run)
+        self._run: list[tuple[float, float, float]] = []
+        self.count = 0
+        self._anchor: tuple[float, float, float, float, float] | None = None
 
     def reset(self) -> None:
-        self._state = None
+        self._run = []
+        self.count = 0
+        self._anchor = None
 
     def predict(self, t_s: float) -> tuple[tuple[float, float], float] | None:
-        if self._state is None:
+        """The anchor dead-reckoned to ``t_s`` and its age in seconds (None: none yet)."""
+        if self._anchor is None:
             return None
-        t0, u, v, vu, vv = self._state
+        t0, u, v, vu, vv = self._anchor
         dt = max(0.0, t_s - t0)
         return (u + vu * dt, v + vv * dt), dt
 
-    def update(self, t_s: float, uv: tuple[float, float], velocity_px_s: tuple[float, float] | None,
-               track_fixes: int) -> None:
-        if track_fixes >= self.min_track_fixes and velocity_px_s is not None:
-            self._state = (float(t_s), float(uv[0]), float(uv[1]), float(velocity_px_s[0]),
-                           float(velocity_px_s[1]))
+    def observe(self, t_s: float, uv: tuple[float, float], quality_ok: bool,
+                reacquired: bool) -> tuple[int, float, float]:
+        """Add a match; return (run length before it, distance to the anchor px, anchor age s)."""
+        run_before = self.count
+        pred = self.predict(t_s)
+        dist, age = math.nan, math.nan
+        if pred is not None:
+            dist = math.hypot(uv[0] - pred[0][0], uv[1] - pred[0][1])
+            age = pred[1]
+        if not quality_ok:
+            self._run, self.count = [], 0
+            return run_before, dist, age
+        if reacquired or self.count == 0:
+            self._run, self.count = [], 0
+        self._run.append((float(t_s), float(uv[0]), float(uv[1])))
+        if len(self._run) > self.min_run:
+            self._run.pop(0)
+        self.count += 1
+        if self.count >= self.min_run:
+            (ta, ua, va), (tb, ub, vb) = self._run[0], self._run[-1]
+            if tb > ta:
+                self._anchor = (tb, ub, vb, (ub - ua) / (tb - ta), (vb - va) / (tb - ta))
+        return run_before, dist, age
 
 
 #: The shipped combined-rule model (fitted by ``scenenav cnn fit-decision``, see docs/perception.md).

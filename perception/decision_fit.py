@@ -30,7 +30,7 @@ from pathlib import Path
 import numpy as np
 
 from perception.decision import (COMBINED_FEATURES, VARIANCE_WINDOWS, CombinedDecisionModel,
-                                 combined_features)
+                                 TrackEvidence, combined_features)
 from perception.statistical import StatisticalDetector
 from scenenav.errors import UserError
 
@@ -65,10 +65,14 @@ def flight_samples(run_dir: str | Path, threshold_m: float = 5.0) -> dict:
     p_map = np.array([1.0 - amap.lookup(u, v) for u, v in zip(du, dv)])
     p_map = np.where(np.isfinite(p_map), p_map, p_online)
     innov = diag["innovation_px"][idx_d] * m_per_px
-    track = diag["track_fixes"][idx_d] if "track_fixes" in diag else np.zeros(len(idx_d))
-    nan = np.full(len(idx_d), np.nan)
-    dr_innov = diag["dr_innovation_px"][idx_d] * m_per_px if "dr_innovation_px" in diag else nan
-    dr_age = diag["dr_age_s"][idx_d] if "dr_age_s" in diag else nan
+    # TrackEvidence replayed exactly as the pipeline feeds it: every valid match, in order.
+    ev = TrackEvidence()
+    run, dr_innov, dr_age = (np.empty(len(idx_d)) for _ in range(3))
+    for k, j in enumerate(idx_d):
+        run[k], dr_innov[k], dr_age[k] = ev.observe(
+            float(diag["t_s"][j]), (float(diag["u_px"][j]), float(diag["v_px"][j])),
+            bool(diag["quality_ok"][j] > 0.5), str(diag["search"][j]) != "window")
+    dr_innov *= m_per_px
     peak, psr, spr = (diag[k][idx_d] for k in ("ncc_peak", "ncc_psr", "ncc_second_peak_ratio"))
     # The statistical indicators as the pipeline computes them: every valid fix, in order.
     variances = []
@@ -79,10 +83,9 @@ def flight_samples(run_dir: str | Path, threshold_m: float = 5.0) -> dict:
     out = {"world": run_dir.name, "y": fx["is_false"][idx_fx].astype(bool),
            "error_m": fx["error_m"][idx_fx], "t_s": fx["t_s"][idx_fx]}
     for src, p_bad in (("cnn", p_online), ("assistant-map", p_map)):
-        out[src] = np.array([combined_features(pb, pk, ps, sp, inn, int(tr) if math.isfinite(tr) else 0,
-                                               di, da, v30, v10)
-                             for pb, pk, ps, sp, inn, tr, di, da, v30, v10
-                             in zip(p_bad, peak, psr, spr, innov, track, dr_innov, dr_age, *variances)])
+        out[src] = np.array([combined_features(pb, pk, ps, sp, inn, int(rn), di, da, v30, v10)
+                             for pb, pk, ps, sp, inn, rn, di, da, v30, v10
+                             in zip(p_bad, peak, psr, spr, innov, run, dr_innov, dr_age, *variances)])
         out[f"p_bad_{src}"] = p_bad
     return out
 

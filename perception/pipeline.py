@@ -38,8 +38,9 @@ from perception.alignment import (AlignedCapture, BadInput, TemplateTooLarge, al
 from perception.assistant_map import AssistantMap
 from perception.config import PerceptionConfig, UnknownPolicy
 from perception.decision import (N_PAPER_CLASSES, VARIANCE_WINDOWS, CombinedDecisionModel,
-                                 DeadReckoning, Decision, DecisionRule, FalseMatchMethod,
-                                 combined_features, decide_from_p_bad, split_classifier_output)
+                                 Decision, DecisionRule, FalseMatchMethod,
+                                 TrackEvidence, combined_features, decide_from_p_bad,
+                                 split_classifier_output)
 from perception.matcher import MatchResult, MatchTracker, SceneMatcher, SearchMode, TrackState
 from perception.statistical import StatisticalDetector
 from scenenav.errors import UserError
@@ -100,6 +101,7 @@ class FixResult:
     timings_ms: dict[str, float] = field(default_factory=dict)
     innovation_px: float = _NAN
     track_fixes: int = 0
+    run: int = 0
     dr_innovation_px: float = _NAN
     dr_age_s: float = _NAN
     drone_px: tuple[float, float] = (_NAN, _NAN)
@@ -143,7 +145,7 @@ class PerceptionPipeline:
         self.m_per_px = float(m_per_px)
         self.matcher = SceneMatcher(gray, self.m_per_px, self.cfg.matcher)
         self.tracker = MatchTracker(self.matcher, self.cfg.matcher)
-        self.dead_reckoning = DeadReckoning()
+        self.track_evidence = TrackEvidence()
         self.last_aligned: AlignedCapture | None = None
         self.last_match: MatchResult | None = None
         self.classify = classify
@@ -177,7 +179,7 @@ class PerceptionPipeline:
     def reset(self) -> None:
         """Forget the track and the statistical window (keeps the assistant map)."""
         self.tracker.reset()
-        self.dead_reckoning.reset()
+        self.track_evidence.reset()
         for det in self._variance:
             det.reset()
         if self._detector is not None:
@@ -231,15 +233,6 @@ class PerceptionPipeline:
         if predicted and pred is not None:
             innovation_px = math.hypot(match.position_px[0] - pred.uv[0],
                                        match.position_px[1] - pred.uv[1])
-        dr = self.dead_reckoning.predict(t_s)
-        dr_innovation_px, dr_age_s = _NAN, _NAN
-        if dr is not None:
-            dr_innovation_px = math.hypot(match.position_px[0] - dr[0][0],
-                                          match.position_px[1] - dr[0][1])
-            dr_age_s = dr[1]
-        if match.quality_ok:
-            self.dead_reckoning.update(t_s, match.position_px, self.tracker.velocity_px_s,
-                                       self.tracker.track_fixes)
         t_match = time.perf_counter()
         self.last_aligned, self.last_match = aligned, match   # for benchmarks and inspection
         timings["ncc"] = (t_match - t_align) * _MS
@@ -247,9 +240,11 @@ class PerceptionPipeline:
             timings["total"] = (time.perf_counter() - t_start) * _MS
             return self._invalid(t_s, Reason.FLAT_CAPTURE, side, timings)
 
+        run, dr_innovation_px, dr_age_s = self.track_evidence.observe(
+            t_s, match.position_px, match.quality_ok, match.search is not SearchMode.WINDOW)
         innovation_m = innovation_px * self.m_per_px
         decision, reason, p_true, p_classes, variance, p_false, drone = self._decide(
-            aligned, match, t_s, timings, innovation_m, track_fixes,
+            aligned, match, t_s, timings, innovation_m, run,
             dr_innovation_px * self.m_per_px, dr_age_s)
         if cfg.quality_gate and not match.quality_ok and decision is Decision.ACCEPT:
             decision, reason = Decision.REJECT, Reason.LOW_QUALITY
@@ -262,7 +257,7 @@ class PerceptionPipeline:
             metrics=_metrics(match.peak, match.psr, match.second_peak_ratio),
             quality_ok=match.quality_ok, search=match.search, track_state=self.tracker.state,
             statistical_variance_m2=variance, template_side_px=side, timings_ms=timings,
-            innovation_px=innovation_px, track_fixes=track_fixes,
+            innovation_px=innovation_px, track_fixes=track_fixes, run=run,
             dr_innovation_px=dr_innovation_px, dr_age_s=dr_age_s, drone_px=drone, p_false=p_false,
             decision_rule=self.rule)
 
@@ -273,7 +268,7 @@ class PerceptionPipeline:
 
     # ------------------------------------------------------------------------------ decisions
     def _decide(self, aligned: AlignedCapture, match: MatchResult, t_s: float,
-                timings: dict[str, float], innovation_m: float, track_fixes: int,
+                timings: dict[str, float], innovation_m: float, run: int,
                 dr_innovation_m: float, dr_age_s: float) -> tuple[Decision, Reason, float, tuple, float, float, tuple[float, float]]:
         method = self.method
         no_px = (_NAN, _NAN)
@@ -318,7 +313,7 @@ class PerceptionPipeline:
             decision = decide_from_p_bad(p_bad, self.cfg.p_bad_threshold)
         else:
             feats = combined_features(p_bad, match.peak, match.psr, match.second_peak_ratio,
-                                      innovation_m, track_fixes, dr_innovation_m, dr_age_s, *var)
+                                      innovation_m, run, dr_innovation_m, dr_age_s, *var)
             decision, p_false = self.decision_model.decide(feats)
             bad_reason = Reason.LIKELY_FALSE
         reason = Reason.ACCEPTED if decision is Decision.ACCEPT else bad_reason

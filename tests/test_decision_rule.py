@@ -11,7 +11,7 @@ import pytest
 
 from perception.config import PerceptionConfig
 from perception.decision import (COMBINED_FEATURES, DEFAULT_DECISION_MODEL, CombinedDecisionModel,
-                                 DeadReckoning, Decision, DecisionRule, FalseMatchMethod,
+                                 Decision, DecisionRule, TrackEvidence, FalseMatchMethod,
                                  combined_features)
 from perception.decision_fit import choose_threshold, fit_logistic, make_model, rejection_scores
 from perception.pipeline import PerceptionPipeline, Reason
@@ -28,18 +28,19 @@ def _model(intercept: float, threshold: float = 0.5, **w) -> CombinedDecisionMod
 
 
 def test_features_known_and_unknown_parts():
-    x = combined_features(0.5, 0.8, math.e, 0.3, 1.0, 9, 3.0, 2.0)
+    x = combined_features(0.5, 0.8, math.e, 0.3, 1.0, 9, 3.0, 2.0, 0.999, math.nan)
     assert x.shape == (K,)
     f = dict(zip(COMBINED_FEATURES, x))
     assert f["bad_logit"] == pytest.approx(0.0)
     assert f["log_psr"] == pytest.approx(1.0)
     assert f["innov"] == pytest.approx(math.log(2.0)) and f["no_track"] == 0.0
-    assert f["log_track"] == pytest.approx(math.log(10.0))
+    assert f["log_run"] == pytest.approx(math.log(10.0))
+    assert f["log_var30"] == pytest.approx(0.0) and f["log_var10"] == 0.0
     assert f["dr_innov"] == pytest.approx(math.log(4.0)) and f["dr_age"] == pytest.approx(math.log(3.0))
     assert f["no_dr"] == 0.0
     y = dict(zip(COMBINED_FEATURES, combined_features(1.0, 0.2, 2.0, 0.9, math.nan)))
     assert y["bad_logit"] == pytest.approx(math.log(0.995 / 0.005))
-    assert y["no_track"] == 1.0 and y["innov"] == 0.0 and y["log_track"] == 0.0
+    assert y["no_track"] == 1.0 and y["innov"] == 0.0 and y["log_run"] == 0.0
     assert y["no_dr"] == 1.0 and y["dr_innov"] == 0.0
 
 
@@ -90,18 +91,29 @@ def test_fit_logistic_separates_and_threshold_reaches_recall():
     assert t <= 0.5
 
 
-def test_dead_reckoning_needs_an_established_track():
-    dr = DeadReckoning(min_track_fixes=3)
-    assert dr.predict(1.0) is None
-    dr.update(0.0, (10.0, 20.0), (2.0, -1.0), track_fixes=2)      # not yet established
-    assert dr.predict(1.0) is None
-    dr.update(0.0, (10.0, 20.0), (2.0, -1.0), track_fixes=3)
-    (u, v), age = dr.predict(2.5)
-    assert (u, v) == pytest.approx((15.0, 17.5)) and age == pytest.approx(2.5)
-    dr.update(3.0, (0.0, 0.0), None, track_fixes=50)                # no velocity: kept
-    assert dr.predict(3.0)[0] == pytest.approx((16.0, 17.0))
-    dr.reset()
-    assert dr.predict(3.0) is None
+def test_track_evidence_runs_and_dead_reckoned_anchor():
+    ev = TrackEvidence(min_run=3)
+    assert ev.predict(1.0) is None
+    # Two good matches: a run of 2, not established yet.
+    assert ev.observe(0.0, (10.0, 20.0), True, True)[0] == 0
+    assert ev.observe(0.1, (11.0, 20.0), True, False)[0] == 1
+    assert ev.predict(0.2) is None
+    run, dist, age = ev.observe(0.2, (12.0, 20.0), True, False)        # established: anchor
+    assert run == 2 and math.isnan(dist)
+    (u, v), age = ev.predict(1.2)
+    assert (u, v) == pytest.approx((22.0, 20.0)) and age == pytest.approx(1.0)
+    # A low-quality match breaks the run but the anchor stays and measures it.
+    run, dist, age = ev.observe(0.3, (40.0, 20.0), False, False)
+    assert run == 3 and dist == pytest.approx(27.0) and age == pytest.approx(0.1)
+    assert ev.count == 0
+    # A re-acquisition starts a new run; the anchor only moves once that run is established.
+    ev.observe(0.4, (100.0, 0.0), True, True)
+    ev.observe(0.5, (101.0, 0.0), True, False)
+    assert ev.predict(0.5)[0] == pytest.approx((15.0, 20.0))
+    ev.observe(0.6, (102.0, 0.0), True, False)
+    assert ev.predict(0.6)[0] == pytest.approx((102.0, 0.0))
+    ev.reset()
+    assert ev.predict(0.6) is None and ev.count == 0
 
 
 def test_pipeline_paper_rule_is_the_default(world):
@@ -117,7 +129,7 @@ def test_pipeline_combined_rule_uses_match_evidence(world, method):
     ref, day = world
     cfg = dataclasses.replace(PerceptionConfig(), decision_rule=DecisionRule.COMBINED)
     # Rejects what is not tracked (a global search) and trusts a long track, whatever P(bad) says.
-    model = _model(-2.0, bad_logit=0.0, no_track=4.0, log_track=-1.0)
+    model = _model(-2.0, bad_logit=0.0, no_track=4.0, log_run=-1.0)
     pipe = PerceptionPipeline(ref, MPP, method, cfg, classify=cnn_fake, decision_model=model)
     assert pipe.rule is DecisionRule.COMBINED
     results = fly(pipe, day, 12)
@@ -127,7 +139,7 @@ def test_pipeline_combined_rule_uses_match_evidence(world, method):
     assert math.isnan(first.innovation_px)
     late = results[-1][0]
     assert late.accepted and late.p_false < 0.5
-    assert late.innovation_px < 2.0 and late.track_fixes >= 9
+    assert late.innovation_px < 2.0 and late.run >= 9
     assert late.dr_innovation_px < 2.0 and late.dr_age_s == pytest.approx(0.1, abs=1e-6)
     lake = pipe.process(render(day, 70.0, 200.0, 0.0), 0.0, ALT, 1.3)
     assert lake.valid and lake.p_true == pytest.approx(0.1)
