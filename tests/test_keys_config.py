@@ -66,3 +66,16 @@ def test_override_syntax():
     with pytest.raises(ConfigError):
         apply_overrides({}, ["novalue"])
     assert apply_overrides({"a": {"b": 1}}, ["a.b=2", "c=x"]) == {"a": {"b": 2}, "c": "x"}
+
+
+def test_every_shipped_scenario_loads():
+    """Each file in scenarios/ is a valid scenario (what `scenenav run FILE` checks first)."""
+    from pathlib import Path
+
+    from scenenav.scenario import load_scenario
+    files = sorted((Path(__file__).resolve().parents[1] / "scenarios").glob("*.yaml"))
+    assert {f.stem for f in files} >= {"demo", "scripted_loop", "gps_denied", "guided_route",
+                                      "perception_swap"}
+    for f in files:
+        cfg = load_scenario(f)
+        assert cfg.name == f.stem, f
