@@ -209,13 +209,14 @@ def collect(out: str | Path, world_seeds: tuple[int, ...], size_px: tuple[int, i
     """Generate each training world and fly it once with the online CNN (skips finished ones).
     Writes ``manifest.json`` (command, seeds, size, weights) beside ``worlds/`` and ``flights/``."""
     from worlds.generator import CityConfig, generate_world
+    reserved = sorted(set(world_seeds) & RESERVED_SEEDS)
+    if reserved:
+        raise UserError(f"world seed(s) {reserved} reserved for held-out evaluation "
+                        f"({sorted(RESERVED_SEEDS)}); choose other training seeds")
     out = Path(out)
     (out / "worlds").mkdir(parents=True, exist_ok=True)
     runs = []
     for seed in world_seeds:
-        if seed in RESERVED_SEEDS:
-            raise UserError(f"world seed {seed} is reserved for held-out evaluation "
-                            f"({sorted(RESERVED_SEEDS)}); choose other training seeds")
         wdir = out / "worlds" / f"w{seed}"
         if not (wdir / "manifest.json").is_file():
             world = generate_world(CityConfig(seed=seed, width_px=size_px[0], height_px=size_px[1]),
