@@ -174,6 +174,7 @@ class AutopilotNode:
         if not scenario.sim.gps.enabled:
             defaults.update({"EK3_SRC1_POSXY": 6, "EK3_SRC1_VELXY": 0})
         defaults.update(_load_params_file(self.acfg.params_file))
+        defaults.update(self.acfg.params)
         self.params = ParameterStore(PARAM_SPECS, path=run_dir / PARAMS_FILE if run_dir else None,
                                      defaults=defaults)
         start = scenario.flight.start_enu_m

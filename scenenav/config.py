@@ -57,6 +57,11 @@ def _convert(tp: Any, value: Any, key: str, source: str) -> Any:
         if not isinstance(value, Mapping):
             raise ConfigError(f"{source}: {key}: expected a mapping, got {value!r}")
         return load_config(tp, value, source, prefix=key + ".")
+    if origin is dict:
+        if not isinstance(value, Mapping):
+            raise ConfigError(f"{source}: {key} = {value!r}: expected a mapping {{NAME: value}}")
+        return {str(_convert(args[0], k, key, source)): _convert(args[1], v, f"{key}.{k}", source)
+                for k, v in value.items()}
     if origin is tuple:
         if not isinstance(value, (list, tuple)):
             raise ConfigError(f"{source}: {key} = {value!r}: expected a list")

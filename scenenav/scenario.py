@@ -122,6 +122,7 @@ class AutopilotNodeConfig:
     params_file: str = ""              # JSON {"NAME": value} of ArduPilot parameters set at start
     vision_wait_s: float = 5.0         # lockstep: wall seconds to wait for the fix of an acked frame
     estimate_rate_hz: float = 20.0     # autopilot/estimate rate (simulated time)
+    params: dict[str, float] = field(default_factory=dict)   # ArduPilot parameters {NAME: value}, after params_file
 
     def __post_init__(self) -> None:
         check(0 <= self.mavlink_tcp_port <= 65535, "mavlink_tcp_port", self.mavlink_tcp_port,
@@ -131,6 +132,12 @@ class AutopilotNodeConfig:
         check(self.vision_wait_s >= 0, "vision_wait_s", self.vision_wait_s, ">= 0 s")
         check(0 < self.estimate_rate_hz <= 1000, "estimate_rate_hz", self.estimate_rate_hz,
               "0 to 1000 Hz")
+        if self.params:
+            from autopilot_bridge.flight_core import PARAM_SPECS
+            known = {spec.name for spec in PARAM_SPECS}
+            unknown = sorted(set(self.params) - known)
+            check(not unknown, "params", unknown, "ArduCopter parameter names the autopilot knows "
+                  "(docs/mavlink.md lists them)")
 
 
 @dataclass(frozen=True)

@@ -19,6 +19,8 @@ def scenenav(*args):
     (["run", "--out", "{tmp}/v", "--set", "novalue"], "KEY=VALUE"),
     (["bench", "sim", "--sizes", "12xfoo"], "WIDTHxHEIGHT"),
     (["run", "--out", "{tmp}/u", "--set", "world=generated:seed=1,warp=9"], "warp"),
+    (["run", "--out", "{tmp}/o", "--set", "autopilot.params={{LAND_SPED: 1}}"], "LAND_SPED"),
+    (["run", "--out", "{tmp}/n", "--set", "autopilot.params=[1, 2]"], "expected a mapping"),
     (["run", "--out", "{tmp}/t", "--set", "world=generated:seed=x"], "seed"),
     (["run", "--out", "{tmp}/s", "--set", "world=generated:width_px=10"], "width_px"),
     (["run", "--out", "{tmp}/r", "--set", "guidance.enabled=true",

@@ -79,3 +79,13 @@ def test_every_shipped_scenario_loads():
     for f in files:
         cfg = load_scenario(f)
         assert cfg.name == f.stem, f
+
+
+def test_autopilot_params_mapping_round_trips():
+    from scenenav.config import to_dict
+    from scenenav.scenario import ScenarioConfig, load_scenario
+    cfg = load_scenario(None, ("autopilot.params={LAND_SPEED: 100, WPNAV_SPEED_DN: 300}",))
+    assert cfg.autopilot.params == {"LAND_SPEED": 100.0, "WPNAV_SPEED_DN": 300.0}
+    from scenenav.config import load_config
+    again = load_config(ScenarioConfig, to_dict(cfg))
+    assert again.autopilot.params == cfg.autopilot.params
