@@ -169,7 +169,8 @@ def table2_markdown(result: dict) -> str:
              f"False fix: valid fix with horizontal error > {result['threshold_m']:g} m. "
              "RMS over accepted fixes. detected = flagged false / really false x 100.", "",
              "rule: the decision rule the flight used (paper = P(bad) > 0.5; combined = logistic "
-             "P(false fix) from P(bad), NCC quality and tracker innovation, docs/perception.md).", "",
+             "P(false fix) from P(bad), NCC quality and tracker innovation, docs/perception.md, "
+             "where its held-out-world results are).", "",
              "| method | rule | RMS error (m) | fix time median (ms) | detected false (%) | precision | recall "
              "| fixes | false fixes | false accepted | paper RMS (m) | paper time (ms) | paper detected (%) |",
              "|---|---|---|---|---|---|---|---|---|---|---|---|---|"]
