@@ -19,6 +19,9 @@ from scenenav.evaluation import fix_table, read_csv
 ROOT = Path(__file__).resolve().parents[1]
 SCENARIO = ROOT / "scenarios" / "guided_route.yaml"
 CRUISE_MIN_Z_M = 90.0
+# Two flights of two to three simulated minutes (plus, on a fresh machine, the world and its
+# assistant map being built once): more than the suite's default per-test limit on a loaded machine.
+pytestmark = pytest.mark.timeout(1200)
 
 
 def _run(out: Path, *overrides: str) -> dict:

@@ -46,6 +46,12 @@ def test_fuzzed_input_never_breaks_the_server_or_moves_the_vehicle():
                                  condition=lambda m: m.param_id == "WPNAV_SPEED")
             assert reply is not None, f"server stopped answering: {server.stats}"
             assert reply.param_value == 1000.0
+            # The reply may stem from a fuzzed PARAM_REQUEST_LIST still being answered: wait until
+            # the server has read the whole stream before looking at its counters.
+            deadline = time.monotonic() + 60.0
+            while server.stats["rx_bytes"] < len(stream) and time.monotonic() < deadline:
+                time.sleep(0.05)
+            assert server.stats["rx_bytes"] >= len(stream), server.stats
             stats = dict(server.stats)
         finally:
             conn.close()
