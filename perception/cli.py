@@ -283,7 +283,7 @@ def register(subparsers) -> None:
         description="Generate each training world (seeded) and fly the Table-2 path over it once with "
                     "method cnn (a full lockstep `scenenav run`); the run folders (fixes.csv, "
                     "perception_diag_perception.csv, assistant map) are the combined rule's training "
-                    "data. Seeds 0 (default world) and 9001-9003 (held out) are refused.")
+                    "data. Seeds 0 (default world), 9001-9003 and 9101-9103 (held out) are refused.")
     dd.add_argument("--out", required=True, metavar="DIR", help="data folder (worlds/ and flights/)")
     dd.add_argument("--worlds", type=_seeds, default=DEFAULT_TRAIN_SEEDS, metavar="SEEDS",
                     help="training world seeds (default " + ",".join(map(str, DEFAULT_TRAIN_SEEDS)) + ")")

@@ -106,9 +106,13 @@ class DecisionRule(str, Enum):
 #: ``no_dr``      1 when no run has been established yet;
 #: ``log_var30``  ln(1e-3 + the paper's statistical indicator: detrended variance (m^2) of the last
 #:                30 fixes, this one included; perception.statistical), 0 before 3 fixes;
-#: ``log_var10``  the same over the last 10 fixes (reacts faster).
+#: ``log_var10``  the same over the last 10 fixes (reacts faster);
+#: ``reach``      ln(1 + metres by which the fix lies beyond where the drone can be: farther from the
+#:                anchor's position than REACH_FACTOR x anchor speed x anchor age), 0 without anchor.
 COMBINED_FEATURES = ("bad_logit", "peak", "log_psr", "spr", "innov", "no_track", "log_run",
-                     "dr_innov", "dr_age", "no_dr", "log_var30", "log_var10")
+                     "dr_innov", "dr_age", "no_dr", "log_var30", "log_var10", "reach")
+#: Reachability margin on the anchor's speed (the drone may speed up a little, in any direction).
+REACH_FACTOR = 1.2
 #: Windows of the two statistical-indicator features.
 VARIANCE_WINDOWS = (30, 10)
 P_CLIP = 0.005
@@ -117,7 +121,7 @@ P_CLIP = 0.005
 def combined_features(p_bad: float, peak: float, psr: float, second_peak_ratio: float,
                       innovation_m: float, run: int = 0, dr_innovation_m: float = math.nan,
                       dr_age_s: float = math.nan, variance30_m2: float = math.nan,
-                      variance10_m2: float = math.nan) -> np.ndarray:
+                      variance10_m2: float = math.nan, reach_excess_m: float = math.nan) -> np.ndarray:
     """The feature vector of :data:`COMBINED_FEATURES` (``innovation_m`` NaN = no prediction,
     ``dr_innovation_m`` / ``dr_age_s`` NaN = no established track)."""
     dr = math.isfinite(dr_innovation_m) and math.isfinite(dr_age_s)
@@ -136,6 +140,7 @@ def combined_features(p_bad: float, peak: float, psr: float, second_peak_ratio: 
         0.0 if dr else 1.0,
         math.log(1e-3 + variance30_m2) if math.isfinite(variance30_m2) else 0.0,
         math.log(1e-3 + variance10_m2) if math.isfinite(variance10_m2) else 0.0,
+        math.log1p(max(reach_excess_m, 0.0)) if math.isfinite(reach_excess_m) else 0.0,
     ])
 
 
@@ -148,8 +153,10 @@ class TrackEvidence:
     unbroken that long, while a track whose matches are mostly low quality never qualifies);
     each further match of it moves the *anchor*: (t, u, v) and the velocity over its last
     ``min_run`` matches. ``observe`` returns, from the state before the match, the length of the
-    run it continues and the distance / age to the anchor dead-reckoned at constant velocity.
-    Pixels and seconds; the pipeline converts to metres.
+    run it continues, the distance / age to the anchor dead-reckoned at constant velocity, and the
+    reachability excess: how far the match lies beyond REACH_FACTOR x anchor speed x age from the
+    anchor's position (negative = reachable; a straight-line extrapolation can be wrong after a
+    turn, this bound cannot). Pixels and seconds; the pipeline converts to metres.
     """
 
     def __init__(self, min_run: int = 10) -> None:
@@ -172,17 +179,21 @@ class TrackEvidence:
         return (u + vu * dt, v + vv * dt), dt
 
     def observe(self, t_s: float, uv: tuple[float, float], quality_ok: bool,
-                reacquired: bool) -> tuple[int, float, float]:
-        """Add a match; return (run length before it, distance to the anchor px, anchor age s)."""
+                reacquired: bool) -> tuple[int, float, float, float]:
+        """Add a match; return (run length before it, distance to the dead-reckoned anchor px,
+        anchor age s, reachability excess px)."""
         run_before = self.count
         pred = self.predict(t_s)
-        dist, age = math.nan, math.nan
+        dist, age, excess = math.nan, math.nan, math.nan
         if pred is not None:
             dist = math.hypot(uv[0] - pred[0][0], uv[1] - pred[0][1])
             age = pred[1]
+            t0, ua, va, vu, vv = self._anchor
+            excess = (math.hypot(uv[0] - ua, uv[1] - va)
+                      - REACH_FACTOR * math.hypot(vu, vv) * age)
         if not quality_ok:
             self._run, self.count = [], 0
-            return run_before, dist, age
+            return run_before, dist, age, excess
         if reacquired or self.count == 0:
             self._run, self.count = [], 0
         self._run.append((float(t_s), float(uv[0]), float(uv[1])))
@@ -193,7 +204,7 @@ class TrackEvidence:
             (ta, ua, va), (tb, ub, vb) = self._run[0], self._run[-1]
             if tb > ta:
                 self._anchor = (tb, ub, vb, (ub - ua) / (tb - ta), (vb - va) / (tb - ta))
-        return run_before, dist, age
+        return run_before, dist, age, excess
 
 
 #: The shipped combined-rule model (fitted by ``scenenav cnn fit-decision``, see docs/perception.md).

@@ -67,12 +67,13 @@ def flight_samples(run_dir: str | Path, threshold_m: float = 5.0) -> dict:
     innov = diag["innovation_px"][idx_d] * m_per_px
     # TrackEvidence replayed exactly as the pipeline feeds it: every valid match, in order.
     ev = TrackEvidence()
-    run, dr_innov, dr_age = (np.empty(len(idx_d)) for _ in range(3))
+    run, dr_innov, dr_age, reach = (np.empty(len(idx_d)) for _ in range(4))
     for k, j in enumerate(idx_d):
-        run[k], dr_innov[k], dr_age[k] = ev.observe(
+        run[k], dr_innov[k], dr_age[k], reach[k] = ev.observe(
             float(diag["t_s"][j]), (float(diag["u_px"][j]), float(diag["v_px"][j])),
             bool(diag["quality_ok"][j] > 0.5), str(diag["search"][j]) != "window")
     dr_innov *= m_per_px
+    reach *= m_per_px
     peak, psr, spr = (diag[k][idx_d] for k in ("ncc_peak", "ncc_psr", "ncc_second_peak_ratio"))
     # The statistical indicators as the pipeline computes them: every valid fix, in order.
     variances = []
@@ -83,9 +84,10 @@ def flight_samples(run_dir: str | Path, threshold_m: float = 5.0) -> dict:
     out = {"world": run_dir.name, "y": fx["is_false"][idx_fx].astype(bool),
            "error_m": fx["error_m"][idx_fx], "t_s": fx["t_s"][idx_fx]}
     for src, p_bad in (("cnn", p_online), ("assistant-map", p_map)):
-        out[src] = np.array([combined_features(pb, pk, ps, sp, inn, int(rn), di, da, v30, v10)
-                             for pb, pk, ps, sp, inn, rn, di, da, v30, v10
-                             in zip(p_bad, peak, psr, spr, innov, run, dr_innov, dr_age, *variances)])
+        out[src] = np.array([combined_features(pb, pk, ps, sp, inn, int(rn), di, da, v30, v10, re)
+                             for pb, pk, ps, sp, inn, rn, di, da, v30, v10, re
+                             in zip(p_bad, peak, psr, spr, innov, run, dr_innov, dr_age, *variances,
+                                    reach)])
         out[f"p_bad_{src}"] = p_bad
     return out
 
@@ -237,7 +239,7 @@ def collect(out: str | Path, world_seeds: tuple[int, ...], size_px: tuple[int, i
 
 
 #: Never used for fitting: the default world (seed 0) and the held-out evaluation worlds.
-RESERVED_SEEDS = frozenset({0, 9001, 9002, 9003})
+RESERVED_SEEDS = frozenset({0, 9001, 9002, 9003, 9101, 9102, 9103})
 #: Training worlds of the shipped model (disjoint from the CNN's training worlds 1-12 too).
 DEFAULT_TRAIN_SEEDS = tuple(range(101, 111))
 

@@ -74,7 +74,7 @@ def make_pipeline(world, method: str, assistant_map_path: str | None, weights: s
 #: in the run folder (decision-model fitting and audits; nothing here is used in flight).
 DIAG_COLUMNS = ("t_s", "frame_seq", "valid", "accepted", "rule", "reason", "search", "track_state",
                 "quality_ok", "u_px", "v_px", "drone_u_px", "drone_v_px", "innovation_px", "track_fixes", "run",
-                "dr_innovation_px", "dr_age_s",
+                "dr_innovation_px", "dr_age_s", "reach_excess_px",
                 "p_true", "p_false", "ncc_peak", "ncc_psr", "ncc_second_peak_ratio")
 
 
@@ -212,7 +212,7 @@ class PerceptionNode:
                 r.reason.value, r.search.value if r.search is not None else "",
                 r.track_state.value, int(r.quality_ok), r.position_px[0], r.position_px[1],
                 r.drone_px[0], r.drone_px[1], r.innovation_px, r.track_fixes, r.run,
-                r.dr_innovation_px, r.dr_age_s, r.p_true, r.p_false,
+                r.dr_innovation_px, r.dr_age_s, r.reach_excess_px, r.p_true, r.p_false,
                 m.get("peak", math.nan), m.get("psr", math.nan), m.get("second_peak_ratio", math.nan))
         self._diag.write(",".join(f"{v:.6g}" if isinstance(v, float) else str(v) for v in vals) + "\n")
 

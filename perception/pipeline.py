@@ -104,6 +104,7 @@ class FixResult:
     run: int = 0
     dr_innovation_px: float = _NAN
     dr_age_s: float = _NAN
+    reach_excess_px: float = _NAN
     drone_px: tuple[float, float] = (_NAN, _NAN)
     p_false: float = _NAN
     decision_rule: DecisionRule = DecisionRule.PAPER
@@ -240,12 +241,12 @@ class PerceptionPipeline:
             timings["total"] = (time.perf_counter() - t_start) * _MS
             return self._invalid(t_s, Reason.FLAT_CAPTURE, side, timings)
 
-        run, dr_innovation_px, dr_age_s = self.track_evidence.observe(
+        run, dr_innovation_px, dr_age_s, reach_excess_px = self.track_evidence.observe(
             t_s, match.position_px, match.quality_ok, match.search is not SearchMode.WINDOW)
         innovation_m = innovation_px * self.m_per_px
         decision, reason, p_true, p_classes, variance, p_false, drone = self._decide(
             aligned, match, t_s, timings, innovation_m, run,
-            dr_innovation_px * self.m_per_px, dr_age_s)
+            dr_innovation_px * self.m_per_px, dr_age_s, reach_excess_px * self.m_per_px)
         if cfg.quality_gate and not match.quality_ok and decision is Decision.ACCEPT:
             decision, reason = Decision.REJECT, Reason.LOW_QUALITY
         timings["total"] = (time.perf_counter() - t_start) * _MS
@@ -258,7 +259,8 @@ class PerceptionPipeline:
             quality_ok=match.quality_ok, search=match.search, track_state=self.tracker.state,
             statistical_variance_m2=variance, template_side_px=side, timings_ms=timings,
             innovation_px=innovation_px, track_fixes=track_fixes, run=run,
-            dr_innovation_px=dr_innovation_px, dr_age_s=dr_age_s, drone_px=drone, p_false=p_false,
+            dr_innovation_px=dr_innovation_px, dr_age_s=dr_age_s,
+            reach_excess_px=reach_excess_px, drone_px=drone, p_false=p_false,
             decision_rule=self.rule)
 
     @property
@@ -269,7 +271,7 @@ class PerceptionPipeline:
     # ------------------------------------------------------------------------------ decisions
     def _decide(self, aligned: AlignedCapture, match: MatchResult, t_s: float,
                 timings: dict[str, float], innovation_m: float, run: int,
-                dr_innovation_m: float, dr_age_s: float) -> tuple[Decision, Reason, float, tuple, float, float, tuple[float, float]]:
+                dr_innovation_m: float, dr_age_s: float, reach_excess_m: float) -> tuple[Decision, Reason, float, tuple, float, float, tuple[float, float]]:
         method = self.method
         no_px = (_NAN, _NAN)
         if method is FalseMatchMethod.NONE:
@@ -313,7 +315,8 @@ class PerceptionPipeline:
             decision = decide_from_p_bad(p_bad, self.cfg.p_bad_threshold)
         else:
             feats = combined_features(p_bad, match.peak, match.psr, match.second_peak_ratio,
-                                      innovation_m, run, dr_innovation_m, dr_age_s, *var)
+                                      innovation_m, run, dr_innovation_m, dr_age_s, *var,
+                                      reach_excess_m)
             decision, p_false = self.decision_model.decide(feats)
             bad_reason = Reason.LIKELY_FALSE
         reason = Reason.ACCEPTED if decision is Decision.ACCEPT else bad_reason

@@ -28,7 +28,7 @@ def _model(intercept: float, threshold: float = 0.5, **w) -> CombinedDecisionMod
 
 
 def test_features_known_and_unknown_parts():
-    x = combined_features(0.5, 0.8, math.e, 0.3, 1.0, 9, 3.0, 2.0, 0.999, math.nan)
+    x = combined_features(0.5, 0.8, math.e, 0.3, 1.0, 9, 3.0, 2.0, 0.999, math.nan, 9.0)
     assert x.shape == (K,)
     f = dict(zip(COMBINED_FEATURES, x))
     assert f["bad_logit"] == pytest.approx(0.0)
@@ -36,12 +36,13 @@ def test_features_known_and_unknown_parts():
     assert f["innov"] == pytest.approx(math.log(2.0)) and f["no_track"] == 0.0
     assert f["log_run"] == pytest.approx(math.log(10.0))
     assert f["log_var30"] == pytest.approx(0.0) and f["log_var10"] == 0.0
+    assert f["reach"] == pytest.approx(math.log(10.0))
     assert f["dr_innov"] == pytest.approx(math.log(4.0)) and f["dr_age"] == pytest.approx(math.log(3.0))
     assert f["no_dr"] == 0.0
     y = dict(zip(COMBINED_FEATURES, combined_features(1.0, 0.2, 2.0, 0.9, math.nan)))
     assert y["bad_logit"] == pytest.approx(math.log(0.995 / 0.005))
     assert y["no_track"] == 1.0 and y["innov"] == 0.0 and y["log_run"] == 0.0
-    assert y["no_dr"] == 1.0 and y["dr_innov"] == 0.0
+    assert y["no_dr"] == 1.0 and y["dr_innov"] == 0.0 and y["reach"] == 0.0
 
 
 def test_model_probability_threshold_and_file_round_trip(tmp_path):
@@ -98,13 +99,16 @@ def test_track_evidence_runs_and_dead_reckoned_anchor():
     assert ev.observe(0.0, (10.0, 20.0), True, True)[0] == 0
     assert ev.observe(0.1, (11.0, 20.0), True, False)[0] == 1
     assert ev.predict(0.2) is None
-    run, dist, age = ev.observe(0.2, (12.0, 20.0), True, False)        # established: anchor
-    assert run == 2 and math.isnan(dist)
+    run, dist, age, reach = ev.observe(0.2, (12.0, 20.0), True, False)  # established: anchor
+    assert run == 2 and math.isnan(dist) and math.isnan(reach)
     (u, v), age = ev.predict(1.2)
     assert (u, v) == pytest.approx((22.0, 20.0)) and age == pytest.approx(1.0)
     # A low-quality match breaks the run but the anchor stays and measures it.
-    run, dist, age = ev.observe(0.3, (40.0, 20.0), False, False)
+    run, dist, age, reach = ev.observe(0.3, (40.0, 20.0), False, False)
     assert run == 3 and dist == pytest.approx(27.0) and age == pytest.approx(0.1)
+    # 28 px from the anchor position, reachable: 1.2 x 10 px/s x 0.1 s = 1.2 px -> 26.8 px beyond
+    assert reach == pytest.approx(28.0 - 1.2)
+    assert ev.observe(1.2, (21.0, 20.0), False, False)[3] < 0.0          # within reach
     assert ev.count == 0
     # A re-acquisition starts a new run; the anchor only moves once that run is established.
     ev.observe(0.4, (100.0, 0.0), True, True)
