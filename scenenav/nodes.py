@@ -72,6 +72,17 @@ def run_recorder(run_dir: Path, bus_cfg: BusConfig) -> int:
     return 0
 
 
+def _perception_weights(pcfg) -> str | None:
+    """What the perception node loads: a CNN .pt (paper rule) or a decision model .json (combined
+    rule; it names the CNN it was fitted with)."""
+    if pcfg.decision_rule == "combined":
+        if pcfg.decision_model:
+            return pcfg.decision_model
+        from perception.decision import DEFAULT_DECISION_MODEL
+        return str(DEFAULT_DECISION_MODEL)
+    return pcfg.weights or None
+
+
 def run_perception(run_dir: Path | None, bus_cfg: BusConfig, method: str | None,
                    node_id: str, world_dir: str | None, assistant_map: str | None,
                    lockstep: bool | None) -> int:
@@ -84,7 +95,7 @@ def run_perception(run_dir: Path | None, bus_cfg: BusConfig, method: str | None,
         world, bus_cfg, node_id=node_id, method=method or pcfg.method,
         assistant_map_path=assistant_map if assistant_map is not None else (pcfg.assistant_map or None),
         lockstep=pcfg.lockstep if lockstep is None else lockstep,
-        out_dir=run_dir, weights=pcfg.weights or None)
+        out_dir=run_dir, weights=_perception_weights(pcfg))
     stop = _stop_event()
     stop.wait()
     node.close()

@@ -65,12 +65,19 @@ class PerceptionNodeConfig:
     assistant_map: str = ""            # .npz for method assistant-map (empty: built online)
     weights: str = ""                  # CNN weights .pt (empty: perception/weights/default.pt)
     lockstep: bool = True              # the simulator waits for this node's answer to each frame
+    decision_rule: str = "paper"       # cnn, assistant-map: paper (P(bad) > 0.5) or combined (docs/perception.md)
+    decision_model: str = ""           # combined rule: model .json (empty: the shipped one)
     swap_at_s: float = 0.0             # > 0: at this simulated time a second node takes over (swap)
     swap_method: str = "statistical"   # method of that second node (perception-2)
 
     def __post_init__(self) -> None:
         methods = ("cnn", "assistant-map", "statistical", "none")
         check(self.method in methods, "method", self.method, "one of cnn, assistant-map, statistical, none")
+        check(self.decision_rule in ("paper", "combined"), "decision_rule", self.decision_rule,
+              "paper or combined")
+        check(not (self.decision_rule == "combined" and self.weights.endswith(".pt")), "weights",
+              self.weights, "empty with decision_rule combined (the decision model names the CNN it "
+              "was fitted with; choose another model with decision_model)")
         check(self.swap_at_s >= 0, "swap_at_s", self.swap_at_s, ">= 0 s (0 = no swap)")
         check(self.swap_method in methods, "swap_method", self.swap_method,
               "one of cnn, assistant-map, statistical, none")
