@@ -148,7 +148,7 @@ class BenchFlight:
         accel, gyro = self._imu_tick()
         self.nav.initialise(accel, float(self.compass.sample(heading_from_quat(np.array(self.q)))),
                             self.baro.sample(float(self.p[2]))[0], gyro_flu_rad_s=gyro,
-                            position_enu_m=self.p.copy())
+                            position_enu_m=self.p.copy(), at_rest=False)   # starts hovering
         self.fc.reset(self.nav.state(), landed=False)
 
     @property

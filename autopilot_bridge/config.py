@@ -83,6 +83,7 @@ class EkfConfig:
     # Tilt error of the levelling at rest beyond the horizontal accelerometer bias, which the levelling
     # absorbs (initialise correlates the two: the tilt 1-sigma is sqrt(this^2 + (accel bias std / g)^2)).
     initial_tilt_std_rad: float = 0.002
+    initial_tilt_moving_std_rad: float = 0.02   # aligned in the air (initialise(at_rest=False))
     initial_heading_std_rad: float = 0.05
     initial_gyro_bias_std_rad_s: float = 0.01    # gyro bias unknown (no average rate at rest given)
     aligned_gyro_bias_std_rad_s: float = 0.001   # gyro bias seeded from the average rate at rest
@@ -106,8 +107,8 @@ class EkfConfig:
                      "baro_noise_m", "compass_noise_rad", "gps_position_noise_min_m",
                      "gps_velocity_noise_min_m_s", "vision_position_noise_min_m",
                      "initial_position_std_m", "unknown_position_std_m", "initial_velocity_std_m_s",
-                     "initial_tilt_std_rad", "initial_heading_std_rad", "initial_gyro_bias_std_rad_s",
-                     "aligned_gyro_bias_std_rad_s",
+                     "initial_tilt_std_rad", "initial_tilt_moving_std_rad", "initial_heading_std_rad",
+                     "initial_gyro_bias_std_rad_s", "aligned_gyro_bias_std_rad_s",
                      "initial_accel_bias_std_m_s2", "max_gyro_bias_rad_s", "max_accel_bias_m_s2",
                      "max_position_std_m", "max_velocity_std_m_s", "velocity_ok_max_std_m_s",
                      "healthy_max_tilt_std_rad", "position_ok_max_std_m", "gravity_m_s2",

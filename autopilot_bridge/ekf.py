@@ -264,11 +264,15 @@ class NavFilter:
         return self._cfg
 
     def initialise(self, accel_flu_m_s2, heading_rad: float, baro_alt_m: float, *,
-                   gyro_flu_rad_s=None, position_enu_m=None, gps_position_enu_m=None) -> None:
+                   gyro_flu_rad_s=None, position_enu_m=None, gps_position_enu_m=None,
+                   at_rest: bool = True) -> None:
         """Align at rest: roll/pitch from the specific force, heading from the compass, height reference
         from the barometer, horizontal position from ``position_enu_m`` (a known home), else GPS, else the
         origin with ``unknown_position_std_m``. Pass averages of about a second of samples at rest;
-        ``gyro_flu_rad_s`` (the average rate at rest) seeds the gyro bias.
+        ``gyro_flu_rad_s`` (the average rate at rest) seeds the gyro bias. ``at_rest=False`` (a start in
+        the air, from samples taken while flying) keeps the wide, independent priors of an unknown tilt
+        (``initial_tilt_moving_std_rad``) and gyro bias: the specific force of a hovering vehicle in
+        wind does not level it.
 
         Height: the barometer altitude is taken as ENU z (offset 0) unless ``position_enu_m`` is given, in
         which case the offset is set so that the filter's z equals ``position_enu_m[2]``. GPS height is
@@ -306,11 +310,13 @@ class NavFilter:
         # grow by ~0.6 deg/s from the take-off.
         # The body z (yaw) bias keeps the wide prior: the compass observes it quickly, and a slow turn
         # during the alignment (a moving platform) shows up there.
-        bg_std = c.aligned_gyro_bias_std_rad_s if gyro_flu_rad_s is not None else c.initial_gyro_bias_std_rad_s
+        seeded = gyro_flu_rad_s is not None and at_rest
+        bg_std = c.aligned_gyro_bias_std_rad_s if seeded else c.initial_gyro_bias_std_rad_s
         sa = c.initial_accel_bias_std_m_s2
+        tilt_std = c.initial_tilt_std_rad if at_rest else c.initial_tilt_moving_std_rad
         variances = ([pos_std ** 2] * 2 + [c.baro_noise_m ** 2]
                      + [c.initial_velocity_std_m_s ** 2] * 3
-                     + [c.initial_tilt_std_rad ** 2] * 2 + [c.initial_heading_std_rad ** 2]
+                     + [tilt_std ** 2] * 2 + [c.initial_heading_std_rad ** 2]
                      + [bg_std ** 2] * 2 + [c.initial_gyro_bias_std_rad_s ** 2]
                      + [sa ** 2] * 3)
         P = np.diag(np.array(variances, dtype=float))
@@ -320,12 +326,13 @@ class NavFilter:
         # force g dtheta + R b_a, which is what drives the velocity, starts known to the levelling error
         # only. (Independent tilt and bias priors would add ~0.28 m/s^2 of phantom acceleration
         # uncertainty: ~14 m of position 1-sigma 10 s after the take-off without aiding.)
-        g = self._g
-        M = np.array([[0.0, -1.0 / g, 0.0], [1.0 / g, 0.0, 0.0], [0.0, 0.0, 0.0]])
-        cross = (sa * sa) * (M @ quat_to_rotation_matrix(self._q))
-        P[_ATT, _ATT] += (sa * sa) * (M @ M.T)
-        P[_ATT, _BA] = cross
-        P[_BA, _ATT] = cross.T
+        if at_rest:
+            g = self._g
+            M = np.array([[0.0, -1.0 / g, 0.0], [1.0 / g, 0.0, 0.0], [0.0, 0.0, 0.0]])
+            cross = (sa * sa) * (M @ quat_to_rotation_matrix(self._q))
+            P[_ATT, _ATT] += (sa * sa) * (M @ M.T)
+            P[_ATT, _BA] = cross
+            P[_BA, _ATT] = cross.T
         self._P = P
         self._time_s = 0.0
         self._pos_last_ok_s = 0.0
