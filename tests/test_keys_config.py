@@ -75,7 +75,7 @@ def test_every_shipped_scenario_loads():
     from scenenav.scenario import load_scenario
     files = sorted((Path(__file__).resolve().parents[1] / "scenarios").glob("*.yaml"))
     assert {f.stem for f in files} >= {"demo", "scripted_loop", "gps_denied", "guided_route",
-                                      "perception_swap"}
+                                      "perception_swap", "paper_experiment"}
     for f in files:
         cfg = load_scenario(f)
         assert cfg.name == f.stem, f
