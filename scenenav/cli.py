@@ -130,11 +130,13 @@ def build_parser() -> argparse.ArgumentParser:
     esub = e.add_subparsers(dest="experiment", metavar="NAME")
     esub.required = True
     t2 = esub.add_parser("table2", help="Table 2: online CNN, assistant map, statistical, none",
-                         description="Fly the same path four times in lockstep (identical frames): "
+                         description="Fly the same path in lockstep (identical frames) once per method: "
                                      "online CNN (builds the assistant map), the assistant map from "
-                                     "that flight, the statistical indicator, no exclusion. Writes "
-                                     "table2.json, table2.md, figure7.png, figure8.png and one run "
-                                     "folder per method.")
+                                     "that flight, the statistical indicator, no exclusion. CNN and "
+                                     "assistant map fly the combined decision rule and, for comparison, "
+                                     "again the paper's rule P(bad) > 0.5 with their own map: six "
+                                     "flights (about 9 min on 2 cores). Writes table2.json, table2.md, "
+                                     "figure7.png, figure8.png and one run folder per flight.")
     t2.add_argument("--world", help="world folder (default: the built-in default world)")
     t2.add_argument("--out", required=True, metavar="DIR")
     t2.add_argument("--seed", type=int, default=0, help="scenario seed (default 0)")
