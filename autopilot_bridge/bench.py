@@ -43,6 +43,7 @@ from autopilot_bridge.guidance_law import Waypoint, WaypointTracker
 from autopilot_bridge.mixer import QuadXMixer
 from scenenav.config import check
 from scenenav.errors import UserError
+from scenenav.geometry import distance_to_polyline_m
 from sitl.config import SimConfig, WindConfig
 from sitl.dynamics import QuadrotorDynamics, heading_from_quat, rotation_rows
 from sitl.sensors import BaroModel, CompassModel, GpsModel, ImuModel
@@ -266,7 +267,7 @@ def _track(flight: BenchFlight, cfg: AutopilotBenchConfig) -> dict:
         if float(np.linalg.norm(tv)) < CRUISE_FRACTION * cfg.cruise_speed_m_s:
             continue
         tp = np.asarray(target.position_enu_m[:2], dtype=float)
-        a, b = min(legs, key=lambda ab: _distance_to_segment(tp, *ab))
+        a, b = min(legs, key=lambda ab: float(distance_to_polyline_m(tp, ab)[0]))
         u = (b - a) / np.linalg.norm(b - a)
         n = np.array([-u[1], u[0]])
         rel = flight.p[:2] - a
@@ -285,12 +286,6 @@ def _track(flight: BenchFlight, cfg: AutopilotBenchConfig) -> dict:
         "cruise_speed_mean_m_s": float(np.mean(speeds)) if speeds else 0.0,
         "cruise_s": len(xtrack) / cfg.control_rate_hz,
     }
-
-
-def _distance_to_segment(p: np.ndarray, a: np.ndarray, b: np.ndarray) -> float:
-    d = b - a
-    t = min(max(float((p - a) @ d) / float(d @ d), 0.0), 1.0)
-    return float(np.linalg.norm(p - (a + t * d)))
 
 
 def run_bench(cfg: AutopilotBenchConfig | None = None, json_out: bool = False,

@@ -48,6 +48,7 @@ from scenenav.config import check
 from scenenav.contracts import (AutopilotStatus, ClockMode, ClockTick, Event, LockstepAck,
                                 LockstepRole, NavEstimate, NodeInfo, RunState, Severity)
 from scenenav.errors import UserError
+from scenenav.geometry import distance_to_polyline_m
 from scenenav.keys import Keys
 from worlds.frames import enu_to_geodetic
 
@@ -91,16 +92,7 @@ class GuidanceNodeConfig:
 
 def cross_track_m(route_xy: np.ndarray, p_xy: np.ndarray) -> float:
     """Distance (m) from a point to a polyline."""
-    route_xy = np.asarray(route_xy, dtype=float).reshape(-1, 2)
-    p_xy = np.asarray(p_xy, dtype=float).reshape(2)
-    if len(route_xy) == 1:
-        return float(np.hypot(*(route_xy[0] - p_xy)))
-    a, b = route_xy[:-1], route_xy[1:]
-    ab = b - a
-    t = np.clip(np.einsum("ij,ij->i", p_xy - a, ab) / np.maximum(np.einsum("ij,ij->i", ab, ab), 1e-9),
-                0.0, 1.0)
-    closest = a + ab * t[:, None]
-    return float(np.min(np.hypot(*(closest - p_xy).T)))
+    return float(distance_to_polyline_m(p_xy, route_xy)[0])
 
 
 def replan_reason(route_xy: np.ndarray, here_xy, goal_xy, drift_limit_m: float,

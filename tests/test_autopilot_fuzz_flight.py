@@ -29,6 +29,8 @@ from test_failsafe import Gcs, write_params
 from test_gcs_mavproxy import (SitlSession, enu_to_latlon, final_position, wait_until,
                                world_origin)
 
+from scenenav.geometry import distance_to_polyline_m
+
 SEED = 20240917
 N_PER_KIND = 2600                       # four kinds -> 10,400 inputs
 ALT_M = 10.0
@@ -168,12 +170,7 @@ def upload(gcs: Gcs, items: list) -> int | None:
 
 def distance_to_path_m(x: np.ndarray, y: np.ndarray, path: list[tuple[float, float]]) -> np.ndarray:
     """Horizontal distance of each point to the polyline ``path``."""
-    best = np.full(x.shape, np.inf)
-    for (ax, ay), (bx, by) in zip(path, path[1:]):
-        dx, dy = bx - ax, by - ay
-        t = np.clip(((x - ax) * dx + (y - ay) * dy) / (dx * dx + dy * dy), 0.0, 1.0)
-        best = np.minimum(best, np.hypot(x - (ax + t * dx), y - (ay + t * dy)))
-    return best
+    return distance_to_polyline_m(np.stack([x, y], axis=1), path)
 
 
 def test_fuzz_while_flying_a_mission(tmp_path):

@@ -83,3 +83,10 @@ def test_node_config_follows_the_scenario():
     assert node_cfg.end is RouteEnd.RTL and node_cfg.mavlink_url == "tcp:127.0.0.1:5761"
     assert planner_cfg.altitude_m == 80.0 and planner_cfg.footprint_width_m == 0.0
     assert planner_cfg.clearance_m == 15.0
+
+
+def test_distance_to_polyline_vectorised():
+    from scenenav.geometry import distance_to_polyline_m
+    route = [(0.0, 0.0), (100.0, 0.0), (100.0, 100.0)]
+    pts = np.array([[50.0, 7.0], [110.0, 50.0], [-3.0, -4.0], [100.0, 100.0]])
+    assert np.allclose(distance_to_polyline_m(pts, route), [7.0, 10.0, 5.0, 0.0])
