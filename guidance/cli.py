@@ -23,7 +23,7 @@ from guidance.planner import plan_route
 from guidance.route import (check_map_matches_world, load_assistant_map, load_world_manifest,
                             write_route_json, write_route_png, write_wpl)
 from scenenav.config import apply_overrides, load_config
-from scenenav.errors import UserError
+from scenenav.errors import UserError, run_command
 
 log = logging.getLogger(__name__)
 
@@ -124,11 +124,7 @@ def main(argv: list[str] | None = None) -> int:
     register_bench(bench.add_subparsers(dest="bench_command", required=True))
     args = parser.parse_args(argv)
     logging.basicConfig(level=logging.WARNING, format="%(levelname)s %(name)s: %(message)s")
-    try:
-        return int(args.func(args))
-    except UserError as exc:
-        sys.stderr.write(f"error: {exc}\n")
-        return getattr(exc, "exit_code", 2)
+    return run_command(args)
 
 
 if __name__ == "__main__":

@@ -12,7 +12,7 @@ import shlex
 import sys
 from pathlib import Path
 
-from scenenav.errors import UserError
+from scenenav.errors import UserError, run_command
 
 
 def _positive_int(text: str) -> int:
@@ -323,11 +323,7 @@ def main(argv: list[str] | None = None) -> int:
     args = parser.parse_args(argv)
     logging.basicConfig(level=getattr(logging, args.log_level),
                         format="%(asctime)s %(levelname)s %(name)s: %(message)s")
-    try:
-        return int(args.func(args) or 0)
-    except UserError as exc:
-        print(f"error: {exc}", file=sys.stderr)
-        return 2
+    return run_command(args)
 
 
 if __name__ == "__main__":

@@ -12,7 +12,7 @@ import re
 import sys
 from pathlib import Path
 
-from scenenav.errors import UserError
+from scenenav.errors import UserError, run_command
 
 log = logging.getLogger("scenenav")
 
@@ -243,14 +243,7 @@ def main(argv: list[str] | None = None) -> int:
     args = parser.parse_args(glue_negative_values(list(sys.argv[1:] if argv is None else argv)))
     logging.basicConfig(level=getattr(logging, args.log_level),
                         format="%(asctime)s %(levelname)s %(name)s: %(message)s")
-    try:
-        return int(args.func(args) or 0)
-    except UserError as exc:
-        print(f"error: {exc}", file=sys.stderr)
-        return 2
-    except KeyboardInterrupt:
-        print("interrupted", file=sys.stderr)
-        return 130
+    return run_command(args)
 
 
 if __name__ == "__main__":

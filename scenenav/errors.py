@@ -9,3 +9,17 @@ class UserError(Exception):
     """
 
     exit_code = 2
+
+
+def run_command(args) -> int:
+    """Run a parsed command (``args.func(args)``) the way every entry point does: a UserError
+    becomes one ``error: ...`` line on stderr and its exit code, Ctrl-C exits 130."""
+    import sys
+    try:
+        return int(args.func(args) or 0)
+    except UserError as exc:
+        print(f"error: {exc}", file=sys.stderr)
+        return exc.exit_code
+    except KeyboardInterrupt:
+        print("interrupted", file=sys.stderr)
+        return 130

@@ -259,15 +259,19 @@ class PerceptionSwap:
             self.done = True
 
 
+def _tail(path: Path, n_bytes: int) -> bytes:
+    """The last ``n_bytes`` of a file being written by another process (b"" if unreadable)."""
+    try:
+        with path.open("rb") as f:
+            f.seek(max(0, path.stat().st_size - n_bytes))
+            return f.read()
+    except OSError:
+        return b""
+
+
 def _fixes_from(run_dir: Path, node_id: str) -> bool:
     """Has fixes.csv a row from ``node_id`` (read from the end of the file)?"""
-    p = run_dir / "fixes.csv"
-    try:
-        with p.open("rb") as f:
-            f.seek(max(0, p.stat().st_size - 20000))
-            return f",{node_id},".encode() in f.read()
-    except OSError:
-        return False
+    return f",{node_id},".encode() in _tail(run_dir / "fixes.csv", 20000)
 
 
 def _wait_sim(sim: Child, launch: Launch, cfg: ScenarioConfig, progress: bool,
@@ -297,13 +301,9 @@ def _wait_sim(sim: Child, launch: Launch, cfg: ScenarioConfig, progress: bool,
 
 
 def _sim_progress(run_dir: Path) -> float | None:
-    p = run_dir / "truth.csv"
     try:
-        with p.open("rb") as f:
-            f.seek(max(0, p.stat().st_size - 400))
-            last = f.read().splitlines()[-1]
-        return float(last.split(b",")[0])
-    except (OSError, IndexError, ValueError):
+        return float(_tail(run_dir / "truth.csv", 400).splitlines()[-1].split(b",")[0])
+    except (IndexError, ValueError):
         return None
 
 
