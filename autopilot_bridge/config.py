@@ -1,7 +1,7 @@
 """Configuration of the autopilot's pure algorithms: navigation filter, controllers, mixer, guidance.
 
 Every config is a frozen dataclass whose field names carry their unit; range checks raise
-``scenenav.config.ConfigError`` through ``scenenav.config.check``. Where a value mirrors an ArduPilot
+``scenenav.core.config.ConfigError`` through ``scenenav.core.config.check``. Where a value mirrors an ArduPilot
 parameter the comment names it, with the ArduPilot default converted to SI units (ArduPilot stores many
 of these in cm, cm/s or centidegrees). The node maps ArduPilot parameter names onto these fields; the
 full table is in ``docs/autopilot-control.md``.
@@ -17,7 +17,7 @@ import math
 from dataclasses import dataclass, field
 from enum import IntEnum
 
-from scenenav.config import check
+from scenenav.core.config import check
 
 
 class PositionSource(IntEnum):

@@ -14,7 +14,7 @@ controller and the mixer; the result is the four normalised motor commands (zero
 Frames. Bus side (inputs, ``NavEstimate``): world ENU metres, body FLU, heading clockwise from north.
 MAVLink side (``VehicleTelemetry`` and the targets the server hands over): NED metres from the EKF
 origin (= the point where the filter was aligned, on the ground), body FRD, latitude/longitude through
-``worlds.frames`` around the world's geodetic origin, altitudes AMSL = ``origin_alt_amsl_m`` + ENU z.
+``scenenav.core.frames`` around the world's geodetic origin, altitudes AMSL = ``origin_alt_amsl_m`` + ENU z.
 
 Modes (ArduCopter numbers, ``autopilot_bridge.modes``): STABILIZE and ALT_HOLD without RC (level
 attitude; hover thrust / hold altitude), GUIDED (position, position+velocity, velocity and
@@ -80,7 +80,7 @@ from autopilot_bridge.vehicle_interface import (
     VehicleTelemetry,
 )
 from sitl.vehicle import VehicleParams
-from worlds.frames import enu_to_geodetic, geodetic_to_enu
+from scenenav.core.frames import enu_to_geodetic, geodetic_to_enu
 
 logger = logging.getLogger(__name__)
 
@@ -235,7 +235,7 @@ class CoreStatus:
 
 @dataclass(frozen=True)
 class GeoFrame:
-    """ENU metres <-> WGS-84 around the world origin (worlds.frames), AMSL = origin + z."""
+    """ENU metres <-> WGS-84 around the world origin (scenenav.core.frames), AMSL = origin + z."""
 
     origin_lat_deg: float
     origin_lon_deg: float

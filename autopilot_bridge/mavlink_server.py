@@ -68,8 +68,8 @@ from autopilot_bridge.vehicle_interface import (
     VehicleTelemetry,
     setpoint_kind,
 )
-from scenenav.config import check
-from scenenav.errors import UserError
+from scenenav.core.config import check
+from scenenav.core.errors import UserError
 
 logger = logging.getLogger(__name__)
 

@@ -32,7 +32,7 @@ worker waits (at most ``autopilot.vision_wait_s`` wall seconds) for the followed
 frame if that node is a lockstep camera member.
 
 The node never looks at ``truth/``. Malformed bus messages are counted and dropped by
-``scenenav.bus``; NaN sensor values by the core (``autopilot_stats.json``).
+``scenenav.core.bus``; NaN sensor values by the core (``autopilot_stats.json``).
 """
 
 from __future__ import annotations
@@ -60,14 +60,14 @@ from autopilot_bridge.mavlink_server import MavlinkServer, MavlinkServerConfig
 from autopilot_bridge.modes import CopterMode
 from autopilot_bridge.params import ParameterStore
 from autopilot_bridge.vehicle_interface import MissionState
-from scenenav.bus import Bus, BusConfig
-from scenenav.contracts import (AutopilotStatus, BaroSample, ClockMode, ClockTick, CompassSample,
+from scenenav.core.bus import Bus, BusConfig
+from scenenav.core.contracts import (AutopilotStatus, BaroSample, ClockMode, ClockTick, CompassSample,
                                 DecodeError, Event, GpsSample, ImuSample, LockstepAck, LockstepRole,
                                 MotorCommand, NavEstimate, NodeInfo, RunState, Severity, VisionFix,
                                 decode)
-from scenenav.errors import UserError
-from scenenav.keys import Keys
-from scenenav.scenario import (UDP_OUT_OFF, FlightMode, ScenarioConfig, load_scenario,
+from scenenav.core.errors import UserError
+from scenenav.core.keys import Keys
+from scenenav.app.scenario import (UDP_OUT_OFF, FlightMode, ScenarioConfig, load_scenario,
                                route_for)
 
 log = logging.getLogger(__name__)

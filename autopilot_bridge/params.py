@@ -29,7 +29,7 @@ from enum import IntEnum
 from pathlib import Path
 from typing import Callable, Iterable, Mapping, NamedTuple
 
-from scenenav.errors import UserError
+from scenenav.core.errors import UserError
 
 logger = logging.getLogger(__name__)
 

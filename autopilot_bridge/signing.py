@@ -26,7 +26,7 @@ from typing import Callable
 
 from pymavlink.dialects.v20 import ardupilotmega as mavlink2
 
-from scenenav.config import check
+from scenenav.core.config import check
 
 SIGNING_KEY_LEN = 32
 # 2015-01-01T00:00:00Z as a Unix time: the MAVLink signing epoch.

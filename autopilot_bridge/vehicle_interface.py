@@ -6,7 +6,7 @@ the same name so the server can put them on the wire unchanged (``tests/test_mav
 checks every value against pymavlink).
 
 Frames and units (MAVLink conventions, *not* the scenenav bus conventions of
-``worlds/frames.py``; the implementer converts):
+``scenenav/core/frames.py``; the implementer converts):
 
 * local positions/velocities are NED metres relative to the EKF origin (``*_ned_m``);
 * attitude is the aerospace convention, body FRD relative to NED: roll, pitch, yaw where
@@ -28,7 +28,7 @@ from enum import IntEnum, IntFlag
 from typing import NamedTuple, Protocol, runtime_checkable
 
 from autopilot_bridge.modes import CopterMode
-from scenenav.contracts import Severity
+from scenenav.core.contracts import Severity
 
 # --------------------------------------------------------------------------- enums
 

@@ -1,8 +1,8 @@
 """Configuration of the potential-field route planner (``scenenav plan``).
 
 Every field carries its unit in its name; ``PlannerConfig.__post_init__`` range-checks through
-``scenenav.config.check`` (raising ``ConfigError``, a ``UserError``). Build one from YAML or
-``--set key=value`` overrides with ``scenenav.config.load_config(PlannerConfig, mapping)``.
+``scenenav.core.config.check`` (raising ``ConfigError``, a ``UserError``). Build one from YAML or
+``--set key=value`` overrides with ``scenenav.core.config.load_config(PlannerConfig, mapping)``.
 The meaning of every parameter is documented in ``docs/guidance.md``.
 """
 
@@ -12,7 +12,7 @@ import enum
 import math
 from dataclasses import dataclass
 
-from scenenav.config import check
+from scenenav.core.config import check
 
 # Seed paper, section 6.1: the camera has a 60 degree field of view (square 200x200 image);
 # section 6.3: the drone flew at 100 m. Ground footprint width = 2 * h * tan(fov / 2).

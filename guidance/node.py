@@ -43,14 +43,14 @@ from guidance.mavlink_client import AutopilotLink, MavlinkClientError, MissionWa
 from guidance.planner import PlannedRoute, join_legs, plan_through
 from guidance.route import WorldInfo, load_assistant_map
 from guidance.smoothing import polyline_length
-from scenenav.bus import Bus, BusConfig
-from scenenav.config import check
-from scenenav.contracts import (AutopilotStatus, ClockMode, ClockTick, Event, LockstepAck,
+from scenenav.core.bus import Bus, BusConfig
+from scenenav.core.config import check
+from scenenav.core.contracts import (AutopilotStatus, ClockMode, ClockTick, Event, LockstepAck,
                                 LockstepRole, NavEstimate, NodeInfo, RunState, Severity)
-from scenenav.errors import UserError
-from scenenav.geometry import distance_to_polyline_m
-from scenenav.keys import Keys
-from worlds.frames import enu_to_geodetic
+from scenenav.core.errors import UserError
+from scenenav.core.geometry import distance_to_polyline_m
+from scenenav.core.keys import Keys
+from scenenav.core.frames import enu_to_geodetic
 
 log = logging.getLogger(__name__)
 

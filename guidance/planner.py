@@ -31,8 +31,8 @@ from guidance.potential_field import (DescentStatus, PlanningGrid, PotentialFiel
                                       build_grid, descend)
 from guidance.smoothing import (FieldChecker, densify, polyline_length, round_corners, shortcut,
                                 subdivide)
-from scenenav.errors import UserError
-from worlds.frames import world_to_pixel
+from scenenav.core.errors import UserError
+from scenenav.core.frames import world_to_pixel
 
 log = logging.getLogger(__name__)
 

@@ -7,7 +7,7 @@ planner works on a coarse grid whose square cells are ``factor`` x ``factor`` ma
 
 Grid coordinates are continuous (gx, gy) = (column, row) in cells, row 0 north, the centre of
 cell (row i, column j) at (j + 0.5, i + 0.5): the map's pixel coordinates divided by ``factor``
-(see worlds/frames.py for pixels <-> world ENU metres).
+(see scenenav/core/frames.py for pixels <-> world ENU metres).
 
 Conservative coarse distances: a coarse cell is bad when ANY of its pixels is bad, and
 ``dist_bad_m`` is the Euclidean distance between coarse cell centres. For any point p in a cell,

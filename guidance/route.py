@@ -26,8 +26,8 @@ import numpy as np
 
 from guidance.config import RouteEnd
 from guidance.planner import PlannedRoute
-from scenenav.errors import UserError
-from worlds.frames import enu_to_geodetic
+from scenenav.core.errors import UserError
+from scenenav.core.frames import enu_to_geodetic
 
 log = logging.getLogger(__name__)
 

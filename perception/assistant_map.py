@@ -26,7 +26,7 @@ import numpy as np
 
 from perception.alignment import footprint_m
 from perception.decision import P_BAD_THRESHOLD, split_classifier_output
-from scenenav.errors import UserError
+from scenenav.core.errors import UserError
 
 log = logging.getLogger(__name__)
 

@@ -36,7 +36,7 @@ import numpy as np
 import torch
 from torch import nn
 
-from scenenav.errors import UserError
+from scenenav.core.errors import UserError
 
 log = logging.getLogger(__name__)
 

@@ -1,7 +1,7 @@
 """Configuration of the perception algorithms (frozen dataclasses, units in the key names).
 
-Loaded with ``scenenav.config.load_config(PerceptionConfig, mapping)``; range checks raise
-``ConfigError`` through ``scenenav.config.check``. See docs/perception.md for what each key does.
+Loaded with ``scenenav.core.config.load_config(PerceptionConfig, mapping)``; range checks raise
+``ConfigError`` through ``scenenav.core.config.check``. See docs/perception.md for what each key does.
 """
 
 from __future__ import annotations
@@ -10,7 +10,7 @@ import math
 from dataclasses import dataclass, field
 from enum import Enum
 
-from scenenav.config import check
+from scenenav.core.config import check
 
 from perception.decision import P_BAD_THRESHOLD, DecisionRule, FalseMatchMethod
 

@@ -62,7 +62,7 @@ from tqdm import tqdm
 from perception.cnn import PAPER_INPUT_PX, Labelling, MatchClass
 from perception.matchability import (MatchabilityConfig, footprint_px, matchability, to_gray,
                                      validate_windowed)
-from scenenav.errors import UserError
+from scenenav.core.errors import UserError
 
 log = logging.getLogger(__name__)
 

@@ -279,7 +279,7 @@ class CombinedDecisionModel:
     @classmethod
     def load(cls, path: str | Path | None = None) -> "CombinedDecisionModel":
         """Read a decision-model JSON (default: the shipped one). Raises UserError on a bad file."""
-        from scenenav.errors import UserError
+        from scenenav.core.errors import UserError
         p = Path(path) if path else DEFAULT_DECISION_MODEL
         try:
             d = json.loads(p.read_text())

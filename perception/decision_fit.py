@@ -32,7 +32,7 @@ import numpy as np
 from perception.decision import (COMBINED_FEATURES, VARIANCE_WINDOWS, CombinedDecisionModel,
                                  TrackEvidence, combined_features)
 from perception.statistical import StatisticalDetector
-from scenenav.errors import UserError
+from scenenav.core.errors import UserError
 
 log = logging.getLogger(__name__)
 
@@ -44,7 +44,7 @@ NODE_ID = "perception"
 def flight_samples(run_dir: str | Path, threshold_m: float = 5.0) -> dict:
     """Features and labels of one ``cnn`` flight folder (see the module docstring)."""
     from perception.assistant_map import AssistantMap
-    from scenenav.evaluation import fix_table, read_csv
+    from scenenav.app.evaluation import fix_table, read_csv
     run_dir = Path(run_dir)
     fx = fix_table(run_dir, threshold_m)
     diag = read_csv(run_dir / f"perception_diag_{NODE_ID}.csv")
@@ -193,9 +193,9 @@ def cross_validate(samples: list[dict], l2: float, target_recall: float,
 def fly_cnn(world_dir: str | Path, run_dir: str | Path, weights: str = "", seed: int = 0,
             progress: bool = False) -> dict:
     """One Table-2 style flight (bowtie, scripted, method cnn) over ``world_dir``."""
-    from scenenav.launcher import run
-    from scenenav.nodes import load_world_for
-    from scenenav.scenario import load_scenario, route_for
+    from scenenav.app.launcher import run
+    from scenenav.app.nodes import load_world_for
+    from scenenav.app.scenario import load_scenario, route_for
     base = ["flight.mode=scripted", f"seed={seed}", f"world={Path(world_dir).resolve()}"]
     cfg0 = load_scenario(None, tuple(base))
     route = route_for(cfg0, load_world_for(cfg0))

@@ -16,7 +16,7 @@ import os
 import tempfile
 from pathlib import Path
 
-from scenenav.errors import UserError
+from scenenav.core.errors import UserError
 
 log = logging.getLogger(__name__)
 
@@ -50,7 +50,7 @@ def cached_assistant_map(world_dir: str | Path, stride_px: int = 10, altitude_m:
     """Path of the world's assistant map built with the CNN ``weights`` (default: the shipped ones);
     built (with a progress bar if asked) and cached on first use."""
     from perception.cnn import DEFAULT_WEIGHTS_PATH
-    from perception.map_cli import build
+    from scenenav.app.commands.assistant_map import build
     from worlds.default import cache_root
     world_dir = Path(world_dir)
     weights_path = Path(weights) if weights else DEFAULT_WEIGHTS_PATH

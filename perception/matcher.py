@@ -38,7 +38,7 @@ import cv2
 import numpy as np
 
 from perception.config import MatcherConfig, NccMethod
-from worlds.frames import pixel_to_world, world_to_pixel
+from scenenav.core.frames import pixel_to_world, world_to_pixel
 
 log = logging.getLogger(__name__)
 
@@ -80,7 +80,7 @@ class SearchMode(str, Enum):
 class MatchResult:
     """One NCC match. Positions are of the template centre (= the nadir point).
 
-    ``position_px`` is in continuous map pixels (u column, v row; see worlds/frames.py),
+    ``position_px`` is in continuous map pixels (u column, v row; see scenenav/core/frames.py),
     ``position_enu_m`` in world ENU metres. ``covariance_m2`` is 2x2 (x east, y north).
     ``window_px`` = (u0, v0, width, height) of the reference area searched. ``timings_ms`` has
     ``crop``, ``ncc`` and ``refine``.

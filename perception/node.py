@@ -27,10 +27,10 @@ from pathlib import Path
 
 import numpy as np
 
-from scenenav.bus import Bus, BusConfig
-from scenenav.contracts import (BaroSample, CameraFrame, CompassSample, Event, LockstepAck,
+from scenenav.core.bus import Bus, BusConfig
+from scenenav.core.contracts import (BaroSample, CameraFrame, CompassSample, Event, LockstepAck,
                                 LockstepRole, NodeInfo, Severity, VisionFix)
-from scenenav.keys import Keys
+from scenenav.core.keys import Keys
 
 log = logging.getLogger(__name__)
 

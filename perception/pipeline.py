@@ -43,7 +43,7 @@ from perception.decision import (N_PAPER_CLASSES, VARIANCE_WINDOWS, CombinedDeci
                                  split_classifier_output)
 from perception.matcher import MatchResult, MatchTracker, SceneMatcher, SearchMode, TrackState
 from perception.statistical import StatisticalDetector
-from scenenav.errors import UserError
+from scenenav.core.errors import UserError
 
 __all__ = ["BadInput", "FixResult", "PerceptionPipeline", "Reason"]
 

@@ -39,7 +39,7 @@ from perception.cnn import (BAD_THRESHOLD, DEFAULT_INPUT_PX, NUM_CLASSES, PAPER_
 from perception.dataset import (EVAL_WORLD_SEEDS, DatasetConfig, LoadedDataset, generate_world_data, load_dataset,
                                 read_manifest, render_crop, select_base_samples)
 from perception.matchability import MatchabilityConfig, footprint_px, simulate_capture
-from scenenav.errors import UserError
+from scenenav.core.errors import UserError
 
 log = logging.getLogger(__name__)
 

@@ -1,6 +1,6 @@
 """Downward camera: renders the orthophoto lying on the ground with pybullet's TinyRenderer.
 
-Ground model (world conventions of worlds/frames.py: origin = map centre, x east, y north, pixel
+Ground model (world conventions of scenenav/core/frames.py: origin = map centre, x east, y north, pixel
 row 0 = north edge). Only a *ground window* of ``ground_window_px`` x ``ground_window_px`` texels is
 ever uploaded, whatever the map size, so the per-frame cost does not depend on the map:
 

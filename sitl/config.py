@@ -1,8 +1,8 @@
 """Configuration of the simulator's physics, wind, sensors and camera.
 
 Every config is a frozen dataclass whose field names carry their unit; ``__post_init__`` range-checks
-each value through ``scenenav.config.check`` (which raises ``ConfigError``). Load them with
-``scenenav.config.load_config(SimConfig, mapping, source)``. Vehicle constants are not here: they are
+each value through ``scenenav.core.config.check`` (which raises ``ConfigError``). Load them with
+``scenenav.core.config.load_config(SimConfig, mapping, source)``. Vehicle constants are not here: they are
 ``sitl.vehicle.VehicleParams`` (PX4 Iris model). See docs/simulator.md for the models behind each value.
 """
 
@@ -12,7 +12,7 @@ import math
 from dataclasses import dataclass, field
 from enum import Enum
 
-from scenenav.config import check
+from scenenav.core.config import check
 
 
 class CameraMount(str, Enum):

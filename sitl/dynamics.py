@@ -1,6 +1,6 @@
 """Quadrotor rotor and airframe model (pure numpy; the pybullet shell is sitl.physics).
 
-Frames (worlds/frames.py): world ENU, body FLU, ``q_wxyz`` rotates body vectors into the world.
+Frames (scenenav/core/frames.py): world ENU, body FLU, ``q_wxyz`` rotates body vectors into the world.
 Rotor model after the ``gazebo_motor_model`` plugin that PX4's Iris model uses (constants in
 ``sitl.vehicle.VehicleParams``); for rotor i with speed w_i (rad/s, >= 0), spin direction d_i
 (+1 = counter-clockwise seen from above) and position r_i in the body frame:

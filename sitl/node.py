@@ -31,16 +31,16 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from scenenav.bus import Bus, BusConfig
-from scenenav.contracts import (AutopilotStatus, BaroSample, CameraFrame, ClockMode, ClockTick,
+from scenenav.core.bus import Bus, BusConfig
+from scenenav.core.contracts import (AutopilotStatus, BaroSample, CameraFrame, ClockMode, ClockTick,
                                 CompassSample, Event, GpsSample, ImageEncoding, ImuSample,
                                 LockstepAck, LockstepRole, MotorCommand, NodeInfo, RunState,
                                 Severity, TruthPose)
-from scenenav.keys import Keys
-from scenenav.lockstep import LockstepBarrier
-from scenenav.scenario import FlightMode, ScenarioConfig, route_for
+from scenenav.core.keys import Keys
+from scenenav.core.lockstep import LockstepBarrier
+from scenenav.app.scenario import FlightMode, ScenarioConfig, route_for
 from sitl.scripted import ScriptedTrajectory
-from worlds.frames import enu_yaw_to_heading, heading_to_enu_yaw
+from scenenav.core.frames import enu_yaw_to_heading, heading_to_enu_yaw
 
 log = logging.getLogger(__name__)
 

@@ -15,7 +15,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from worlds.frames import wrap_2pi
+from scenenav.core.frames import wrap_2pi
 
 
 @dataclass(frozen=True)

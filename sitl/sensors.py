@@ -15,7 +15,7 @@ from enum import IntEnum
 import numpy as np
 
 from sitl.config import BaroConfig, CameraConfig, CompassConfig, GpsConfig, ImuConfig
-from worlds.frames import enu_to_geodetic
+from scenenav.core.frames import enu_to_geodetic
 
 logger = logging.getLogger(__name__)
 

@@ -19,7 +19,7 @@ import shutil
 import tempfile
 from pathlib import Path
 
-from scenenav.errors import UserError
+from scenenav.core.errors import UserError
 from worlds.generator import GENERATOR_VERSION, CityConfig, generate_world
 from worlds.world import MANIFEST_FILE, World
 

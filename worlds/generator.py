@@ -30,7 +30,7 @@ from enum import Enum, IntEnum
 import cv2
 import numpy as np
 
-from scenenav.config import check
+from scenenav.core.config import check
 from worlds.landcover import Junction, JunctionKind, LandCover, classify_arms
 from worlds.reference import (DayConditions, NoiseField, SmoothNoise, capture_day, finish_strip,
                               other_day)
@@ -303,7 +303,7 @@ def _rng(cfg: CityConfig, stream: Stream, *extra: int) -> np.random.Generator:
 
 
 # ---------------------------------------------------------------------------------------------
-# drawing helpers (continuous pixel coordinates, see worlds/frames.py)
+# drawing helpers (continuous pixel coordinates, see scenenav/core/frames.py)
 
 def _cv(pts, dx: float = 0.0, dy: float = 0.0) -> np.ndarray:
     """Continuous (u, v) points -> int32 OpenCV points with _SHIFT fractional bits.

@@ -15,7 +15,7 @@ from pathlib import Path
 import cv2
 import numpy as np
 
-from scenenav.errors import UserError
+from scenenav.core.errors import UserError
 from worlds.world import CONVENTIONS, FORMAT_VERSION, GroundTruth, World, WorldManifest, WorldSource
 
 log = logging.getLogger(__name__)

@@ -1,7 +1,7 @@
 """Land-cover classes and junction ground truth for scenenav worlds.
 
 A world's ``landcover`` raster is an (H, W) uint8 array of :class:`LandCover` values, aligned
-pixel for pixel with the orthophoto (see ``worlds/frames.py`` for the pixel convention).
+pixel for pixel with the orthophoto (see ``scenenav/core/frames.py`` for the pixel convention).
 Junctions are road-graph nodes with two or more arms, in continuous pixel coordinates.
 """
 

@@ -1,0 +1,1 @@
+"""``scenenav bench ...``: benchmarks that print figures (never timed tests)."""

@@ -1,0 +1,250 @@
+"""The ``scenenav`` command: one subcommand per capability, each with its own --help.
+
+Errors in what the user gave (files, keys, values) print one line ``error: ...`` and exit 2.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import logging
+import re
+import sys
+from pathlib import Path
+
+from scenenav.core.errors import UserError, run_command
+
+log = logging.getLogger("scenenav")
+
+
+def _run(args: argparse.Namespace) -> int:
+    from scenenav.app.launcher import run
+    summary = run(args.scenario, args.out, tuple(args.set or ()), progress=not args.quiet)
+    from scenenav.app.evaluation import format_summary
+    print(format_summary(summary))
+    print(f"run folder: {args.out}")
+    return 0 if not summary.get("failed_nodes") else 1
+
+
+def _node(args: argparse.Namespace) -> int:
+    from scenenav.core.bus import BusConfig
+    from scenenav.app import nodes
+    run_dir = Path(args.run_dir) if getattr(args, "run_dir", None) else None
+    if args.kind == "sim":
+        bus = BusConfig(args.namespace, args.hub_port, listen_hub=True)
+        expect = tuple(x for x in (args.expect or "").split(",") if x)
+        return nodes.run_sim(run_dir, bus, expect)
+    bus = BusConfig(args.namespace, args.hub_port)
+    if args.kind == "recorder":
+        return nodes.run_recorder(run_dir, bus)
+    if args.kind == "perception":
+        return nodes.run_perception(run_dir, bus, args.method, args.node_id, args.world,
+                                    args.assistant_map, None if args.lockstep is None else args.lockstep == "on")
+    if args.kind == "autopilot":
+        from autopilot_bridge.node import run_autopilot_node
+        return run_autopilot_node(run_dir, bus, args)
+    if args.kind == "guidance":
+        if run_dir is None:
+            raise UserError("node guidance: --run-dir is required (the run's scenario.yaml names the goals)")
+        return nodes.run_guidance(run_dir, bus)
+    raise UserError(f"unknown node kind {args.kind!r}")
+
+
+def _bench(args: argparse.Namespace) -> int:
+    if args.what == "sim":
+        from scenenav.app.bench.sim import run_sim_bench
+        result = run_sim_bench(seconds=args.seconds, sizes=args.sizes)
+    elif args.what == "perception":
+        from scenenav.app.bench.perception import run_perception_bench
+        result = run_perception_bench(n_frames=args.frames)
+    else:
+        raise UserError(f"unknown benchmark {args.what!r}")
+    if args.json:
+        print(json.dumps(result, indent=2))
+    return 0
+
+
+def _table2(args: argparse.Namespace) -> int:
+    from scenenav.app.experiment import run_table2
+    run_table2(args.world, args.out, seed=args.seed, threshold_m=args.false_fix_threshold_m,
+               overrides=tuple(args.set or ()), progress=not args.quiet,
+               results_page=args.results_page)
+    return 0
+
+
+def _sitl(args: argparse.Namespace) -> int:
+    from scenenav.app.sitl_cmd import SitlOptions, run_sitl
+    opts = SitlOptions(scenario=args.scenario, world=args.world, gps=not args.no_gps,
+                       speedup=args.speedup, out=args.out, tcp_port=args.tcp_port,
+                       udp_out=args.udp_out, perception=args.perception, lockstep=args.lockstep,
+                       overrides=tuple(args.set or ()))
+    summary = run_sitl(opts, announce=lambda text: print(text, flush=True))
+    from scenenav.app.evaluation import format_summary
+    print(format_summary(summary))
+    return 0 if not summary.get("failed_nodes") else 1
+
+
+def build_parser() -> argparse.ArgumentParser:
+    p = argparse.ArgumentParser(
+        prog="scenenav",
+        description="Software-in-the-loop stack for GPS-denied drone navigation by scene matching: "
+                    "a pybullet quadrotor over a textured city, Zenoh nodes, a MAVLink autopilot.",
+    )
+    p.add_argument("--log-level", default="WARNING",
+                   choices=["DEBUG", "INFO", "WARNING", "ERROR"], help="library log level (default WARNING)")
+    sub = p.add_subparsers(dest="command", metavar="COMMAND")
+    sub.required = True
+
+    r = sub.add_parser("run", help="fly a scenario headless and write its run folder",
+                       description="Start the simulator, recorder, perception (and autopilot) as child "
+                                   "processes, fly SCENARIO (YAML; defaults: a scripted loop over the "
+                                   "default world) and write RUN_DIR: summary.json, truth/fixes/estimates "
+                                   "CSV, trajectory.png, bus.mcap, one log per node. Ctrl-C stops every "
+                                   "node cleanly and still writes the summary.")
+    r.add_argument("scenario", nargs="?", help="scenario YAML (see docs/scenarios.md)")
+    r.add_argument("--out", required=True, metavar="RUN_DIR", help="run folder to create (must be new or empty)")
+    r.add_argument("--set", action="append", metavar="KEY=VALUE",
+                   help="override a scenario key, e.g. --set duration_s=30 --set perception.method=statistical")
+    r.add_argument("--quiet", action="store_true", help="no progress bar")
+    r.set_defaults(func=_run)
+
+    n = sub.add_parser("node", help="run one node of a run (the launcher uses this)",
+                       description="Run a single bus node. Normally started by `scenenav run` or "
+                                   "`scenenav sitl`; start one by hand to swap a node in a live run "
+                                   "(same --namespace and --hub-port as the run, see its run.json).")
+    n.add_argument("kind", choices=["sim", "recorder", "perception", "autopilot", "guidance"])
+    n.add_argument("--namespace", required=True, help="key namespace of the run (run.json: namespace)")
+    n.add_argument("--hub-port", required=True, type=int, help="the simulator's Zenoh port (run.json: hub_port)")
+    n.add_argument("--run-dir", help="run folder (reads scenario.yaml from it)")
+    n.add_argument("--expect", help="sim only: comma list of nodes to wait for (recorder,tick,camera)")
+    n.add_argument("--method", choices=["cnn", "assistant-map", "statistical", "none"],
+                   help="perception only: false-match method (default: the scenario's)")
+    n.add_argument("--node-id", default="perception", help="perception only: node id on the bus")
+    n.add_argument("--world", help="perception only: world folder (default: the scenario's)")
+    n.add_argument("--assistant-map", help="perception only: assistant map .npz")
+    n.add_argument("--lockstep", choices=["on", "off"], help="perception only: answer each frame in lockstep")
+    n.set_defaults(func=_node)
+
+    e = sub.add_parser("experiment", help="the paper's experiments, reproduced",
+                       description="Experiments that regenerate the paper's results from flights.")
+    esub = e.add_subparsers(dest="experiment", metavar="NAME")
+    esub.required = True
+    t2 = esub.add_parser("table2", help="Table 2: online CNN, assistant map, statistical, none",
+                         description="Fly the same path in lockstep (identical frames) once per method: "
+                                     "online CNN (builds the assistant map), the assistant map from "
+                                     "that flight, the statistical indicator, no exclusion. CNN and "
+                                     "assistant map fly the combined decision rule and, for comparison, "
+                                     "again the paper's rule P(bad) > 0.5 with their own map: six "
+                                     "flights (about 9 min on 2 cores). Writes table2.json, table2.md, "
+                                     "figure7.png, figure8.png and one run folder per flight.")
+    t2.add_argument("--world", help="world folder (default: the built-in default world)")
+    t2.add_argument("--out", required=True, metavar="DIR")
+    t2.add_argument("--seed", type=int, default=0, help="scenario seed (default 0)")
+    t2.add_argument("--false-fix-threshold-m", type=float, default=5.0,
+                    help="a fix whose error exceeds this is false (default 5 m)")
+    t2.add_argument("--set", action="append", metavar="KEY=VALUE", help="scenario override for every flight")
+    t2.add_argument("--quiet", action="store_true", help="no progress bars")
+    t2.add_argument("--results-page", metavar="FILE.md",
+                    help="also write the table as a results page (e.g. docs/results.md) with its figures")
+    t2.set_defaults(func=_table2)
+
+    st = sub.add_parser("sitl", help="a simulated vehicle for ground stations (like sim_vehicle.py)",
+                        description="Start the simulator, the autopilot (ArduCopter-compatible MAVLink on "
+                                    "TCP 127.0.0.1:5760 and UDP out to 127.0.0.1:14550), a perception node "
+                                    "and the recorder; the vehicle waits on the ground for a ground "
+                                    "station (MAVProxy, QGroundControl, MAVSDK). Runs until Ctrl-C, then "
+                                    "writes the run folder. See docs/autopilot.md.")
+    st.add_argument("--scenario", help="scenario YAML to start from (world, sensors, start point...)")
+    st.add_argument("--world", metavar="DIR", help="world folder (default: the scenario's, else the default world)")
+    st.add_argument("--no-gps", action="store_true",
+                    help="GPS off: the autopilot navigates on scene-matching fixes (EK3_SRC1_POSXY 6)")
+    st.add_argument("--speedup", type=float, default=1.0, metavar="N",
+                    help="simulated seconds per wall second (default 1)")
+    st.add_argument("--out", metavar="RUN_DIR", help="run folder to create (default runs/sitl-<time>)")
+    st.add_argument("--tcp-port", type=int, default=5760,
+                    help="MAVLink TCP server port on 127.0.0.1 (default 5760; 0 = off)")
+    st.add_argument("--udp-out", default="127.0.0.1:14550", metavar="HOST:PORT",
+                    help="MAVLink UDP output (default 127.0.0.1:14550; 0 or none = off)")
+    st.add_argument("--perception", choices=["cnn", "assistant-map", "statistical", "none", "off"],
+                    help="false-match method of the perception node, or off for no perception node "
+                         "(default: the scenario's; 'none' accepts every match)")
+    st.add_argument("--lockstep", action="store_true",
+                    help="lockstep clock: as fast as the nodes allow, deterministic (default realtime)")
+    st.add_argument("--set", action="append", metavar="KEY=VALUE",
+                    help="override a scenario key, e.g. --set autopilot.params_file=params.json")
+    st.set_defaults(func=_sitl)
+
+    b = sub.add_parser("bench", help="benchmarks that print figures (never part of the tests)",
+                       description="Benchmarks. Speed and accuracy targets live here, not in tests.")
+    bsub = b.add_subparsers(dest="what", metavar="WHAT")
+    bsub.required = True
+    bs = bsub.add_parser("sim", help="simulator real-time factor (lockstep, camera 10 Hz) vs world size")
+    bs.add_argument("--json", action="store_true", help="print the results as JSON")
+    bs.add_argument("--seconds", type=float, default=20.0, help="simulated seconds per measurement (default 20)")
+    bs.add_argument("--sizes", default="900x1000,2000x2000,8000x8000",
+                    help="world sizes WxH in px, comma separated (default 900x1000,2000x2000,8000x8000)")
+    bs.set_defaults(func=_bench)
+    bp = bsub.add_parser("perception", help="per-fix time by stage and method vs raw matchTemplate",
+                         description="Per-fix time (alignment, NCC, CNN, map lookup) for each false-match "
+                                     "method on camera frames over the default world, beside a raw "
+                                     "cv2.matchTemplate on the same window; whole assistant-map build "
+                                     "time; per-fix time as the map grows. One thread (one core).")
+    bp.add_argument("--json", action="store_true", help="print the results as JSON")
+    bp.add_argument("--frames", type=int, default=60, help="camera frames per method (default 60)")
+    bp.set_defaults(func=_bench)
+    _register_optional(sub, bsub)
+    return p
+
+
+def _register_optional(sub, bsub) -> None:
+    """Subcommands owned by the capability packages."""
+    for modname, regname in (("scenenav.app.commands.world", "register"), ("scenenav.app.commands.plan", "register"),
+                             ("scenenav.app.commands.perception", "register"), ("scenenav.app.commands.assistant_map", "register")):
+        try:
+            mod = __import__(modname, fromlist=[regname])
+        except ImportError as exc:   # package not built yet in this checkout
+            log.debug("no %s: %s", modname, exc)
+            continue
+        getattr(mod, regname)(sub)
+    try:
+        from scenenav.app.bench.plan import register_bench
+        register_bench(bsub)
+    except ImportError as exc:
+        log.debug("no guidance bench: %s", exc)
+    try:
+        from scenenav.app.bench.autopilot import register_bench as register_autopilot_bench
+        register_autopilot_bench(bsub)
+    except ImportError as exc:
+        log.debug("no autopilot bench: %s", exc)
+
+
+_NEGATIVE_LIST = re.compile(r"^-\d[\d.eE+-]*(,\s*[-+]?[\d.eE+-]+)+$")
+
+
+def glue_negative_values(argv: list[str]) -> list[str]:
+    """``--start -150,200`` -> ``--start=-150,200``: argparse would take a value that starts with
+    '-' and holds a comma for an option. Only comma lists of numbers are glued."""
+    out: list[str] = []
+    i = 0
+    while i < len(argv):
+        a = argv[i]
+        if (a.startswith("--") and "=" not in a and i + 1 < len(argv)
+                and _NEGATIVE_LIST.match(argv[i + 1])):
+            out.append(f"{a}={argv[i + 1]}")
+            i += 2
+            continue
+        out.append(a)
+        i += 1
+    return out
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = build_parser()
+    args = parser.parse_args(glue_negative_values(list(sys.argv[1:] if argv is None else argv)))
+    logging.basicConfig(level=getattr(logging, args.log_level),
+                        format="%(asctime)s %(levelname)s %(name)s: %(message)s")
+    return run_command(args)
+
+
+if __name__ == "__main__":
+    sys.exit(main())

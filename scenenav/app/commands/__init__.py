@@ -1,0 +1,1 @@
+"""Subcommands of ``scenenav`` for the domain packages (world, dataset/train/cnn, assistant-map, plan)."""

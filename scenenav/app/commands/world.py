@@ -1,0 +1,209 @@
+"""``scenenav world ...``: generate, import, inspect and preview world folders."""
+
+from __future__ import annotations
+
+import argparse
+import logging
+from collections import Counter
+from pathlib import Path
+
+import cv2
+import numpy as np
+
+from scenenav.core.errors import UserError
+from worlds.landcover import (LANDCOVER_COLOURS_RGB, JunctionKind, LandCover, colourise,
+                              cover_shares)
+from worlds.world import World, load_world
+
+log = logging.getLogger(__name__)
+
+#: Marker colours (RGB) of junction kinds in previews.
+JUNCTION_COLOURS_RGB: dict[JunctionKind, tuple[int, int, int]] = {
+    JunctionKind.CROSS: (255, 0, 0),
+    JunctionKind.TEE: (255, 140, 0),
+    JunctionKind.WYE: (255, 0, 255),
+    JunctionKind.CORNER: (0, 200, 255),
+    JunctionKind.BEND: (255, 255, 0),
+}
+
+
+def parse_origin(text: str) -> tuple[float, float]:
+    """'LAT,LON' in degrees -> (lat, lon); UserError otherwise."""
+    parts = text.split(",")
+    try:
+        if len(parts) != 2:
+            raise ValueError
+        lat, lon = float(parts[0]), float(parts[1])
+    except ValueError:
+        raise UserError(f"--origin {text!r}: expected LAT,LON in degrees, e.g. 48.137,11.575") from None
+    if not (-90.0 <= lat <= 90.0 and -180.0 <= lon <= 180.0):
+        raise UserError(f"--origin {text!r}: expected latitude in [-90, 90] and longitude in "
+                        f"[-180, 180] degrees")
+    return lat, lon
+
+
+def _generate(args: argparse.Namespace) -> int:
+    from worlds.generator import CityConfig, generate_world
+    kwargs = {"seed": args.seed}
+    for key in ("width_px", "height_px", "m_per_px"):
+        if getattr(args, key) is not None:
+            kwargs[key] = getattr(args, key)
+    if args.origin is not None:
+        kwargs["origin_lat_deg"], kwargs["origin_lon_deg"] = parse_origin(args.origin)
+    cfg = CityConfig(**kwargs)
+    world = generate_world(cfg, name=args.name)
+    world.save(args.out)
+    print(f"wrote {args.out}: {world.width_px}x{world.height_px} px at {world.m_per_px} m/px, "
+          f"{len(world.junctions or ())} junctions")
+    return 0
+
+
+def _import(args: argparse.Namespace) -> int:
+    from worlds.importer import import_world
+    origin = parse_origin(args.origin) if args.origin is not None else None
+    world = import_world(Path(args.image), args.m_per_px, Path(args.out),
+                         reference=Path(args.reference) if args.reference else None,
+                         origin_lat_lon=origin, name=args.name)
+    print(f"wrote {args.out}: {world.width_px}x{world.height_px} px at {world.m_per_px} m/px; "
+          f"missing ground truth: {', '.join(world.manifest.missing_ground_truth) or 'none'}")
+    return 0
+
+
+def describe(world: World) -> str:
+    """Human-readable summary: manifest, land-cover shares, junction counts."""
+    m = world.manifest
+    lines = [
+        f"name:        {m.name}",
+        f"source:      {m.source}" + (f" (seed {m.seed})" if m.seed is not None else ""),
+        f"size:        {m.width_px} x {m.height_px} px = {m.width_px * m.m_per_px:.0f} x "
+        f"{m.height_px * m.m_per_px:.0f} m at {m.m_per_px} m/px",
+        f"origin:      {m.origin_lat_deg:.6f}, {m.origin_lon_deg:.6f} deg (map centre)",
+        f"missing:     {', '.join(m.missing_ground_truth) or 'none'}",
+    ]
+    if world.landcover is not None:
+        lines.append("land cover:")
+        for cover, share in cover_shares(world.landcover).items():
+            lines.append(f"  {cover.name.lower():18s} {100.0 * share:5.1f} %")
+    if world.junctions is not None:
+        counts = Counter(j.kind for j in world.junctions)
+        lines.append(f"junctions:   {len(world.junctions)}")
+        for kind in JunctionKind:
+            lines.append(f"  {kind.value:18s} {counts.get(kind, 0)}")
+    return "\n".join(lines)
+
+
+def _info(args: argparse.Namespace) -> int:
+    print(describe(load_world(args.dir)))
+    return 0
+
+
+def render_preview(world: World, max_width_px: int) -> np.ndarray:
+    """Orthophoto | reference | land cover with junction markers, side by side (RGB uint8)."""
+    if world.landcover is not None:
+        cover = colourise(world.landcover)
+    else:
+        cover = np.full_like(world.orthophoto, 255)
+        cv2.putText(cover, "no land cover", (20, 60), cv2.FONT_HERSHEY_SIMPLEX, 1.5, (0, 0, 0), 3)
+    panels = [world.orthophoto, world.reference, cover]
+    scale = min(1.0, max_width_px / float(3 * world.width_px))
+    if scale < 1.0:
+        size = (max(1, int(world.width_px * scale)), max(1, int(world.height_px * scale)))
+        panels = [cv2.resize(p, size, interpolation=cv2.INTER_AREA) for p in panels]
+    panels = [np.ascontiguousarray(p) for p in panels]
+    radius = max(3, int(round(8 * max(scale, 0.5))))
+    for j in world.junctions or ():
+        centre = (int(j.u_px * scale), int(j.v_px * scale))
+        colour = JUNCTION_COLOURS_RGB[j.kind]
+        for p in panels[::2]:
+            cv2.circle(p, centre, radius, colour, 2)
+        cv2.putText(panels[2], str(j.arms), (centre[0] + radius, centre[1] - radius),
+                    cv2.FONT_HERSHEY_SIMPLEX, 0.4, (0, 0, 0), 1)
+    sep = np.full((panels[0].shape[0], 4, 3), 255, dtype=np.uint8)
+    return np.hstack([panels[0], sep, panels[1], sep, panels[2]])
+
+
+def _preview(args: argparse.Namespace) -> int:
+    world = load_world(args.dir)
+    img = render_preview(world, args.max_width_px)
+    out = Path(args.out)
+    if out.suffix.lower() != ".png":
+        raise UserError(f"--out {out}: expected a .png file name")
+    ok = cv2.imwrite(str(out), cv2.cvtColor(img, cv2.COLOR_RGB2BGR))
+    if not ok:
+        raise UserError(f"--out {out}: cannot write (does the folder exist?)")
+    print(f"wrote {out} ({img.shape[1]}x{img.shape[0]} px)")
+    return 0
+
+
+def _positive_float(text: str) -> float:
+    try:
+        value = float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"{text!r} is not a number") from None
+    if not value > 0:
+        raise argparse.ArgumentTypeError(f"{text!r}: expected a positive number")
+    return value
+
+
+def register(subparsers) -> None:
+    """Add ``world`` and its subcommands to the top-level ``scenenav`` parser."""
+    legend = ", ".join(f"{c.value}={c.name.lower()}" for c in LandCover)
+    p = subparsers.add_parser(
+        "world", help="generate, import, inspect and preview world folders",
+        description="World folders hold manifest.json, orthophoto.png (what the drone camera sees), "
+                    "reference.png (the reference map, 'another day'), landcover.png and junctions.json "
+                    "(ground truth of generated worlds). See docs/worlds.md.")
+    sub = p.add_subparsers(dest="world_command", required=True, metavar="SUBCOMMAND")
+
+    g = sub.add_parser("generate", help="generate a procedural city world",
+                       description="Generate a procedural city (roads with junctions, buildings, lakes, "
+                                   "forests, squares, parking, uniform-roof districts) and write the "
+                                   "world folder. The same seed and sizes always give the same world.")
+    g.add_argument("--seed", type=int, default=0, help="random seed (default 0)")
+    g.add_argument("--out", required=True, metavar="DIR", help="world folder to write")
+    g.add_argument("--width-px", type=int, default=None, metavar="PX",
+                   help="map width in pixels (default 900; 256..16384)")
+    g.add_argument("--height-px", type=int, default=None, metavar="PX",
+                   help="map height in pixels (default 1000; 256..16384)")
+    g.add_argument("--m-per-px", type=_positive_float, default=None, metavar="M",
+                   help="ground resolution in metres per pixel (default 0.53, as in the seed paper)")
+    g.add_argument("--origin", default=None, metavar="LAT,LON",
+                   help="geodetic position of the map centre in degrees (default 48.1372,11.5755)")
+    g.add_argument("--name", default=None, help="world name stored in the manifest")
+    g.set_defaults(func=_generate)
+
+    i = sub.add_parser("import", help="make a world folder from an orthophoto",
+                       description="Import a PNG/JPEG (or a TIFF OpenCV can read) orthophoto as a world. "
+                                   "Imported worlds have no land cover and no junction ground truth; "
+                                   "without --reference the image is also the reference map.")
+    i.add_argument("image", metavar="IMAGE", help="orthophoto file (north up, at least 256 px a side)")
+    i.add_argument("--m-per-px", type=_positive_float, required=True, metavar="M",
+                   help="ground resolution in metres per pixel")
+    i.add_argument("--out", required=True, metavar="DIR", help="world folder to write")
+    i.add_argument("--reference", default=None, metavar="IMAGE2",
+                   help="reference map of the same area and size (another day/sensor)")
+    i.add_argument("--origin", default=None, metavar="LAT,LON",
+                   help="geodetic position of the image centre in degrees (default: unknown, 0,0)")
+    i.add_argument("--name", default=None, help="world name (default: the image file name)")
+    i.set_defaults(func=_import)
+
+    n = sub.add_parser("info", help="print a world's manifest, land-cover shares and junction counts",
+                       description=f"Print a world's manifest, land-cover shares and junction counts. "
+                                   f"Land-cover classes: {legend}.")
+    n.add_argument("dir", metavar="DIR", help="world folder")
+    n.set_defaults(func=_info)
+
+    v = sub.add_parser("preview", help="write orthophoto | reference | land cover side by side",
+                       description="Write a PNG with the orthophoto, the reference map and the land-cover "
+                                   "map (colours in docs/worlds.md) side by side; junctions are circled "
+                                   "(red cross, orange tee, magenta wye, cyan corner, yellow bend) and "
+                                   "labelled with their arm count.")
+    v.add_argument("dir", metavar="DIR", help="world folder")
+    v.add_argument("--out", required=True, metavar="PNG", help="preview image to write (.png)")
+    v.add_argument("--max-width-px", type=int, default=3000, metavar="PX",
+                   help="downscale so the whole preview is at most this wide (default 3000)")
+    v.set_defaults(func=_preview)
+
+
+__all__ = ["register", "describe", "render_preview", "parse_origin", "JUNCTION_COLOURS_RGB",
+           "LANDCOVER_COLOURS_RGB"]

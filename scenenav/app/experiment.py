@@ -1,0 +1,233 @@
+"""``scenenav experiment table2``: the paper's experiment (section 6.3, Table 2), reproduced.
+
+The same path at 100 m and 10 m/s is flown four times in lockstep (so every flight sees the
+identical camera frames): online CNN (which builds an assistant map as it flies), the assistant
+map built during that first flight, the statistical indicator, and no exclusion. Each flight is a
+full ``scenenav run`` (simulator, perception node, recorder) in its own run folder.
+
+Definitions (printed in table2.md):
+* a fix is *false* when it is valid and its horizontal error exceeds the threshold (default 5 m);
+* ``rms_error_m``: RMS horizontal error over the fixes the method accepted;
+* ``detected_false_pct``: fixes the method flagged false / fixes that really are false, x 100
+  (the paper's "detected false matchings/overall"; over-flagging can exceed 100 %);
+* ``precision`` / ``recall`` of the rejection: share of rejected fixes that really are false /
+  share of really-false fixes that were rejected;
+* ``fix_time_ms_median``: the perception node's per-fix time (align + NCC + CNN + lookup).
+
+Decision rule of the cnn and assistant-map rows (column ``rule``): ``combined`` by default, i.e.
+``perception.weights`` is the shipped combined decision model
+(``perception/weights/decision_combined.json``: the logistic P(false fix) from the area's P(bad),
+the NCC quality and the innovation against the tracker; docs/perception.md). The paper's rule
+(P(bad) > 0.5) is flown with ``decision_rule="paper"`` or ``--set perception.weights=<a CNN .pt>``
+(overrides come last). With the combined rule, two more flights repeat the cnn and assistant-map
+rows under the paper's rule (``paper_rows``; run folders ``run-*-paper``) for comparison. The rule
+each flight really used is read back from its ``perception_diag_perception.csv``.
+"""
+
+from __future__ import annotations
+
+import json
+import logging
+import math
+import shutil
+from pathlib import Path
+
+import numpy as np
+
+from scenenav.core.errors import UserError
+
+log = logging.getLogger(__name__)
+
+PAPER = {  # Table 2 of the seed paper: RMS m, time ms, detected %
+    "cnn": (1.2, 140.0, 98.7), "assistant-map": (1.15, 41.0, 98.7),
+    "statistical": (1.5, 41.0, 112.0), "none": (3.1, 40.0, None),
+}
+METHODS = ("cnn", "assistant-map", "statistical", "none")
+DECISION_RULES = ("combined", "paper")
+
+
+def default_decision_model() -> Path:
+    from perception.decision import DEFAULT_DECISION_MODEL
+    return DEFAULT_DECISION_MODEL
+
+
+def flown_rule(run_dir: Path) -> str:
+    """The decision rule a flight's perception node used (its diagnostics), '—' when none."""
+    from scenenav.app.evaluation import read_csv
+    diag = read_csv(Path(run_dir) / "perception_diag_perception.csv")
+    rules = diag.get("rule") if diag else None
+    if rules is None or len(rules) == 0:
+        return "—"
+    return "+".join(sorted({str(r) for r in rules}))
+
+
+def rejection_metrics(fx: dict) -> dict:
+    valid = fx["valid"] > 0.5
+    false = fx["is_false"].astype(bool) & valid
+    rejected = valid & (fx["accepted"] < 0.5)
+    acc = valid & ~rejected
+    n_false = int(false.sum())
+    n_rej = int(rejected.sum())
+    err = fx["error_m"]
+    return {
+        "rms_error_m": float(np.sqrt(np.mean(err[acc] ** 2))) if acc.any() else None,
+        "rms_error_all_m": float(np.sqrt(np.mean(err[valid] ** 2))) if valid.any() else None,
+        "fix_time_ms_median": float(np.nanmedian(fx["time_total_ms"])) if len(valid) else None,
+        "detected_false_pct": (100.0 * n_rej / n_false) if n_false else None,
+        "precision": (float((false & rejected).sum()) / n_rej) if n_rej else None,
+        "recall": (float((false & rejected).sum()) / n_false) if n_false else None,
+        "fixes_total": int(valid.sum()),
+        "fixes_accepted": int(acc.sum()),
+        "false_fixes": n_false,
+        "false_fixes_accepted": int((false & acc).sum()),
+    }
+
+
+def run_table2(world_dir: str | None, out: str, seed: int = 0, threshold_m: float = 5.0,
+               overrides: tuple[str, ...] = (), progress: bool = True,
+               results_page: str | None = None, decision_rule: str = "combined",
+               paper_rows: bool = True) -> dict:
+    from scenenav.app.evaluation import fix_table
+    from scenenav.app.launcher import run
+    from scenenav.app.nodes import load_world_for
+    from scenenav.app.scenario import load_scenario, route_for
+    if decision_rule not in DECISION_RULES:
+        raise UserError(f"decision rule {decision_rule!r}: expected one of {', '.join(DECISION_RULES)}")
+    out_dir = Path(out)
+    if out_dir.exists() and any(out_dir.iterdir()):
+        raise UserError(f"{out_dir}: output folder exists and is not empty (choose a new --out)")
+    base = ["flight.mode=scripted", f"seed={seed}", f"evaluation.false_fix_threshold_m={threshold_m}"]
+    if world_dir:
+        base.append(f"world={Path(world_dir).resolve()}")
+    cfg0 = load_scenario(None, tuple(base) + tuple(overrides))
+    world = load_world_for(cfg0)
+    route = route_for(cfg0, world)
+    base.append("flight.route_enu_m=" + json.dumps([list(p) for p in route]))
+    base.append("duration_s=100000")          # ends when the scripted route is done
+    out_dir.mkdir(parents=True, exist_ok=True)
+    rows = []
+    flights = [(m, decision_rule) for m in METHODS]
+    if decision_rule == "combined" and paper_rows:
+        # The paper's rule on the same frames, for comparison (its own CNN flight and map).
+        flights += [("cnn", "paper"), ("assistant-map", "paper")]
+    for method, rule in flights:
+        suffix = "-paper" if rule == "paper" and decision_rule != "paper" else ""
+        sets = list(base) + [f"perception.method={method}", f"name=table2-{method}{suffix}"]
+        if rule == "combined" and method in ("cnn", "assistant-map"):
+            sets.append(f"perception.weights={default_decision_model()}")
+        sets += list(overrides)
+        map_path = out_dir / f"assistant_map{suffix}.npz"
+        if method == "assistant-map":
+            if not map_path.is_file():
+                raise UserError("the online-CNN flight left no assistant map to reuse")
+            sets.append(f"perception.assistant_map={map_path.resolve()}")
+        run_dir = out_dir / f"run-{method}{suffix}"
+        log.info("table2: flying with method %s (%s)", method, rule)
+        summary = run(None, str(run_dir), tuple(sets), progress=progress)
+        if method == "cnn":
+            built = run_dir / "assistant_map_perception.npz"
+            if built.is_file():
+                shutil.copy(built, map_path)
+        fx = fix_table(run_dir, threshold_m)
+        if not fx:
+            raise UserError(f"{run_dir}: the flight produced no fixes (see {run_dir / 'logs'})")
+        row = {"method": method, "rule": flown_rule(run_dir) if method in ("cnn", "assistant-map")
+               else "—", **rejection_metrics(fx), "run_dir": str(run_dir),
+               "real_time_factor": summary.get("real_time_factor")}
+        rows.append(row)
+    result = {"world": world.manifest.name, "threshold_m": threshold_m, "seed": seed,
+              "decision_rule": decision_rule,
+              "rows": rows, "paper": {m: {"rms_error_m": p[0], "fix_time_ms": p[1],
+                                          "detected_false_pct": p[2]} for m, p in PAPER.items()}}
+    (out_dir / "table2.json").write_text(json.dumps(result, indent=2))
+    md = table2_markdown(result)
+    (out_dir / "table2.md").write_text(md)
+    try:
+        plot_figures(out_dir, rows[:len(METHODS)], threshold_m)
+    except Exception:  # plots never lose the table
+        log.exception("could not draw the figures")
+    if results_page:
+        page = Path(results_page)
+        page.parent.mkdir(parents=True, exist_ok=True)
+        for fig in ("figure7.png", "figure8.png"):
+            if (out_dir / fig).is_file():
+                shutil.copy(out_dir / fig, page.parent / f"table2-{fig}")
+        page.write_text(md.replace("Figures: figure7.png (paths), figure8.png (statistical variance).",
+                                   "Figures: ![Figure 7](table2-figure7.png) ![Figure 8](table2-figure8.png)")
+                        + f"\nCommand: `scenenav experiment table2 --out {out} --results-page {results_page}`"
+                        + (f" with overrides {list(overrides)}" if overrides else "") + "\n")
+    print(md)
+    return result
+
+
+def _f(v, fmt="{:.2f}") -> str:
+    return "—" if v is None or (isinstance(v, float) and not math.isfinite(v)) else fmt.format(v)
+
+
+def table2_markdown(result: dict) -> str:
+    lines = [f"# Table 2 reproduced — world `{result['world']}`", "",
+             f"False fix: valid fix with horizontal error > {result['threshold_m']:g} m. "
+             "RMS over accepted fixes. detected = flagged false / really false x 100.", "",
+             "rule: the decision rule the flight used (paper = P(bad) > 0.5; combined = logistic "
+             "P(false fix) from P(bad), NCC quality and tracker innovation, docs/perception.md, "
+             "where its held-out-world results are).", "",
+             "| method | rule | RMS error (m) | fix time median (ms) | detected false (%) | precision | recall "
+             "| fixes | false fixes | false accepted | paper RMS (m) | paper time (ms) | paper detected (%) |",
+             "|---|---|---|---|---|---|---|---|---|---|---|---|---|"]
+    for r in result["rows"]:
+        p = PAPER[r["method"]]
+        lines.append(f"| {r['method']} | {r.get('rule', '—')} | {_f(r['rms_error_m'])} | {_f(r['fix_time_ms_median'], '{:.1f}')} "
+                     f"| {_f(r['detected_false_pct'], '{:.1f}')} | {_f(r['precision'], '{:.3f}')} "
+                     f"| {_f(r['recall'], '{:.3f}')} | {r['fixes_total']} | {r['false_fixes']} "
+                     f"| {r['false_fixes_accepted']} | {p[0]} | {p[1]:g} | {_f(p[2], '{:g}')} |")
+    lines += ["", "Generated by `scenenav experiment table2`; each row is a full lockstep flight "
+              "(run folders beside this file). Figures: figure7.png (paths), figure8.png "
+              "(statistical variance)."]
+    return "\n".join(lines) + "\n"
+
+
+def plot_figures(out_dir: Path, rows: list[dict], threshold_m: float) -> None:
+    import matplotlib
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+    from perception.statistical import StatisticalDetector
+    from scenenav.app.evaluation import fix_table
+    fig, axes = plt.subplots(2, 4, figsize=(18, 8))
+    for i, r in enumerate(rows):
+        fx = fix_table(Path(r["run_dir"]), threshold_m)
+        acc = (fx["valid"] > 0.5) & (fx["accepted"] > 0.5)
+        ax = axes[0, i]
+        ax.plot(fx["truth_x_m"], fx["truth_y_m"], "k-", lw=1, label="ref")
+        ax.plot(fx["x_m"][acc], fx["y_m"][acc], "g.", ms=3, label="scene matching (accepted)")
+        rej = (fx["valid"] > 0.5) & ~acc
+        ax.plot(fx["x_m"][rej], fx["y_m"][rej], "rx", ms=3, label="rejected")
+        ax.set_title(r["method"])
+        ax.set_aspect("equal")
+        ax.legend(fontsize=6)
+        ax2 = axes[1, i]
+        ax2.plot(fx["t_s"], fx["truth_x_m"], "k-", lw=1, label="ref x")
+        ax2.plot(fx["t_s"], fx["truth_y_m"], "k--", lw=1, label="ref y")
+        ax2.plot(fx["t_s"][acc], fx["x_m"][acc], "b.", ms=2, label="x")
+        ax2.plot(fx["t_s"][acc], fx["y_m"][acc], "m.", ms=2, label="y")
+        ax2.set_xlabel("t (s)")
+        ax2.legend(fontsize=6)
+    fig.suptitle("Figure 7: calculated path (accepted fixes) and reference path, per method")
+    fig.tight_layout()
+    fig.savefig(out_dir / "figure7.png", dpi=80)
+    plt.close(fig)
+    stat = next(r for r in rows if r["method"] == "statistical")
+    fx = fix_table(Path(stat["run_dir"]), threshold_m)
+    det = StatisticalDetector()
+    var = [det.update(x, y, t)[1] for x, y, t in zip(fx["x_m"], fx["y_m"], fx["t_s"])]
+    fig, ax = plt.subplots(figsize=(10, 4))
+    ax.plot(fx["t_s"], var, "b-", lw=1, label="variance (m²)")
+    ax.axhline(det.threshold, color="r", ls="--", label=f"threshold {det.threshold}")
+    false_t = fx["t_s"][fx["is_false"].astype(bool)]
+    ax.plot(false_t, np.full(len(false_t), det.threshold), "k|", ms=12, label="really false fixes")
+    ax.set_yscale("log")
+    ax.set_xlabel("t (s)")
+    ax.legend()
+    ax.set_title("Figure 8: statistical indicator")
+    fig.tight_layout()
+    fig.savefig(out_dir / "figure8.png", dpi=80)
+    plt.close(fig)

@@ -1,0 +1,260 @@
+"""Recorder node: writes the run folder's logs from the bus.
+
+Inputs: everything under ``scenenav/<ns>/**`` (it is the one node besides evaluation that reads
+``truth/``). Outputs (files in the run folder):
+
+* ``bus.mcap`` — every bus message (JSON, with a JSON schema per type); camera frames every
+  ``camera_every_n``-th as ``foxglove.RawImage`` so Foxglove shows them. Chunks are flushed as they
+  fill; after a crash the file is still readable up to the last chunk (``mcap recover``).
+* ``truth.csv``, ``fixes.csv``, ``estimates.csv``, ``status.csv``, ``events.csv`` — flushed every
+  second of wall time and on exit, so Ctrl-C leaves them readable.
+"""
+
+from __future__ import annotations
+
+import base64
+import csv
+import json
+import logging
+import math
+import threading
+import time
+from pathlib import Path
+from typing import Any
+
+from mcap.writer import CompressionType, Writer
+
+from scenenav.core.bus import Bus, BusConfig
+from scenenav.core.contracts import (AutopilotStatus, CameraFrame, DecodeError, Event, NavEstimate,
+                                TruthPose, VisionFix, decode, message_type, schema_of)
+from scenenav.core.keys import Keys, type_for_key
+from scenenav.app.scenario import RecorderConfig
+
+log = logging.getLogger(__name__)
+
+NODE_ID = "recorder"
+
+TRUTH_COLUMNS = ["t_s", "x_m", "y_m", "z_m", "vx_m_s", "vy_m_s", "vz_m_s", "heading_deg",
+                 "qw", "qx", "qy", "qz"]
+FIX_COLUMNS = ["t_s", "frame_seq", "node_id", "method", "valid", "accepted", "x_m", "y_m",
+               "cov_xx_m2", "cov_xy_m2", "cov_yy_m2", "p_true", "p_bad", "ncc_peak", "ncc_psr",
+               "ncc_second_peak_ratio", "time_align_ms", "time_ncc_ms", "time_cnn_ms",
+               "time_lookup_ms", "time_total_ms"]
+ESTIMATE_COLUMNS = ["t_s", "x_m", "y_m", "z_m", "vx_m_s", "vy_m_s", "vz_m_s", "heading_deg",
+                    "std_x_m", "std_y_m", "std_z_m", "position_source", "vision_node_id"]
+STATUS_COLUMNS = ["t_s", "armed", "mode", "landed", "mission_seq", "mission_count",
+                  "mission_complete", "gps_used"]
+EVENT_COLUMNS = ["t_s", "node_id", "severity", "text"]
+
+_JSON_TYPES = {"float": "number", "int": "integer", "bool": "boolean", "str": "string"}
+
+
+def _json_schema(cls: type) -> bytes:
+    props: dict[str, Any] = {"type": {"type": "string"}, "version": {"type": "integer"}}
+    for name, tp in schema_of(cls):
+        if name == "pixels":
+            continue
+        props[name] = {"type": _JSON_TYPES.get(tp, "array")}
+    return json.dumps({"type": "object", "title": cls.__name__, "properties": props}).encode()
+
+
+_RAW_IMAGE_SCHEMA = json.dumps({
+    "title": "foxglove.RawImage", "type": "object",
+    "properties": {
+        "timestamp": {"type": "object", "properties": {"sec": {"type": "integer"},
+                                                       "nsec": {"type": "integer"}}},
+        "frame_id": {"type": "string"}, "width": {"type": "integer"},
+        "height": {"type": "integer"}, "encoding": {"type": "string"},
+        "step": {"type": "integer"}, "data": {"type": "string", "contentEncoding": "base64"},
+    },
+}).encode()
+
+
+def _fmt(v: float) -> str:
+    return "" if (isinstance(v, float) and not math.isfinite(v)) else f"{v:.6g}" if isinstance(v, float) else str(v)
+
+
+class _Csv:
+    def __init__(self, path: Path, columns: list[str]):
+        self._f = path.open("w", newline="", encoding="utf-8")
+        self._w = csv.writer(self._f)
+        self._w.writerow(columns)
+
+    def row(self, values) -> None:
+        self._w.writerow([_fmt(v) for v in values])
+
+    def flush(self) -> None:
+        self._f.flush()
+
+    def close(self) -> None:
+        self._f.close()
+
+
+class RecorderNode:
+    def __init__(self, out_dir: Path, cfg: RecorderConfig, bus_cfg: BusConfig):
+        self.out = Path(out_dir)
+        self.out.mkdir(parents=True, exist_ok=True)
+        self.cfg = cfg
+        self.keys = Keys(bus_cfg.namespace)
+        self._lock = threading.Lock()
+        self._mcap_file = (self.out / "bus.mcap").open("wb")
+        self._mcap = Writer(self._mcap_file, compression=CompressionType.ZSTD, chunk_size=512 * 1024)
+        self._mcap.start(profile="", library="scenenav-recorder")
+        self._channels: dict[str, int] = {}
+        self._schemas: dict[str, int] = {}
+        self._seq = 0
+        self._truth_count = 0
+        self.counts: dict[str, int] = {}
+        self.dropped = 0
+        self.truth = _Csv(self.out / "truth.csv", TRUTH_COLUMNS)
+        self.fixes = _Csv(self.out / "fixes.csv", FIX_COLUMNS)
+        self.estimates = _Csv(self.out / "estimates.csv", ESTIMATE_COLUMNS)
+        self.status = _Csv(self.out / "status.csv", STATUS_COLUMNS)
+        self.events = _Csv(self.out / "events.csv", EVENT_COLUMNS)
+        self._csvs = [self.truth, self.fixes, self.estimates, self.status, self.events]
+        self._last_flush = time.monotonic()
+        self._closed = False
+        self._last_fix: tuple[str, int] | None = None     # (node id, timestamp_us) of the newest fix
+        self._perception_live: list[str] = []             # live perception nodes, newest last
+        self._sim_time_us = 0
+        self.bus = Bus(bus_cfg)
+        self.bus.subscribe_raw(self.keys.everything, self._on_sample)
+        self.bus.watch_liveliness(self.keys.node_alive_all, self._on_node)
+        self.bus.declare_token(self.keys.node_alive("recorder", NODE_ID))
+
+    def _log_event(self, t_us: int, severity: int, text: str) -> None:
+        """An event the recorder itself observed (written to events.csv and the log)."""
+        log.info("%s", text)
+        with self._lock:
+            if not self._closed:
+                self.events.row([t_us * 1e-6, NODE_ID, severity, text])
+
+    def _on_node(self, key: str, alive: bool) -> None:
+        parts = key.split("/")
+        if len(parts) < 2:
+            return
+        role, node = parts[-2], parts[-1]
+        if role == "perception":
+            with self._lock:
+                if node in self._perception_live:
+                    self._perception_live.remove(node)
+                if alive:
+                    self._perception_live.append(node)   # newest last: the one followed
+        self._log_event(self._sim_time_us, 6, f"node {'up' if alive else 'down'}: {role}/{node}")
+
+    def _track_fix_source(self, msg: VisionFix) -> None:
+        """Log when the followed fix source (the newest live perception node) changes, and the
+        gap between the old source's last fix and the new one's first."""
+        followed = self._perception_live[-1] if self._perception_live else msg.node_id
+        if msg.node_id != followed:
+            return
+        last = self._last_fix
+        if last is not None and last[0] != msg.node_id:
+            gap_s = (msg.timestamp_us - last[1]) * 1e-6
+            self.events.row([msg.timestamp_us * 1e-6, NODE_ID, 5,
+                             f"fix source changed: {last[0]} -> {msg.node_id} ({msg.method}), "
+                             f"gap in fixes {gap_s:.2f} s"])
+            log.info("fix source changed %s -> %s, gap %.2f s", last[0], msg.node_id, gap_s)
+        self._last_fix = (msg.node_id, msg.timestamp_us)
+
+    # --------------------------------------------------------------------------------- mcap
+    def _channel(self, key: str, type_name: str) -> int:
+        ch = self._channels.get(key)
+        if ch is None:
+            if type_name == "CameraFrame":
+                schema_name, data = "foxglove.RawImage", _RAW_IMAGE_SCHEMA
+            else:
+                schema_name, data = f"scenenav.{type_name}", _json_schema(message_type(type_name))
+            sid = self._schemas.get(schema_name)
+            if sid is None:
+                sid = self._mcap.register_schema(schema_name, "jsonschema", data)
+                self._schemas[schema_name] = sid
+            ch = self._mcap.register_channel(key, "json", sid, {"scenenav_type": type_name})
+            self._channels[key] = ch
+        return ch
+
+    def _on_sample(self, payload: bytes, key: str) -> None:
+        type_name = type_for_key(self.keys, key)
+        if type_name is None:
+            return
+        try:
+            msg = decode(message_type(type_name), payload)
+        except DecodeError as exc:
+            self.dropped += 1
+            if self.dropped <= 5 or self.dropped % 100 == 0:
+                log.warning("recorder dropped malformed %s on %s: %s", type_name, key, exc)
+            return
+        with self._lock:
+            if self._closed:
+                return
+            self.counts[type_name] = self.counts.get(type_name, 0) + 1
+            self._sim_time_us = max(self._sim_time_us, int(msg.timestamp_us))
+            if isinstance(msg, VisionFix):
+                self._track_fix_source(msg)
+            t_ns = int(msg.timestamp_us) * 1000
+            if isinstance(msg, CameraFrame):
+                n = self.cfg.camera_every_n
+                if n and msg.seq % n == 0:
+                    payload = self._raw_image(msg)
+                else:
+                    payload = b""
+            if payload:
+                self._seq += 1
+                self._mcap.add_message(self._channel(key, type_name), t_ns, payload, t_ns, self._seq)
+            self._to_csv(msg)
+            now = time.monotonic()
+            if now - self._last_flush > 1.0:
+                self._flush_csv()
+                self._last_flush = now
+
+    @staticmethod
+    def _raw_image(msg: CameraFrame) -> bytes:
+        ch = 3 if msg.encoding == "rgb8" else 1
+        return json.dumps({
+            "timestamp": {"sec": msg.timestamp_us // 1_000_000,
+                          "nsec": (msg.timestamp_us % 1_000_000) * 1000},
+            "frame_id": "camera", "width": msg.width_px, "height": msg.height_px,
+            "encoding": msg.encoding, "step": msg.width_px * ch,
+            "data": base64.b64encode(msg.pixels.tobytes()).decode(),
+        }).encode()
+
+    # ---------------------------------------------------------------------------------- csv
+    def _to_csv(self, msg: Any) -> None:
+        t = msg.timestamp_us * 1e-6
+        if isinstance(msg, TruthPose):
+            self._truth_count += 1
+            if (self._truth_count - 1) % self.cfg.truth_every_n_ticks == 0:
+                self.truth.row([t, *msg.position_enu_m, *msg.velocity_enu_m_s,
+                                math.degrees(msg.heading_rad), *msg.q_wxyz])
+        elif isinstance(msg, VisionFix):
+            c = msg.covariance_xy_m2
+            self.fixes.row([t, msg.frame_seq, msg.node_id, msg.method, int(msg.valid),
+                            int(msg.accepted), *msg.position_xy_enu_m, c[0], c[1], c[3],
+                            msg.p_true, msg.p_classes[0], msg.ncc_peak, msg.ncc_psr,
+                            msg.ncc_second_peak_ratio, msg.time_align_ms, msg.time_ncc_ms,
+                            msg.time_cnn_ms, msg.time_lookup_ms, msg.time_total_ms])
+        elif isinstance(msg, NavEstimate):
+            self.estimates.row([t, *msg.position_enu_m, *msg.velocity_enu_m_s,
+                                math.degrees(msg.heading_rad), *msg.position_std_m,
+                                msg.position_source, msg.vision_node_id])
+        elif isinstance(msg, AutopilotStatus):
+            self.status.row([t, int(msg.armed), msg.mode, int(msg.landed), msg.mission_seq,
+                             msg.mission_count, int(msg.mission_complete), int(msg.gps_used)])
+        elif isinstance(msg, Event):
+            self.events.row([t, msg.node_id, msg.severity, msg.text])
+
+    def _flush_csv(self) -> None:
+        for c in self._csvs:
+            c.flush()
+
+    def close(self) -> dict:
+        self.bus.close()
+        with self._lock:
+            if not self._closed:
+                self._closed = True
+                self._flush_csv()
+                for c in self._csvs:
+                    c.close()
+                self._mcap.finish()
+                self._mcap_file.close()
+        return {"counts": dict(self.counts), "dropped": self.dropped}

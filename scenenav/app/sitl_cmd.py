@@ -1,0 +1,210 @@
+"""``scenenav sitl``: a simulated vehicle waiting on the ground for a ground station, like
+ArduPilot's ``sim_vehicle.py``.
+
+Starts the simulator (flight mode ``idle``, realtime clock at ``--speedup``, or lockstep), the
+autopilot (MAVLink on TCP 127.0.0.1:5760 and UDP out to 127.0.0.1:14550 by default), optionally a
+perception node, and the recorder, as child processes through ``scenenav.app.launcher``; prints how to
+connect; runs until Ctrl-C (or SIGTERM); stops every child in order and writes the run folder
+(``summary.json`` etc. through ``scenenav.app.evaluation``).
+"""
+
+from __future__ import annotations
+
+import json
+import logging
+import signal
+import socket
+import time
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any, Callable
+
+
+from scenenav.core.config import apply_overrides, load_config, load_yaml
+from scenenav.core.errors import UserError
+from scenenav.app.launcher import Launch, prepare_run, resolve_world
+from scenenav.app.scenario import ScenarioConfig
+
+log = logging.getLogger(__name__)
+
+PERCEPTION_OFF = "off"
+PERCEPTION_CHOICES = ("cnn", "assistant-map", "statistical", "none", PERCEPTION_OFF)
+SITL_DURATION_S = 7 * 24 * 3600.0     # "until Ctrl-C"
+READY_TIMEOUT_S = 120.0
+STOP_ORDER = ["sim", "autopilot", "perception", "recorder"]
+
+
+@dataclass(frozen=True)
+class SitlOptions:
+    scenario: str | None = None        # optional scenario YAML to start from
+    world: str | None = None           # world folder (default: the scenario's)
+    gps: bool = True
+    speedup: float = 1.0               # realtime clock: simulated seconds per wall second
+    out: str | None = None             # run folder (default runs/sitl-<time>)
+    tcp_port: int = 5760               # MAVLink TCP server port (0: off)
+    udp_out: str = "127.0.0.1:14550"   # MAVLink UDP output HOST:PORT (0: off)
+    perception: str | None = None      # method, "off" for no perception node, None: the scenario's
+    lockstep: bool = False             # lockstep clock (as fast as the nodes allow) instead of realtime
+    overrides: tuple[str, ...] = ()    # --set KEY=VALUE, applied last
+
+
+def _put(data: dict, dotted: str, value: Any) -> None:
+    node = data
+    parts = dotted.split(".")
+    for part in parts[:-1]:
+        child = node.get(part)
+        if not isinstance(child, dict):
+            child = {}
+            node[part] = child
+        node = child
+    node[parts[-1]] = value
+
+
+def sitl_scenario(opts: SitlOptions) -> ScenarioConfig:
+    """The scenario of a SITL session: the options over the (optional) scenario file, then --set."""
+    if not (opts.speedup > 0):
+        raise UserError(f"--speedup {opts.speedup}: expected a positive number")
+    if opts.perception is not None and opts.perception not in PERCEPTION_CHOICES:
+        raise UserError(f"--perception {opts.perception}: expected one of "
+                        f"{', '.join(PERCEPTION_CHOICES)}")
+    data = load_yaml(opts.scenario) if opts.scenario else {}
+    data.setdefault("name", "sitl")
+    _put(data, "flight.mode", "idle")
+    _put(data, "duration_s", SITL_DURATION_S)
+    _put(data, "clock.mode", "lockstep" if opts.lockstep else "realtime")
+    _put(data, "clock.speed_factor", float(opts.speedup))
+    _put(data, "sim.gps.enabled", bool(opts.gps))
+    _put(data, "autopilot.mavlink_tcp_port", int(opts.tcp_port))
+    _put(data, "autopilot.mavlink_udp_out", opts.udp_out)
+    if opts.world:
+        _put(data, "world", opts.world)
+    if opts.perception == PERCEPTION_OFF:
+        _put(data, "perception.enabled", False)
+    elif opts.perception is not None:
+        _put(data, "perception.enabled", True)
+        _put(data, "perception.method", opts.perception)
+    source = opts.scenario or "sitl options"
+    if opts.overrides:
+        data = apply_overrides(data, list(opts.overrides))
+        source += " (with --set overrides)"
+    return load_config(ScenarioConfig, data, source)
+
+
+def _check_tcp_port(port: int) -> None:
+    if port == 0:
+        return
+    with socket.socket(socket.AF_INET, socket.SOCK_STREAM) as s:
+        s.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)
+        try:
+            s.bind(("127.0.0.1", port))
+        except OSError as exc:
+            raise UserError(f"--tcp-port {port}: 127.0.0.1:{port} is not free ({exc.strerror}); "
+                            f"is another SITL running? choose another port") from None
+
+
+def _connect_text(cfg: ScenarioConfig, run_dir: Path, mavlink: dict) -> str:
+    tcp = mavlink.get("tcp_port")
+    udp = mavlink.get("udp_out")
+    clock = ("lockstep (as fast as the nodes allow)" if cfg.clock.mode.value == "lockstep"
+             else f"realtime x{cfg.clock.speed_factor:g}")
+    lines = [f"scenenav sitl: world {cfg.world}, GPS {'on' if cfg.sim.gps.enabled else 'off'}, "
+             f"clock {clock}, perception "
+             f"{cfg.perception.method if cfg.perception.enabled else 'off'}",
+             f"run folder: {run_dir}"]
+    if tcp:
+        lines += [f"MAVLink TCP server: 127.0.0.1:{tcp}",
+                  f"  MAVProxy:       mavproxy.py --master tcp:127.0.0.1:{tcp}",
+                  f"  MAVSDK:         tcpout://127.0.0.1:{tcp}",
+                  f"  QGroundControl: Application Settings > Comm Links > TCP 127.0.0.1:{tcp}"]
+    if udp:
+        lines += [f"MAVLink UDP out:    {udp} (QGroundControl listens on 14550 by default; "
+                  f"MAVSDK udpin://0.0.0.0:{udp.rsplit(':', 1)[-1]})"]
+    lines.append("Ctrl-C stops the simulation.")
+    return "\n".join(lines)
+
+
+def run_sitl(opts: SitlOptions, announce: Callable[[str], None]) -> dict:
+    """Run a SITL session until Ctrl-C; returns the run summary."""
+    cfg = sitl_scenario(opts)
+    world = resolve_world(cfg)
+    _check_tcp_port(cfg.autopilot.mavlink_tcp_port)
+    run_dir = Path(opts.out) if opts.out else Path("runs") / time.strftime("sitl-%Y%m%d-%H%M%S")
+    launch = prepare_run(cfg, world, run_dir, opts.scenario or "(sitl)", "sitl")
+    meta = json.loads((run_dir / "run.json").read_text())
+
+    # Ctrl-C and SIGTERM end the session cleanly (SIGINT explicitly: a shell may start us with it
+    # ignored, e.g. as a background job).
+    previous = {sig: signal.signal(sig, _raise_interrupt) for sig in (signal.SIGINT, signal.SIGTERM)}
+    interrupted = False
+    reason = "stopped"
+    wall0 = time.time()
+    try:
+        expect = ["recorder", "tick"]
+        launch.spawn("recorder", ["recorder", "--run-dir", str(run_dir)])
+        if cfg.perception.enabled:
+            launch.spawn("perception", ["perception", "--run-dir", str(run_dir),
+                                        "--node-id", "perception"])
+            if cfg.perception.lockstep:
+                expect.append("camera")
+        autopilot = launch.spawn("autopilot", ["autopilot", "--run-dir", str(run_dir)])
+        launch.spawn("sim", ["sim", "--run-dir", str(run_dir), "--expect", ",".join(expect)])
+        mavlink = _wait_ready(run_dir, autopilot)
+        meta["mavlink"] = mavlink
+        (run_dir / "run.json").write_text(json.dumps(meta, indent=2))
+        announce(_connect_text(cfg, run_dir, mavlink))
+        reason = _supervise(launch)
+        if reason:
+            announce(f"scenenav sitl: {reason}; stopping")
+    except KeyboardInterrupt:
+        interrupted = True
+        log.info("interrupted: stopping every node")
+    finally:
+        for sig, handler in previous.items():
+            signal.signal(sig, handler)
+        launch.stop_all(order=STOP_ORDER)
+    from scenenav.app.evaluation import evaluate_run
+    summary = evaluate_run(run_dir, cfg, world, wall_time_s=time.time() - wall0,
+                           interrupted=interrupted)
+    failed = [c.name for c in launch.children if c.proc.returncode not in (0, None, -2, 130)]
+    if failed:
+        summary["failed_nodes"] = failed
+        (run_dir / "summary.json").write_text(json.dumps(summary, indent=2))
+    return summary
+
+
+def _raise_interrupt(signum, _frame) -> None:
+    raise KeyboardInterrupt
+
+
+def _wait_ready(run_dir: Path, autopilot) -> dict:
+    """The autopilot's MAVLink endpoints, once it has opened them (it writes mavlink.json)."""
+    path = run_dir / "mavlink.json"
+    deadline = time.monotonic() + READY_TIMEOUT_S
+    while time.monotonic() < deadline:
+        if path.is_file():
+            try:
+                return json.loads(path.read_text())
+            except (OSError, json.JSONDecodeError):
+                pass
+        if autopilot.proc.poll() is not None:
+            raise UserError(f"the autopilot exited with code {autopilot.proc.returncode} "
+                            f"(see {run_dir / 'logs' / 'autopilot.log'})")
+        time.sleep(0.1)
+    raise UserError(f"the autopilot did not open its MAVLink endpoints within "
+                    f"{READY_TIMEOUT_S:.0f} s (see {run_dir / 'logs' / 'autopilot.log'})")
+
+
+def _supervise(launch: Launch) -> str:
+    """Wait until the simulator or the autopilot ends; return why."""
+    reported: set[str] = set()
+    while True:
+        for c in launch.children:
+            code = c.proc.poll()
+            if code is None:
+                continue
+            if c.name in ("sim", "autopilot"):
+                return f"{c.name} exited with code {code}"
+            if code != 0 and c.name not in reported:
+                reported.add(c.name)
+                log.error("%s exited with code %s (see logs/%s.log)", c.name, code, c.name)
+        time.sleep(0.25)

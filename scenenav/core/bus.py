@@ -1,0 +1,161 @@
+"""Zenoh session helpers: peer mode on loopback, multicast scouting off, explicit endpoints.
+
+Topology of a run: the simulator listens on the run's hub endpoint ``tcp/127.0.0.1:<port>``; every
+other node connects to it and listens on an ephemeral loopback port; gossip scouting (over those
+links only) then meshes the peers. No multicast, nothing leaves 127.0.0.1, and each run has its own
+port and key namespace, so parallel runs never cross-talk.
+
+``Bus`` wraps one session: typed publishers (reliable, congestion control BLOCK so nothing is lost),
+typed subscribers that decode, count and drop malformed payloads without ever raising into Zenoh,
+and liveliness tokens/subscribers.
+"""
+
+from __future__ import annotations
+
+import json
+import logging
+import socket
+import threading
+from collections import Counter
+from dataclasses import dataclass
+from typing import Any, Callable
+
+import zenoh
+
+from scenenav.core.contracts import DecodeError, decode, encode
+
+log = logging.getLogger(__name__)
+
+
+@dataclass(frozen=True)
+class BusConfig:
+    """How a node joins the bus of one run."""
+
+    namespace: str
+    hub_port: int                      # the simulator's listening port
+    listen_hub: bool = False           # True for the node that owns the hub endpoint (the simulator)
+    host: str = "127.0.0.1"
+
+    def zenoh_config(self) -> zenoh.Config:
+        hub = f"tcp/{self.host}:{self.hub_port}"
+        conf: dict[str, Any] = {
+            "mode": "peer",
+            "scouting": {"multicast": {"enabled": False}, "gossip": {"enabled": True}},
+            "listen": {"endpoints": [hub] if self.listen_hub else [f"tcp/{self.host}:0"]},
+            "connect": {"endpoints": [] if self.listen_hub else [hub]},
+        }
+        cfg = zenoh.Config()
+        for key, value in conf.items():
+            cfg.insert_json5(key, json.dumps(value))
+        if not self.listen_hub:
+            # Keep retrying the hub until it is up (nodes may start before the simulator).
+            cfg.insert_json5("connect/timeout_ms", "-1")
+        return cfg
+
+
+def free_port(host: str = "127.0.0.1") -> int:
+    """An unused TCP port on loopback (for tests and the launcher)."""
+    with socket.socket(socket.AF_INET, socket.SOCK_STREAM) as s:
+        s.bind((host, 0))
+        return s.getsockname()[1]
+
+
+def _direct(handler: Callable) -> zenoh.handlers.Callback:
+    """Run ``handler`` in Zenoh's receive thread: in-order delivery across subscriptions."""
+    return zenoh.handlers.Callback(handler, indirect=False)
+
+
+class Bus:
+    """One Zenoh session of a node, with typed publish/subscribe and malformed-message counting."""
+
+    def __init__(self, cfg: BusConfig):
+        self.cfg = cfg
+        self.session = zenoh.open(cfg.zenoh_config())
+        self._publishers: dict[str, Any] = {}
+        self._subscribers: list[Any] = []
+        self._tokens: list[Any] = []
+        self.dropped: Counter[str] = Counter()   # malformed messages per key
+        self._lock = threading.Lock()
+
+    # --------------------------------------------------------------------------- publishing
+    def publisher(self, key: str):
+        pub = self._publishers.get(key)
+        if pub is None:
+            pub = self.session.declare_publisher(
+                key, congestion_control=zenoh.CongestionControl.BLOCK,
+                reliability=zenoh.Reliability.RELIABLE)
+            self._publishers[key] = pub
+        return pub
+
+    def publish(self, key: str, msg: Any) -> None:
+        self.publisher(key).put(encode(msg))
+
+    def put_raw(self, key: str, payload: bytes) -> None:
+        self.publisher(key).put(payload)
+
+    # -------------------------------------------------------------------------- subscribing
+    def subscribe(self, key: str, cls: type, callback: Callable[[Any, str], None]) -> None:
+        """Call ``callback(message, key)`` for each well-formed ``cls`` message on ``key``.
+
+        Malformed payloads are counted in ``self.dropped`` and logged (rate-limited), never raised.
+        Exceptions from the callback are logged with their traceback and swallowed so the
+        subscriber keeps running. Callbacks run directly in Zenoh's receive thread
+        (``indirect=False``), so messages from one publisher session arrive in publication order
+        across all of this session's subscriptions (the lockstep protocol relies on it): keep
+        them short and hand long work to a thread of your own.
+        """
+        def handler(sample: zenoh.Sample) -> None:
+            k = str(sample.key_expr)
+            try:
+                msg = decode(cls, sample.payload.to_bytes())
+            except DecodeError as exc:
+                self._count_drop(k, str(exc))
+                return
+            try:
+                callback(msg, k)
+            except Exception:  # a bug in a handler must not kill the Zenoh callback thread
+                log.exception("handler for %s failed", k)
+        self._subscribers.append(self.session.declare_subscriber(key, _direct(handler)))
+
+    def subscribe_raw(self, key: str, callback: Callable[[bytes, str], None]) -> None:
+        def handler(sample: zenoh.Sample) -> None:
+            try:
+                callback(sample.payload.to_bytes(), str(sample.key_expr))
+            except Exception:
+                log.exception("raw handler for %s failed", sample.key_expr)
+        self._subscribers.append(self.session.declare_subscriber(key, _direct(handler)))
+
+    def _count_drop(self, key: str, why: str) -> None:
+        with self._lock:
+            self.dropped[key] += 1
+            n = self.dropped[key]
+        if n <= 5 or n % 100 == 0:
+            log.warning("dropped malformed message #%d on %s: %s", n, key, why)
+
+    # --------------------------------------------------------------------------- liveliness
+    def declare_token(self, key: str) -> Any:
+        token = self.session.liveliness().declare_token(key)
+        self._tokens.append(token)
+        return token
+
+    def watch_liveliness(self, key: str, on_change: Callable[[str, bool], None]) -> None:
+        """``on_change(key, alive)`` for tokens matching ``key``, including ones already alive."""
+        def handler(sample: zenoh.Sample) -> None:
+            try:
+                on_change(str(sample.key_expr), sample.kind == zenoh.SampleKind.PUT)
+            except Exception:
+                log.exception("liveliness handler failed")
+        self._subscribers.append(
+            self.session.liveliness().declare_subscriber(key, handler, history=True))
+
+    def close(self) -> None:
+        for tok in self._tokens:
+            try:
+                tok.undeclare()
+            except zenoh.ZError:
+                pass
+        self._tokens.clear()
+        try:
+            self.session.close()
+        except zenoh.ZError:
+            pass

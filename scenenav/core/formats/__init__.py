@@ -1,0 +1,1 @@
+"""File formats every package reads: world manifest, assistant-map file, route file."""

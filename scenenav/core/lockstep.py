@@ -1,0 +1,97 @@
+"""The lockstep protocol, simulator side: who must answer, and waiting for their answers.
+
+Members announce themselves with a Zenoh liveliness token
+``scenenav/<ns>/lockstep/member/<role>/<node_id>`` (role ``tick`` or ``camera``) *after* their
+subscribers are up, and answer with ``LockstepAck`` on ``lockstep/ack/<node_id>`` after publishing
+their outputs. A member is waited for only for ticks/frames published after its token was seen; a
+member whose token disappears (stopped, crashed, swapped out) is no longer waited for. A member that
+does not answer within ``timeout_s`` wall seconds is reported and skipped for that tick.
+Pure threading, no Zenoh: the node feeds it liveliness changes and acks.
+"""
+
+from __future__ import annotations
+
+import logging
+import threading
+import time
+from dataclasses import dataclass
+
+from scenenav.core.contracts import LockstepRole
+
+log = logging.getLogger(__name__)
+
+
+@dataclass
+class _Member:
+    role: LockstepRole
+    joined_after_seq: int          # the member answers only seqs greater than this
+    last_ack: int = -1
+
+
+class LockstepBarrier:
+    """Tracks lockstep members and blocks until every live member acknowledged a sequence number."""
+
+    def __init__(self) -> None:
+        self._cond = threading.Condition()
+        self._members: dict[str, _Member] = {}
+        self._published: dict[LockstepRole, int] = {LockstepRole.TICK: -1, LockstepRole.CAMERA: -1}
+        self.timeouts = 0
+
+    # called from Zenoh threads ---------------------------------------------------------------
+    def member_changed(self, role: LockstepRole, node_id: str, alive: bool) -> None:
+        with self._cond:
+            if alive:
+                if node_id not in self._members:
+                    self._members[node_id] = _Member(role, self._published[role])
+                    log.info("lockstep member joined: %s (%s)", node_id, role.value)
+            elif self._members.pop(node_id, None) is not None:
+                log.info("lockstep member left: %s (%s)", node_id, role.value)
+            self._cond.notify_all()
+
+    def ack(self, node_id: str, role: LockstepRole, seq: int) -> None:
+        with self._cond:
+            m = self._members.get(node_id)
+            if m is not None and m.role == role and seq > m.last_ack:
+                m.last_ack = seq
+                self._cond.notify_all()
+
+    # called from the simulator loop -----------------------------------------------------------
+    def published(self, role: LockstepRole, seq: int) -> None:
+        """Record that ``seq`` of ``role`` has been published (before waiting for it)."""
+        with self._cond:
+            self._published[role] = seq
+
+    def members(self, role: LockstepRole | None = None) -> list[str]:
+        with self._cond:
+            return sorted(n for n, m in self._members.items() if role is None or m.role == role)
+
+    def wait_members(self, count: dict[LockstepRole, int], timeout_s: float) -> bool:
+        """Wait until at least ``count[role]`` members of each role are present."""
+        deadline = time.monotonic() + timeout_s
+        with self._cond:
+            while True:
+                ok = all(sum(1 for m in self._members.values() if m.role == r) >= n
+                         for r, n in count.items())
+                if ok:
+                    return True
+                left = deadline - time.monotonic()
+                if left <= 0:
+                    return False
+                self._cond.wait(min(left, 0.5))
+
+    def wait(self, role: LockstepRole, seq: int, timeout_s: float) -> list[str]:
+        """Block until every live member of ``role`` that must answer ``seq`` has; return laggards."""
+        deadline = time.monotonic() + timeout_s
+        with self._cond:
+            while True:
+                pending = [n for n, m in self._members.items()
+                           if m.role == role and m.joined_after_seq < seq and m.last_ack < seq]
+                if not pending:
+                    return []
+                left = deadline - time.monotonic()
+                if left <= 0:
+                    self.timeouts += 1
+                    for n in pending:   # skip this seq for them, keep waiting on later ones
+                        self._members[n].last_ack = seq
+                    return pending
+                self._cond.wait(left)

@@ -1,0 +1,69 @@
+"""Two real Zenoh peers on loopback, multicast off, their own ports and namespaces."""
+
+import threading
+import time
+
+import pytest
+
+from scenenav.core.bus import Bus, BusConfig, free_port
+from scenenav.core.contracts import ImuSample, LockstepRole
+from scenenav.core.keys import Keys
+
+
+@pytest.fixture
+def peers():
+    port = free_port()
+    hub = Bus(BusConfig("bt", port, listen_hub=True))
+    node = Bus(BusConfig("bt", port))
+    yield hub, node
+    node.close()
+    hub.close()
+
+
+def _wait(cond, timeout=10.0):
+    t0 = time.monotonic()
+    while time.monotonic() - t0 < timeout:
+        if cond():
+            return True
+        time.sleep(0.02)
+    return False
+
+
+def test_typed_pub_sub_and_garbage_counted(peers):
+    hub, node = peers
+    k = Keys("bt")
+    got = []
+    node.subscribe(k.imu, ImuSample, lambda m, key: got.append(m))
+    alive = threading.Event()
+    hub.watch_liveliness(k.lockstep_member_all, lambda key, a: alive.set() if a else None)
+    node.declare_token(k.lockstep_member(LockstepRole.TICK, "n1"))
+    assert alive.wait(10)
+    msg = ImuSample(10, 1, 0.01, (0.0, 0.0, 9.8), (0.0, 0.0, 0.1))
+    hub.put_raw(k.imu, b"\x00garbage")
+    hub.publish(k.imu, msg)
+    hub.put_raw(k.imu, b'{"type":"ImuSample","version":1}')
+    hub.publish(k.imu, msg)
+    assert _wait(lambda: len(got) == 2)
+    assert got[0] == msg
+    assert _wait(lambda: node.dropped[k.imu] == 2)
+
+
+def test_liveliness_departure_seen(peers):
+    hub, node = peers
+    k = Keys("bt")
+    events = []
+    hub.watch_liveliness(k.node_alive_all, lambda key, a: events.append((key, a)))
+    tok = node.declare_token(k.node_alive("perception", "p1"))
+    assert _wait(lambda: (k.node_alive("perception", "p1"), True) in events)
+    tok.undeclare()
+    assert _wait(lambda: (k.node_alive("perception", "p1"), False) in events)
+
+
+def test_namespaces_do_not_cross_talk(peers):
+    hub, node = peers
+    got = []
+    node.subscribe(Keys("other").imu, ImuSample, lambda m, key: got.append(m))
+    time.sleep(0.3)
+    hub.publish(Keys("bt").imu, ImuSample(1, 1, 0.01, (0.0,) * 3, (0.0,) * 3))
+    time.sleep(0.5)
+    assert got == []

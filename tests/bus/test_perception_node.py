@@ -1,0 +1,70 @@
+"""The perception node on a real bus: garbage is dropped and counted, good frames get fixes."""
+
+import math
+import threading
+import time
+
+import numpy as np
+import pytest
+
+from scenenav.core.bus import Bus, BusConfig, free_port
+from scenenav.core.contracts import (BaroSample, CameraFrame, CompassSample, LockstepAck, VisionFix,
+                                encode)
+from scenenav.core.keys import Keys
+
+
+@pytest.fixture(scope="module")
+def world():
+    from worlds.default import load_default_world
+    return load_default_world()
+
+
+def _frame(world, seq, t_us, size=200):
+    # a north-up crop of the orthophoto at the map centre, resized to the camera size
+    import cv2
+    fp = int(2 * 100 * math.tan(math.radians(30)) / world.m_per_px)
+    cu, cv = world.width_px // 2, world.height_px // 2
+    crop = world.orthophoto[cv - fp // 2:cv + fp // 2, cu - fp // 2:cu + fp // 2]
+    img = cv2.resize(crop, (size, size), interpolation=cv2.INTER_AREA)
+    return CameraFrame(t_us, seq, size, size, "rgb8", 60.0, "gimbal", np.ascontiguousarray(img))
+
+
+def test_garbage_dropped_good_frames_fixed(world):
+    from perception.node import PerceptionNode
+    port = free_port()
+    hub = Bus(BusConfig("pn", port, listen_hub=True))
+    keys = Keys("pn")
+    fixes, acks = [], []
+    hub.subscribe(keys.vision_fix_all, VisionFix, lambda m, k: fixes.append(m))
+    hub.subscribe(keys.lockstep_ack_all, LockstepAck, lambda m, k: acks.append(m))
+    up = threading.Event()
+    hub.watch_liveliness(keys.lockstep_member_all, lambda k, a: up.set() if a else None)
+    node = PerceptionNode(world, BusConfig("pn", port), node_id="p1", method="none", lockstep=True)
+    try:
+        assert up.wait(15)
+        hub.publish(keys.compass, CompassSample(0, 0.0))
+        hub.publish(keys.baro, BaroSample(0, 100.0, 100129.0))
+        hub.publish(keys.camera, _frame(world, 0, 1000))                 # good
+        hub.publish(keys.camera, _frame(world, 1, 2000, size=120))       # wrong size
+        raw = encode(_frame(world, 2, 3000))
+        hub.put_raw(keys.camera, raw[:len(raw) // 2])                    # truncated bytes
+        hub.put_raw(keys.compass, b'{"type":"CompassSample","version":1,"timestamp_us":5,"heading_rad":"x"}')
+        hub.publish(keys.compass, CompassSample(4000, math.nan))           # NaN heading
+        hub.publish(keys.camera, _frame(world, 3, 5000))
+        hub.publish(keys.compass, CompassSample(6000, 0.0))
+        hub.publish(keys.camera, _frame(world, 4, 7000))                 # good again
+        t0 = time.monotonic()
+        while time.monotonic() - t0 < 30 and len(acks) < 4:
+            time.sleep(0.05)
+        assert [f.frame_seq for f in fixes] == [0, 4]
+        good = fixes[0]
+        assert good.valid and good.accepted and good.method == "none"
+        assert math.hypot(*good.position_xy_enu_m) < 2.0                 # map centre = world origin
+        assert [a.seq for a in acks] == [0, 1, 3, 4]                     # every decodable frame answered
+        assert node.stats["dropped_wrong_size"] == 1
+        assert node.stats["dropped_nan_sensor"] == 1
+        assert node.bus.dropped[keys.camera] == 1                        # the truncated one
+        assert node.bus.dropped[keys.compass] == 1
+    finally:
+        node.close()
+        hub.close()

@@ -1,0 +1,99 @@
+"""The guidance node in a lockstep flight (scenarios/guided_route.yaml): it plans around the lake,
+uploads the mission over MAVLink, the autopilot flies it GPS-denied, and the flight beats the
+straight line between the same points (accepted true fixes, fix error, navigation error)."""
+
+from __future__ import annotations
+
+import json
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+import yaml
+
+from guidance.node import cross_track_m
+from scenenav.app.evaluation import fix_table, read_csv
+from support import REPO_ROOT
+
+ROOT = REPO_ROOT
+SCENARIO = ROOT / "scenarios" / "guided_route.yaml"
+CRUISE_MIN_Z_M = 90.0
+# Two flights of two to three simulated minutes (plus, on a fresh machine, the world and its
+# assistant map being built once): more than the suite's default per-test limit on a loaded machine.
+pytestmark = pytest.mark.timeout(1200)
+
+
+def _run(out: Path, *overrides: str) -> dict:
+    sets = [a for o in overrides for a in ("--set", o)]
+    r = subprocess.run([sys.executable, "-m", "scenenav.app.cli", "run", str(SCENARIO), "--out", str(out),
+                        "--quiet", *sets], capture_output=True, text=True, timeout=900, cwd=ROOT)
+    assert r.returncode == 0, r.stderr[-3000:]
+    return json.loads((out / "summary.json").read_text())
+
+
+@pytest.fixture(scope="module")
+def flights(tmp_path_factory):
+    base = tmp_path_factory.mktemp("guided")
+    scen = yaml.safe_load(SCENARIO.read_text())
+    start = scen["flight"]["start_enu_m"]
+    goal = scen["guidance"]["goals_enu_m"][-1]
+    guided = _run(base / "guided")
+    straight = _run(base / "straight", "guidance.enabled=false",
+                    f"flight.route_enu_m=[[{start[0]},{start[1]}],[{goal[0]},{goal[1]}]]")
+    return {"guided": (base / "guided", guided), "straight": (base / "straight", straight),
+            "start": np.array(start, float), "goal": np.array(goal, float), "scenario": scen}
+
+
+def cruise_metrics(run_dir: Path) -> dict:
+    """Fixes taken at cruise altitude: share of accepted true ones, RMS error of every valid one."""
+    fx = fix_table(run_dir, 5.0)
+    truth = read_csv(run_dir / "truth.csv")
+    z = np.interp(fx["t_s"], truth["t_s"], truth["z_m"])
+    cruise = z > CRUISE_MIN_Z_M
+    valid = cruise & (fx["valid"] > 0.5)
+    accepted_true = valid & (fx["accepted"] > 0.5) & ~fx["is_false"].astype(bool)
+    return {"n": int(cruise.sum()), "accepted_true_share": accepted_true.sum() / max(1, cruise.sum()),
+            "rms_valid_m": float(np.sqrt(np.mean(fx["error_m"][valid] ** 2)))}
+
+
+def test_guidance_node_flies_the_planned_route(flights):
+    run_dir, summary = flights["guided"]
+    route = json.loads((run_dir / "route.json").read_text())
+    xy = np.array([[w["x_m"], w["y_m"]] for w in route["waypoints"]])
+    # planned around the lake: the straight line crosses bad area, the route does not
+    assert route["straight_line_bad_fraction"][0] > 0.3
+    assert route["route_bad_fraction"][0] == 0.0
+    assert np.allclose(xy[0], flights["start"]) and np.allclose(xy[-1], flights["goal"])
+    assert route["length_m"] > 1.05 * float(np.hypot(*(flights["goal"] - flights["start"])))
+    # uploaded over MAVLink and flown by the autopilot: truth follows the route and lands at the goal
+    events = (run_dir / "events.csv").read_text()
+    assert "mission uploaded" in events and "mission started" in events
+    assert summary["mission_completed"] and not summary["gps_used"]
+    truth = read_csv(run_dir / "truth.csv")
+    high = truth["z_m"] > CRUISE_MIN_Z_M
+    pts = np.stack([truth["x_m"][high], truth["y_m"][high]], axis=1)
+    assert len(pts) > 100
+    worst = max(cross_track_m(xy, p) for p in pts[::5])
+    assert worst < 15.0, f"truth strayed {worst:.1f} m from the planned route"
+    landed = np.array([truth["x_m"][-1], truth["y_m"][-1]])
+    assert np.hypot(*(landed - flights["goal"])) < 10.0
+    assert summary["route_length_m"] == pytest.approx(route["length_m"])
+    assert summary["replans"] == 0
+    stats = json.loads((run_dir / "guidance_stats.json").read_text())
+    assert stats["start_tries"] >= 1 and stats["replan_failures"] == 0
+
+
+def test_route_beats_the_straight_line(flights):
+    g_dir, g = flights["guided"]
+    s_dir, s = flights["straight"]
+    gm, sm = cruise_metrics(g_dir), cruise_metrics(s_dir)
+    assert gm["n"] > 100 and sm["n"] > 50
+    # a higher share of accepted true fixes ...
+    assert gm["accepted_true_share"] > sm["accepted_true_share"] + 0.2, (gm, sm)
+    # ... a lower scene-matching error along the path ...
+    assert gm["rms_valid_m"] < 0.5 * sm["rms_valid_m"], (gm, sm)
+    # ... and, GPS-denied, a lower error of the autopilot's own position estimate
+    assert g["rms_error_m"] < s["rms_error_m"], (g["rms_error_m"], s["rms_error_m"])
+    assert g["mission_completed"]

@@ -1,0 +1,81 @@
+"""MAVProxy flies ``scenenav sitl``: real processes, real bus, real MAVLink bytes.
+
+A scripted MAVProxy session (stdin/stdout pipes) against ``scenenav sitl --speedup 3``: GUIDED, arm,
+takeoff 20, ``wp load`` of a 4-waypoint QGC WPL 110 file, AUTO through the mission, RTL, and the
+vehicle must land within 2 m of home -- measured from the run's ``truth.csv`` (ground truth), not
+from the autopilot's own report. A pymavlink monitor on a second TCP link watches altitude and
+MISSION_ITEM_REACHED. ``SitlSession`` is shared with test_gcs_mavsdk.py and test_failsafe.py.
+"""
+
+from __future__ import annotations
+
+import csv
+import json
+import math
+import os
+import signal
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+
+from support.lineproc import LineProcess, MavproxyProcess, wait_until
+from scenenav.core.bus import free_port
+from support import REPO_ROOT
+
+REPO = REPO_ROOT
+from support.sitl_session import (STOP_TIMEOUT_S, SitlSession, TIMEOUT_S, _is_scenenav, enu_to_latlon, final_position, monitor_connection, read_columns, relative_alt_m, world_origin, wpl_file)  # noqa: F401
+
+
+def test_mavproxy_guided_takeoff_mission_and_rtl(tmp_path):
+    from support.fake_vehicle import wait_for
+    square = [(30.0, 0.0), (30.0, 30.0), (0.0, 30.0), (-10.0, 10.0)]
+    wpl = tmp_path / "square.txt"
+    wpl_file(wpl, world_origin(), square, 20.0)
+    sitl = SitlSession(tmp_path, "--speedup", "3", "--perception", "off")
+    mp = monitor = None
+    try:
+        sitl.wait_ready()
+        mp = MavproxyProcess(sitl.port, tmp_path, timeout_s=TIMEOUT_S)
+        mp.expect("parameters")
+        for name, value in (("RTL_LOIT_TIME", 1000), ("LAND_SPEED", 100), ("DISARM_DELAY", 30)):
+            mp.send(f"param set {name} {value}")
+            assert wait_until(lambda: sitl.param(name) == value, 30), f"{name} not set"
+        monitor = monitor_connection(sitl.port)
+        mark = mp.send("mode GUIDED")
+        mp.expect("GUIDED>", mark)
+        mark = mp.send("arm throttle")
+        mp.expect("ARMED", mark)
+        mp.send("takeoff 20")
+        assert wait_until(lambda: (relative_alt_m(monitor) or 0.0) > 19.0), "takeoff never reached 19 m"
+
+        mark = mp.send(f"wp load {wpl}")
+        mp.expect("ACCEPTED", mark)
+        mark = mp.send("mode AUTO")
+        mp.expect("AUTO>", mark)
+        mp.expect("Reached command #4", mark)
+        reached = wait_for(monitor, "MISSION_ITEM_REACHED", timeout_s=30, condition=lambda m: m.seq == 4)
+        assert reached is not None
+
+        mark = mp.send("mode RTL")
+        mp.expect("RTL>", mark)
+        mp.expect("DISARMED", mark)
+    finally:
+        if monitor is not None:
+            monitor.close()
+        if mp is not None:
+            mp.close()
+        sitl.stop()
+
+    truth = sitl.truth()
+    # the square was flown: the vehicle passed its far corner (30, 30) m
+    assert np.min(np.hypot(truth["x_m"] - 30.0, truth["y_m"] - 30.0)) < 3.0
+    end = final_position(truth)
+    assert math.hypot(end[0], end[1]) < 2.0, f"landed {end} m from home (0, 0)"
+    assert end[2] < 0.5
+    events = sitl.events()
+    assert "Reached command #4" in events
+    assert any(t.startswith("disarmed") for t in events)
+    summary = json.loads((sitl.run_dir / "summary.json").read_text())
+    assert summary["flight_mode"] == "idle" and summary["end_reason"] == "interrupted"

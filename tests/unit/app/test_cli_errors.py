@@ -1,0 +1,51 @@
+"""Bad input on the command line: one line `error: ...`, exit code 2, never a traceback."""
+
+import subprocess
+import sys
+
+import pytest
+
+
+def scenenav(*args):
+    return subprocess.run([sys.executable, "-m", "scenenav.app.cli", *args], capture_output=True,
+                          text=True, timeout=120)
+
+
+@pytest.mark.parametrize("args,needle", [
+    (["run", "/nonexistent.yaml", "--out", "{tmp}/x"], "no such file"),
+    (["run", "{bad_yaml}", "--out", "{tmp}/y"], "unknown key 'warp_drive'"),
+    (["run", "--out", "{tmp}/z", "--set", "flight.altitude_m=-3"], "altitude_m"),
+    (["run", "--out", "{tmp}/w", "--set", "world=/nonexistent/world"], "/nonexistent/world"),
+    (["run", "--out", "{tmp}/v", "--set", "novalue"], "KEY=VALUE"),
+    (["bench", "sim", "--sizes", "12xfoo"], "WIDTHxHEIGHT"),
+    (["run", "--out", "{tmp}/u", "--set", "world=generated:seed=1,warp=9"], "warp"),
+    (["run", "--out", "{tmp}/o", "--set", "autopilot.params={{LAND_SPED: 1}}"], "LAND_SPED"),
+    (["run", "--out", "{tmp}/n", "--set", "autopilot.params=[1, 2]"], "expected a mapping"),
+    (["run", "--out", "{tmp}/t", "--set", "world=generated:seed=x"], "seed"),
+    (["run", "--out", "{tmp}/s", "--set", "world=generated:width_px=10"], "width_px"),
+    (["run", "--out", "{tmp}/r", "--set", "guidance.enabled=true",
+      "--set", "guidance.goals_enu_m=[[0,0]]"], "flight.mode is autopilot"),
+    (["run", "--out", "{tmp}/q", "--set", "guidance.enabled=true", "--set", "flight.mode=autopilot"],
+     "goals_enu_m"),
+    (["run", "--out", "{tmp}/p", "--set", "guidance.enabled=true", "--set", "flight.mode=autopilot",
+      "--set", "guidance.goals_enu_m=[[0,0]]", "--set", "guidance.assistant_map=/nope.npz"], "/nope.npz"),
+])
+def test_one_line_error_exit_2(tmp_path, args, needle):
+    bad = tmp_path / "bad.yaml"
+    bad.write_text("warp_drive: 9\n")
+    args = [a.format(tmp=tmp_path, bad_yaml=bad) for a in args]
+    r = scenenav(*args)
+    assert r.returncode == 2, (r.stdout, r.stderr)
+    lines = [ln for ln in r.stderr.splitlines() if ln.strip()]
+    assert len(lines) == 1 and lines[0].startswith("error: "), r.stderr
+    assert needle in lines[0]
+    assert "Traceback" not in r.stderr
+
+
+def test_every_subcommand_has_help():
+    r = scenenav("--help")
+    assert r.returncode == 0
+    for cmd in ("run", "world", "node", "bench", "experiment", "assistant-map", "plan"):
+        assert cmd in r.stdout
+        h = scenenav(cmd, "--help")
+        assert h.returncode == 0 and "usage" in h.stdout.lower(), cmd

@@ -1,0 +1,31 @@
+"""docs/interfaces.md must name every message, field and key of the contracts."""
+
+import dataclasses
+from pathlib import Path
+
+from scenenav.core import contracts
+from scenenav.core.keys import Keys, key_types
+from support import REPO_ROOT
+
+DOC = (REPO_ROOT / "docs" / "interfaces.md").read_text()
+
+
+def test_every_message_and_field_documented():
+    for cls in contracts.MESSAGE_TYPES:
+        assert f"### {cls.__name__} (version {cls.VERSION})" in DOC, cls.__name__
+        for f in dataclasses.fields(cls):
+            if f.name != "pixels":
+                assert f"`{f.name}`" in DOC, f"{cls.__name__}.{f.name}"
+
+
+def test_every_key_documented():
+    k = Keys("ns")
+    for key in key_types(k):
+        tail = key[len(k.root) + 1:].replace("*", "<id>")
+        assert f"`{tail}`" in DOC, tail
+
+
+def test_scenario_schema_page_is_current():
+    from scenenav.app.schema_doc import render
+    page = (REPO_ROOT / "docs" / "scenarios-schema.md").read_text()
+    assert page == render(), "run: python -m scenenav.app.schema_doc > docs/scenarios-schema.md"

@@ -1,0 +1,62 @@
+"""The simulator-side lockstep barrier (pure threading)."""
+
+import threading
+import time
+
+from scenenav.core.contracts import LockstepRole
+from scenenav.core.lockstep import LockstepBarrier
+
+T, C = LockstepRole.TICK, LockstepRole.CAMERA
+
+
+def test_no_members_no_wait():
+    b = LockstepBarrier()
+    b.published(T, 0)
+    assert b.wait(T, 0, 0.01) == []
+
+
+def test_waits_for_ack():
+    b = LockstepBarrier()
+    b.member_changed(T, "ap", True)
+    b.published(T, 0)
+    threading.Timer(0.05, lambda: b.ack("ap", T, 0)).start()
+    assert b.wait(T, 0, 5.0) == []
+
+
+def test_new_member_only_answers_later_seqs():
+    b = LockstepBarrier()
+    b.published(C, 7)
+    b.member_changed(C, "p2", True)       # joined after frame 7 was out
+    assert b.wait(C, 7, 0.01) == []       # not waited for frame 7
+    b.published(C, 8)
+    assert b.wait(C, 8, 0.01) == ["p2"]   # but for frame 8 (times out here)
+    assert b.timeouts == 1
+
+
+def test_departed_member_releases_wait():
+    b = LockstepBarrier()
+    b.member_changed(C, "p1", True)
+    b.published(C, 0)
+    threading.Timer(0.05, lambda: b.member_changed(C, "p1", False)).start()
+    t0 = time.monotonic()
+    assert b.wait(C, 0, 5.0) == []
+    assert time.monotonic() - t0 < 4.0
+
+
+def test_roles_are_separate_and_wrong_role_ack_ignored():
+    b = LockstepBarrier()
+    b.member_changed(T, "ap", True)
+    b.member_changed(C, "p1", True)
+    b.published(T, 0)
+    b.published(C, 0)
+    b.ack("p1", T, 0)                     # wrong role: ignored
+    assert b.wait(T, 0, 0.01) == ["ap"]
+    b.ack("p1", C, 0)
+    assert b.wait(C, 0, 0.01) == []
+
+
+def test_wait_members():
+    b = LockstepBarrier()
+    threading.Timer(0.05, lambda: b.member_changed(T, "ap", True)).start()
+    assert b.wait_members({T: 1}, 5.0)
+    assert not b.wait_members({C: 1}, 0.05)

@@ -1,0 +1,266 @@
+"""Perception pipeline end to end on a synthetic world, one test per false-match method."""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+
+import cv2
+import numpy as np
+import pytest
+
+from perception.assistant_map import AssistantMap
+from perception.config import PerceptionConfig, UnknownPolicy
+from perception.decision import Decision, FalseMatchMethod
+from perception.matcher import SearchMode, TrackState
+from perception.pipeline import BadInput, PerceptionPipeline, Reason
+from scenenav.core.errors import UserError
+
+MPP = 0.5
+ALT = 40.0          # footprint 46.2 m = 92 map px
+FOV = 60.0
+CAM = 200
+LAKE_COLS = 150     # columns [0, 150) are a lake: flat on the reference, ripples in flight
+H, W = 400, 500
+
+
+def texture(h: int, w: int, seed: int, sigma: float = 2.0) -> np.ndarray:
+    rng = np.random.default_rng(seed)
+    t = cv2.GaussianBlur(rng.standard_normal((h, w)).astype(np.float32), (0, 0), sigma)
+    return ((t - t.min()) / (t.max() - t.min())).astype(np.float32)
+
+
+def render(world: np.ndarray, u: float, v: float, heading: float) -> np.ndarray:
+    """Camera image (RGB uint8) at continuous pixel (u, v): image-up = heading, right = right."""
+    g = 2.0 * ALT * math.tan(math.radians(FOV) / 2.0) / CAM / MPP
+    jj, ii = np.meshgrid(np.arange(CAM) - (CAM - 1) / 2.0, np.arange(CAM) - (CAM - 1) / 2.0)
+    c, s = math.cos(heading), math.sin(heading)
+    mx = (u - 0.5 + g * (c * jj - s * ii)).astype(np.float32)
+    my = (v - 0.5 + g * (s * jj + c * ii)).astype(np.float32)
+    gray = cv2.remap(world, mx, my, cv2.INTER_LINEAR, borderMode=cv2.BORDER_REFLECT)
+    g8 = np.clip(np.rint(gray * 255), 0, 255).astype(np.uint8)
+    return np.dstack([g8, g8, g8])
+
+
+@pytest.fixture(scope="module")
+def world() -> tuple[np.ndarray, np.ndarray]:
+    """(reference RGB uint8, flight-day grey float32)."""
+    ref = texture(H, W, seed=11)
+    ref[:, :LAKE_COLS] = 0.5
+    rng = np.random.default_rng(12)
+    day = 0.8 * ref + 0.1 + rng.normal(0, 0.01, ref.shape).astype(np.float32)   # another day
+    ref8 = np.clip(np.rint(ref * 255), 0, 255).astype(np.uint8)
+    return np.dstack([ref8, ref8, ref8]), day.astype(np.float32)
+
+
+def fly(pipe: PerceptionPipeline, day: np.ndarray, n: int, u0: float = 300.0, v0: float = 200.0,
+        t0: float = 0.0, heading: float = 0.4):
+    """n captures at 10 Hz moving east at 10 m/s (2 px per frame). Returns [(result, (u, v))]."""
+    out = []
+    for k in range(n):
+        u, v = u0 + 2.0 * k, v0 + 0.5 * k
+        out.append((pipe.process(render(day, u, v, heading + 0.05 * k), heading + 0.05 * k, ALT,
+                                 t0 + 0.1 * k), (u, v)))
+    return out
+
+
+def err_m(res, uv) -> float:
+    return math.hypot(res.position_px[0] - uv[0], res.position_px[1] - uv[1]) * MPP
+
+
+def cnn_fake(batch: np.ndarray) -> np.ndarray:
+    """Fake 4-class CNN: a flat capture is class 1 (bad area)."""
+    assert batch.ndim == 3 and batch.dtype == np.float32 and batch.shape[1:] == (CAM, CAM)
+    assert 0.0 <= batch.min() and batch.max() <= 1.0
+    var = batch.reshape(len(batch), -1).var(axis=1)
+    good = np.array([0.05, 0.8, 0.1, 0.05], np.float32)
+    bad = np.array([0.9, 0.05, 0.03, 0.02], np.float32)
+    return np.stack([bad if x < 1e-3 else good for x in var])
+
+
+def test_method_none_accepts_all_and_tracks(world):
+    ref, day = world
+    pipe = PerceptionPipeline(ref, MPP, FalseMatchMethod.NONE)
+    results = fly(pipe, day, 6)
+    for k, (r, uv) in enumerate(results):
+        assert r.valid and r.accepted and r.decision is Decision.ACCEPT
+        assert r.reason is Reason.NO_DETECTION
+        assert err_m(r, uv) < 0.3
+        assert r.search is (SearchMode.GLOBAL if k == 0 else SearchMode.WINDOW)
+        assert math.isnan(r.p_true) and all(math.isnan(p) for p in r.p_classes)
+        assert set(r.metrics) == {"peak", "psr", "second_peak_ratio"}
+        assert set(r.timings_ms) == {"align", "ncc", "cnn", "lookup", "total"}
+        assert r.covariance_m2.shape == (2, 2) and np.all(np.linalg.eigvalsh(r.covariance_m2) > 0)
+        assert np.trace(r.covariance_m2) < 1.0
+    assert pipe.tracker.state is TrackState.TRACKING
+    x, y = results[-1][0].position_enu_m
+    u, v = results[-1][1]
+    assert (x, y) == pytest.approx(((u - W / 2) * MPP, (H / 2 - v) * MPP), abs=0.3)
+
+
+def test_method_cnn_classifies_every_capture(world):
+    ref, day = world
+    calls = []
+
+    def clf(batch):
+        calls.append(len(batch))
+        return cnn_fake(batch)
+
+    pipe = PerceptionPipeline(ref, MPP, FalseMatchMethod.CNN, classify=clf)
+    results = fly(pipe, day, 3)
+    assert calls == [1, 1, 1]
+    for r, uv in results:
+        assert r.accepted and r.reason is Reason.ACCEPTED
+        assert r.p_true == pytest.approx(0.95)
+        assert r.p_classes == pytest.approx((0.05, 0.8, 0.1, 0.05))
+        assert pipe.assistant_map.lookup(*r.position_px) == pytest.approx(0.95)
+    lake = pipe.process(render(day, 70.0, 200.0, 0.0), 0.0, ALT, 1.0)
+    assert lake.valid and not lake.accepted and lake.reason is Reason.CNN_BAD_AREA
+    assert lake.p_true == pytest.approx(0.1)
+    assert pipe.assistant_map.coverage() > 0.0
+
+
+def test_method_assistant_map_uses_the_map(world):
+    ref, day = world
+    amap = AssistantMap(W, H, MPP)
+    amap.probability[:, LAKE_COLS:] = 0.9
+    amap.probability[:, :LAKE_COLS] = 0.2
+    amap.probability[300:, :] = 0.3                # textured but known to be a bad area
+    amap.probability[:, 450:] = np.nan             # not visited
+    pipe = PerceptionPipeline(ref, MPP, FalseMatchMethod.ASSISTANT_MAP, assistant_map=amap)
+    for r, _ in fly(pipe, day, 3):
+        assert r.accepted and r.p_true == pytest.approx(0.9) and r.reason is Reason.ACCEPTED
+    pipe.reset()
+    bad = pipe.process(render(day, 300.0, 340.0, 0.0), 0.0, ALT, 2.0)
+    assert bad.quality_ok and not bad.accepted and bad.reason is Reason.MAP_BAD_AREA
+    assert bad.p_true == pytest.approx(0.3)
+    # Unvisited pixel and no classifier: unknown_policy (default reject, or accept).
+    pipe.reset()
+    unknown = pipe.process(render(day, 455.0, 200.0, 0.0), 0.0, ALT, 3.0)
+    assert unknown.quality_ok and not unknown.accepted and unknown.reason is Reason.MAP_UNKNOWN
+    assert math.isnan(unknown.p_true)
+    cfg = dataclasses.replace(PerceptionConfig(), unknown_policy=UnknownPolicy.ACCEPT)
+    pipe2 = PerceptionPipeline(ref, MPP, FalseMatchMethod.ASSISTANT_MAP, cfg, assistant_map=amap)
+    assert pipe2.process(render(day, 455.0, 200.0, 0.0), 0.0, ALT, 3.0).accepted
+
+
+def test_low_quality_match_looks_up_the_predicted_pixel(world):
+    ref, day = world
+    amap = AssistantMap(W, H, MPP)
+    amap.probability[:] = 0.9
+    pipe = PerceptionPipeline(ref, MPP, FalseMatchMethod.ASSISTANT_MAP, assistant_map=amap)
+    fly(pipe, day, 4)                              # u = 300..306 (+2 px per 0.1 s), v = 200..201.5
+    amap.write_patch(308.0, 202.0, 3, 0.1)         # only around the predicted pixel: a bad area
+    noise = np.random.default_rng(1).integers(0, 256, (CAM, CAM, 3), dtype=np.uint8)
+    r = pipe.process(noise, 0.4, ALT, 0.4)
+    assert not r.quality_ok
+    assert math.hypot(r.position_px[0] - 308.0, r.position_px[1] - 202.0) > 3.0   # match elsewhere
+    assert pipe.tracker.last_prediction.uv == pytest.approx((308.0, 202.0), abs=0.3)
+    assert not r.accepted and r.reason is Reason.MAP_BAD_AREA and r.p_true == pytest.approx(0.1)
+
+
+def test_method_assistant_map_classifies_unknown_once(world):
+    ref, day = world
+    calls = []
+
+    def clf(batch):
+        calls.append(len(batch))
+        return cnn_fake(batch)
+
+    pipe = PerceptionPipeline(ref, MPP, "assistant-map", classify=clf)
+    first = pipe.process(render(day, 300.0, 200.0, 0.3), 0.3, ALT, 0.0)
+    assert first.accepted and calls == [1] and first.p_true == pytest.approx(0.95)
+    assert pipe.assistant_map.lookup(*first.position_px) == pytest.approx(0.95)
+    again = pipe.process(render(day, 300.0, 200.0, 0.3), 0.3, ALT, 0.1)   # hovering: known now
+    assert again.accepted and calls == [1]
+
+
+def test_method_statistical_flags_a_jump(world):
+    ref, day = world
+    cfg = dataclasses.replace(PerceptionConfig(), statistical_window=10)
+    pipe = PerceptionPipeline(ref, MPP, FalseMatchMethod.STATISTICAL, cfg)
+    steady = fly(pipe, day, 8)
+    assert all(r.accepted for r, _ in steady)
+    assert steady[-1][0].statistical_variance_m2 < 0.1
+    rng = np.random.default_rng(5)
+    rejected = []
+    for k in range(3):     # garbage captures: the match lands anywhere in the window
+        noise = rng.integers(0, 256, (CAM, CAM, 3), dtype=np.uint8)
+        r = pipe.process(noise, 0.4, ALT, 0.8 + 0.1 * k)
+        assert r.valid
+        rejected.append(not r.accepted and r.reason is Reason.STATISTICAL_VARIANCE)
+    assert any(rejected)
+
+
+def test_prior_seeds_the_first_window(world):
+    ref, day = world
+    pipe = PerceptionPipeline(ref, MPP, FalseMatchMethod.NONE)
+    x, y = (310.0 - W / 2) * MPP + 3.0, (H / 2 - 210.0) * MPP - 2.0
+    r = pipe.process(render(day, 310.0, 210.0, 1.0), 1.0, ALT, 0.0, prior_enu_m=(x, y))
+    assert r.search is SearchMode.WINDOW and err_m(r, (310.0, 210.0)) < 0.3
+
+
+def test_template_larger_than_map_is_invalid(world):
+    ref, day = world
+    pipe = PerceptionPipeline(ref, MPP, FalseMatchMethod.NONE)
+    r = pipe.process(render(day, 300.0, 200.0, 0.0), 0.0, 400.0, 0.0)
+    assert not r.valid and not r.accepted and r.reason is Reason.TEMPLATE_TOO_LARGE
+    assert all(math.isnan(c) for c in r.position_enu_m)
+    # An absurd altitude is refused before any resampling (no giant allocation).
+    assert pipe.process(render(day, 300.0, 200.0, 0.0), 0.0, 1e9, 0.1).reason is Reason.TEMPLATE_TOO_LARGE
+    low = pipe.process(render(day, 300.0, 200.0, 0.0), 0.0, 3.0, 0.2)      # 7 px template
+    assert not low.valid and low.reason is Reason.TEMPLATE_TOO_SMALL
+
+
+def test_uniform_capture_is_invalid(world):
+    ref, _ = world
+    pipe = PerceptionPipeline(ref, MPP, FalseMatchMethod.NONE)
+    r = pipe.process(np.full((CAM, CAM, 3), 90, np.uint8), 0.0, ALT, 0.0)
+    assert not r.valid and not r.accepted and r.reason is Reason.FLAT_CAPTURE
+    assert math.isnan(r.position_enu_m[0]) and math.isnan(r.metrics["peak"])
+
+
+@pytest.mark.parametrize("image,heading,alt,t", [
+    (np.zeros((CAM, CAM, 3), np.uint8), float("nan"), ALT, 0.0),
+    (np.zeros((CAM, CAM, 3), np.uint8), 0.0, float("nan"), 0.0),
+    (np.zeros((CAM, CAM, 3), np.uint8), 0.0, 0.0, 0.0),
+    (np.zeros((CAM, CAM, 3), np.uint8), 0.0, -1.0, 0.0),
+    (np.zeros((CAM, CAM, 3), np.uint8), 0.0, ALT, float("nan")),
+    (np.zeros((CAM, CAM, 3), np.float64), 0.0, ALT, 0.0),
+    (np.zeros((CAM, CAM, 5), np.uint8), 0.0, ALT, 0.0),
+    (None, 0.0, ALT, 0.0),
+])
+def test_bad_input_raises(world, image, heading, alt, t):
+    ref, _ = world
+    pipe = PerceptionPipeline(ref, MPP, FalseMatchMethod.NONE)
+    with pytest.raises(BadInput):
+        pipe.process(image, heading, alt, t)
+
+
+def test_configuration_errors(world):
+    ref, _ = world
+    with pytest.raises(UserError):
+        PerceptionPipeline(ref, MPP, FalseMatchMethod.CNN)              # no classifier
+    with pytest.raises(UserError):
+        PerceptionPipeline(ref, MPP, "magic")
+    with pytest.raises(UserError):
+        PerceptionPipeline(ref, MPP, "assistant-map", assistant_map=AssistantMap(10, 10, MPP))
+
+
+def test_config_loads_from_a_mapping_with_range_checks():
+    from scenenav.core.config import ConfigError, load_config
+
+    from perception.config import MatcherConfig, NccMethod
+
+    cfg = load_config(PerceptionConfig, {"method": "assistant-map", "unknown_policy": "accept",
+                                         "matcher": {"ncc_method": "ccorr_normed", "lost_after_n": 5}})
+    assert cfg.method is FalseMatchMethod.ASSISTANT_MAP and cfg.unknown_policy is UnknownPolicy.ACCEPT
+    assert cfg.matcher == MatcherConfig(ncc_method=NccMethod.CCORR_NORMED, lost_after_n=5)
+    assert cfg.statistical_window == 30 and cfg.statistical_threshold_m2 == 1.4
+    assert cfg.true_match_tolerance_m == 5.0 and cfg.fov_deg == 60.0
+    with pytest.raises(ConfigError):
+        load_config(PerceptionConfig, {"fov_deg": 0.0})
+    with pytest.raises(ConfigError):
+        load_config(PerceptionConfig, {"matcher": {"min_psr": 20.0}})      # > psr_confident
+    with pytest.raises(ConfigError):
+        load_config(PerceptionConfig, {"method": "magic"})

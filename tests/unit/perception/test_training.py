@@ -1,0 +1,139 @@
+"""Training (paper section 5.3), the split, the metrics of the labelling comparison, and the CLI."""
+
+from __future__ import annotations
+
+import argparse
+import json
+
+import numpy as np
+import pytest
+import torch
+
+from perception.cnn import DEFAULT_WEIGHTS_PATH, MatchClass, MatchClassifier, load_weights
+from perception.dataset import DatasetConfig, build_dataset
+from perception.training import (TrainConfig, confusion_matrix, grouped_stratified_split, rejection_metrics, roc_auc,
+                                 sidecar_paths, train)
+from scenenav.core.errors import UserError
+
+
+@pytest.fixture(scope="module")
+def tiny_data(tmp_path_factory):
+    out = tmp_path_factory.mktemp("train") / "data"
+    build_dataset(out, DatasetConfig(n_worlds=1, seed=4, world_width_px=700, world_height_px=700, base_crops=24,
+                                     augment_to=40, junction_jitter_px=10.0))
+    return out
+
+
+def test_one_epoch_writes_weights_and_record(tiny_data, tmp_path):
+    weights = tmp_path / "tiny.pt"
+    res = train(tiny_data, weights, TrainConfig(epochs=1, input_px=32, num_threads=1), command="pytest")
+    assert weights.is_file()
+    rec_path, png = sidecar_paths(weights)
+    assert rec_path.name == "tiny_training_record.json" and png.name == "tiny_confusion_matrix.png"
+    assert res.record_path == rec_path and rec_path.is_file() and png.is_file()
+    rec = json.loads(rec_path.read_text())
+    assert len(rec["epochs"]) == 1
+    for key in ("train_loss", "train_accuracy", "val_loss", "val_accuracy"):
+        assert np.isfinite(rec["epochs"][0][key])
+    cm = np.array(rec["confusion_matrix"]["counts"])
+    assert cm.shape == (4, 4) and cm.sum() == rec["split"]["val"]
+    assert rec["split"]["train"] + rec["split"]["val"] == 40
+    assert rec["torch_version"] == torch.__version__
+    assert len(rec["data_manifest_sha256"]) == 64
+    assert rec["command"] == "pytest"
+    _, meta = load_weights(weights)
+    assert meta.training_record_id == rec["record_id"] and meta.input_px == 32
+    clf = MatchClassifier.from_file(weights, num_threads=1)
+    assert clf.predict_proba(np.zeros((2, 217, 217), np.float32)).shape == (2, 4)
+
+
+def test_training_is_deterministic(tiny_data, tmp_path):
+    cfg = TrainConfig(epochs=1, input_px=32, num_threads=1, seed=3)
+    a = train(tiny_data, tmp_path / "a.pt", cfg).record
+    b = train(tiny_data, tmp_path / "b.pt", cfg).record
+    assert a["epochs"][0]["train_loss"] == b["epochs"][0]["train_loss"]
+    assert a["confusion_matrix"] == b["confusion_matrix"]
+    wa, _ = load_weights(tmp_path / "a.pt")
+    wb, _ = load_weights(tmp_path / "b.pt")
+    for (ka, va), (kb, vb) in zip(wa.state_dict().items(), wb.state_dict().items()):
+        assert ka == kb and torch.equal(va, vb)
+
+
+def test_training_user_errors(tiny_data, tmp_path):
+    with pytest.raises(UserError, match="no such dataset folder"):
+        train(tmp_path / "missing", tmp_path / "w.pt", TrainConfig(epochs=1))
+    with pytest.raises(UserError, match=".pt"):
+        train(tiny_data, tmp_path / "w.bin", TrainConfig(epochs=1))
+    with pytest.raises(UserError, match="epochs"):
+        train(tiny_data, tmp_path / "w.pt", TrainConfig(epochs=0))
+
+
+def test_split_keeps_groups_together_and_is_stratified():
+    rng = np.random.default_rng(0)
+    labels = np.repeat(np.arange(4), 50)
+    groups = np.array([f"g{i // 5}" for i in range(200)])       # 5 images per group, one class each
+    tr, va = grouped_stratified_split(labels, groups, 0.2, rng)
+    assert len(np.intersect1d(tr, va)) == 0 and len(tr) + len(va) == 200
+    assert not set(groups[tr]) & set(groups[va])
+    for c in range(4):
+        assert (labels[va] == c).sum() == 10
+
+
+def test_confusion_matrix_rows_are_true_classes():
+    cm = confusion_matrix(np.array([0, 0, 1, 3]), np.array([0, 1, 1, 2]))
+    assert cm[0, 0] == 1 and cm[0, 1] == 1 and cm[1, 1] == 1 and cm[3, 2] == 1 and cm.sum() == 4
+
+
+def test_roc_auc_hand_cases():
+    assert roc_auc(np.array([0.1, 0.2, 0.8, 0.9]), np.array([0, 0, 1, 1])) == 1.0
+    assert roc_auc(np.array([0.9, 0.8, 0.2, 0.1]), np.array([0, 0, 1, 1])) == 0.0
+    assert roc_auc(np.array([0.5, 0.5, 0.5, 0.5]), np.array([0, 1, 0, 1])) == 0.5
+    assert roc_auc(np.array([0.1, 0.4, 0.35, 0.8]), np.array([0, 0, 1, 1])) == 0.75
+    assert np.isnan(roc_auc(np.array([0.1, 0.2]), np.array([0, 0])))
+
+
+def test_rejection_metrics_of_the_paper_rule():
+    p_bad = np.array([0.9, 0.7, 0.2, 0.6, 0.1])
+    is_false = np.array([True, False, True, True, False])
+    m = rejection_metrics(p_bad, is_false)
+    # rejected: 0, 1, 3 -> TP = 2 (0, 3), FP = 1 (1), FN = 1 (2)
+    assert m["precision"] == pytest.approx(2 / 3) and m["recall"] == pytest.approx(2 / 3)
+    assert m["reject_rate"] == pytest.approx(0.6)
+    assert m["false_match_rate_after_rejection"] == pytest.approx(0.5)
+    assert m["false_match_rate"] == pytest.approx(0.6)
+
+
+def _parser() -> argparse.ArgumentParser:
+    from scenenav.app.commands.perception import register
+    p = argparse.ArgumentParser(prog="scenenav")
+    sub = p.add_subparsers(dest="command")
+    register(sub)
+    return p
+
+
+def test_cli_registers_commands_and_reports_user_errors(tmp_path, capsys):
+    p = _parser()
+    args = p.parse_args(["train", "--data", str(tmp_path / "none"), "--out", str(tmp_path / "w.pt"), "--quiet"])
+    with pytest.raises(UserError, match="no such dataset folder"):
+        args.func(args)
+    args = p.parse_args(["cnn", "info", str(tmp_path / "none.pt")])
+    with pytest.raises(UserError, match="no such weights file"):
+        args.func(args)
+    args = p.parse_args(["dataset", "--out", str(tmp_path / "d"), "--seed", "9", "--worlds", "3"])
+    with pytest.raises(UserError, match="reserved"):
+        args.func(args)
+    args = p.parse_args(["cnn", "compare", "--paper-data", str(tmp_path / "a"), "--matchability-data",
+                         str(tmp_path / "b"), "--out", str(tmp_path / "r")])
+    with pytest.raises(UserError, match="no such dataset folder"):
+        args.func(args)
+    with pytest.raises(SystemExit):
+        p.parse_args(["train", "--data", "x", "--out", "w.pt", "--epochs", "0"])
+
+
+def test_cli_info_on_the_shipped_weights(capsys):
+    p = _parser()
+    args = p.parse_args(["cnn", "info", str(DEFAULT_WEIGHTS_PATH)])
+    assert args.func(args) == 0
+    out = capsys.readouterr().out
+    assert "conv1" in out and "dropout2" in out and "Softmax" in out
+    assert MatchClass.BAD.name in out
