@@ -192,30 +192,19 @@ def build_parser() -> argparse.ArgumentParser:
     bp.add_argument("--json", action="store_true", help="print the results as JSON")
     bp.add_argument("--frames", type=int, default=60, help="camera frames per method (default 60)")
     bp.set_defaults(func=_bench)
-    _register_optional(sub, bsub)
+    _register_domain_commands(sub, bsub)
     return p
 
 
-def _register_optional(sub, bsub) -> None:
-    """Subcommands owned by the capability packages."""
-    for modname, regname in (("scenenav.app.commands.world", "register"), ("scenenav.app.commands.plan", "register"),
-                             ("scenenav.app.commands.perception", "register"), ("scenenav.app.commands.assistant_map", "register")):
-        try:
-            mod = __import__(modname, fromlist=[regname])
-        except ImportError as exc:   # package not built yet in this checkout
-            log.debug("no %s: %s", modname, exc)
-            continue
-        getattr(mod, regname)(sub)
-    try:
-        from scenenav.app.bench.plan import register_bench
-        register_bench(bsub)
-    except ImportError as exc:
-        log.debug("no guidance bench: %s", exc)
-    try:
-        from scenenav.app.bench.autopilot import register_bench as register_autopilot_bench
-        register_autopilot_bench(bsub)
-    except ImportError as exc:
-        log.debug("no autopilot bench: %s", exc)
+def _register_domain_commands(sub, bsub) -> None:
+    """Subcommands and benchmarks of the domain packages (their own modules under app/)."""
+    from scenenav.app.bench.autopilot import register_bench as register_autopilot_bench
+    from scenenav.app.bench.plan import register_bench as register_plan_bench
+    from scenenav.app.commands import assistant_map, perception, plan, world
+    for module in (world, plan, perception, assistant_map):
+        module.register(sub)
+    register_plan_bench(bsub)
+    register_autopilot_bench(bsub)
 
 
 _NEGATIVE_LIST = re.compile(r"^-\d[\d.eE+-]*(,\s*[-+]?[\d.eE+-]+)+$")

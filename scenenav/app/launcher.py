@@ -9,7 +9,6 @@ from __future__ import annotations
 
 import json
 import logging
-import os
 import signal
 import subprocess
 import sys
@@ -305,7 +304,3 @@ def _sim_progress(run_dir: Path) -> float | None:
         return float(_tail(run_dir / "truth.csv", 400).splitlines()[-1].split(b",")[0])
     except (IndexError, ValueError):
         return None
-
-
-def child_env() -> dict:
-    return dict(os.environ)
