@@ -19,6 +19,7 @@ from worlds.drawing import fill_convex, rect, stroke
 from worlds.features import Feature, FeatureKind
 from worlds.materials import FLAT_TONES, FLAT_WEIGHTS, GABLE_TONES, GABLE_WEIGHTS, UNIFORM_TONES, Material
 
+
 class BlockKind(IntEnum):
     YARD = 0
     PERIMETER = 1

@@ -17,8 +17,18 @@ import cv2
 import numpy as np
 
 from worlds.city_config import CityConfig
-from worlds.drawing import (SCALE, SHIFT, arc_lengths, blob_polygon, blob_radii, cv_points, fill_poly,
-                            interp_polyline, rect, stroke)
+from worlds.drawing import (
+    SCALE,
+    SHIFT,
+    arc_lengths,
+    blob_polygon,
+    blob_radii,
+    cv_points,
+    fill_poly,
+    interp_polyline,
+    rect,
+    stroke,
+)
 from worlds.materials import Material
 
 log = logging.getLogger(__name__)
@@ -216,7 +226,7 @@ def draw_features(material: np.ndarray, blocked: np.ndarray, owner: np.ndarray,
                    rng: np.random.Generator, river_margin_px: float) -> None:
     mpp = cfg.m_per_px
     clear = _RING_CLEAR_M / mpp
-    for i, (f, ring) in enumerate(zip(features, rings)):
+    for i, (f, ring) in enumerate(zip(features, rings, strict=True)):
         if ring is None:
             continue
         edge = _feature_edge_px(f, mpp)

@@ -14,6 +14,7 @@ import numpy as np
 
 from worlds.landcover import LandCover
 
+
 class Material(IntEnum):
     """Internal surface materials of the rendering; each maps onto one LandCover class."""
 

@@ -15,8 +15,17 @@ import numpy as np
 from worlds.blocks import Building, RoofStyle
 from worlds.city_config import GENERATOR_VERSION, Stream
 from worlds.drawing import SHIFT, cv_points, fill_convex, stroke
-from worlds.materials import (AMP_COARSE, AMP_FINE, AMP_MED, BASE_RGB, FOREST_BASE, GRASS_DRY, GRASS_LUSH,
-                              WATER_BASE, Material)
+from worlds.materials import (
+    AMP_COARSE,
+    AMP_FINE,
+    AMP_MED,
+    BASE_RGB,
+    FOREST_BASE,
+    GRASS_DRY,
+    GRASS_LUSH,
+    WATER_BASE,
+    Material,
+)
 from worlds.reference import DayConditions, NoiseField, SmoothNoise, finish_strip
 from worlds.scene import Scene
 from worlds.traffic import CAR_HEIGHT_M, Cars, cars_for_day, paint_cars

@@ -15,6 +15,7 @@ from worlds.landcover import JunctionKind
 from worlds.materials import Material
 from worlds.road_graph import RoadClass, RoadGraph
 
+
 @dataclass
 class Lanes:
     """All traffic lanes concatenated, for vectorised car sampling."""
@@ -82,7 +83,7 @@ def draw_roads(material: np.ndarray, g: RoadGraph, cfg: CityConfig,
                 segs += _dashes(dense, arc, s0, s1, 3.0 / mpp, 9.0 / mpp)
         stroke(marks, segs, 1, thin)
         stroke(marks, solids, 1, thin)
-        for end, (cl, z) in enumerate(zip(clear, zebra)):
+        for end, (cl, z) in enumerate(zip(clear, zebra, strict=True)):
             if not z or total < cl + 4.0 / mpp:
                 continue
             a0, a1 = (cl, cl + 3.0 / mpp) if end == 0 else (total - cl - 3.0 / mpp, total - cl)

@@ -24,9 +24,15 @@ import numpy as np
 
 from scenenav.core import frames
 from scenenav.core.errors import UserError
-from scenenav.core.formats.world_manifest import (JUNCTIONS_FILE, LANDCOVER_FILE, MANIFEST_FILE,
-                                                  ORTHOPHOTO_FILE, PNG_COMPRESSION_LEVEL,
-                                                  REFERENCE_FILE, WorldManifest)
+from scenenav.core.formats.world_manifest import (
+    JUNCTIONS_FILE,
+    LANDCOVER_FILE,
+    MANIFEST_FILE,
+    ORTHOPHOTO_FILE,
+    PNG_COMPRESSION_LEVEL,
+    REFERENCE_FILE,
+    WorldManifest,
+)
 from worlds.landcover import Junction, LandCover
 
 log = logging.getLogger(__name__)

@@ -17,8 +17,7 @@ from scenenav.core.config import ConfigError
 from scenenav.core.errors import UserError
 from scenenav.core.formats.world_manifest import WorldManifest
 from worlds.generator import CityConfig, generate_world
-from worlds.landcover import (BAD_MATCHING_COVERS, Junction, JunctionKind, LandCover, classify_arms,
-                              cover_shares)
+from worlds.landcover import BAD_MATCHING_COVERS, Junction, JunctionKind, LandCover, classify_arms, cover_shares
 from worlds.world import World, load_world
 
 FOOTPRINT_PX = 217   # camera footprint at 100 m (60 deg FOV) at 0.53 m/px
