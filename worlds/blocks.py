@@ -42,7 +42,7 @@ class Building:
     corners: np.ndarray         # (4, 2) continuous px; corners[0] -> corners[1] is the long side
     height_m: float
     style: RoofStyle
-    tone: tuple[float, float, float]
+    tone: tuple[float, ...]
     hvac: np.ndarray            # (k, 4, 2) roof boxes
     hvac_height_m: float = 2.0
 
@@ -115,13 +115,13 @@ class Layout:
     def m(self, metres: float) -> float:
         return metres * self.ppm
 
-    def _tone(self, tones, weights) -> tuple[float, float, float]:
+    def _tone(self, tones, weights) -> tuple[float, ...]:
         base = np.array(tones[int(self.rng.choice(len(tones), p=np.array(weights) / sum(weights)))],
                         dtype=float)
         return tuple(float(x) for x in np.clip(base * self.rng.uniform(0.9, 1.1), 0, 255))
 
     def add(self, blk: Block, corners: np.ndarray, style: RoofStyle, height_m: float,
-            tone: tuple[float, float, float] | None = None) -> None:
+            tone: tuple[float, ...] | None = None) -> None:
         rng = self.rng
         if tone is None:
             tone = self._tone(GABLE_TONES, GABLE_WEIGHTS) if style in (RoofStyle.GABLE, RoofStyle.HIP) \
@@ -218,7 +218,7 @@ class Layout:
                         (RoofStyle.HIP if rng.random() < 0.6 else RoofStyle.FLAT))
                     self.add(blk, corners, st, rng.uniform(*heights))
 
-    def big(self, blk: Block, uniform_tone: tuple[float, float, float] | None = None) -> None:
+    def big(self, blk: Block, uniform_tone: tuple[float, ...] | None = None) -> None:
         """One large building (flat roof with HVAC, or a uniform roof), houses around it."""
         rng = self.rng
         fr = blk.frame()
@@ -240,7 +240,7 @@ class Layout:
             fb *= 0.85
         self.detached(blk, (8.0, 14.0), (7.0, 12.0), (18.0, 24.0), None, (6.0, 12.0))
 
-    def halls(self, blk: Block, spec: tuple[float, float, float, tuple[float, float, float]]) -> bool:
+    def halls(self, blk: Block, spec: tuple[float, float, float, tuple[float, ...]]) -> bool:
         """Pack identical halls row by row (greedy scan in the block's rectangle frame)."""
         length, width, height, tone = spec
         fr = blk.frame()
@@ -253,7 +253,7 @@ class Layout:
         return False
 
     def _pack_halls(self, blk: Block, c, a, b, la: float, lb: float, length: float, width: float,
-                    height: float, tone: tuple[float, float, float]) -> bool:
+                    height: float, tone: tuple[float, ...]) -> bool:
         gap_a, gap_b = self.m(10.0), self.m(12.0)
         ha, hb = self.m(length), self.m(width)
         step = self.m(2.5)

@@ -155,6 +155,7 @@ _RING_CLEAR_M = 30.0     # grid roads keep this far outside a ring (room for a r
 def _feature_outline(f: Feature, extra_px: float) -> np.ndarray:
     if f.kind is FeatureKind.SQUARE:
         return _square_polygon(f, extra_px)
+    assert f.rel is not None, "a blob feature has its shape"
     return blob_polygon(f.centre, f.radius_px, f.rel, extra_px)
 
 

@@ -107,7 +107,7 @@ def _paint_nature(canvas: np.ndarray, mat: np.ndarray, a: int, b: int, sc: Scene
         cols = np.nonzero(forest.any(axis=0))[0]
         y0, y1 = max(0, rows[0] - margin), min(mat.shape[0], rows[-1] + 1 + margin)
         x0, x1 = max(0, cols[0] - margin), min(mat.shape[1], cols[-1] + 1 + margin)
-        h = cv2.GaussianBlur(f["canopy"][y0:y1, x0:x1], (0, 0), sigma, borderType=cv2.BORDER_REFLECT)
+        h: np.ndarray = cv2.GaussianBlur(f["canopy"][y0:y1, x0:x1], (0, 0), sigma, borderType=cv2.BORDER_REFLECT)
         h *= 2.0 * sigma * math.sqrt(math.pi)
         gx = cv2.Sobel(h, cv2.CV_32F, 1, 0, ksize=3)
         gy = cv2.Sobel(h, cv2.CV_32F, 0, 1, ksize=3)

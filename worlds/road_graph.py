@@ -331,7 +331,7 @@ def _cut_at_features(g: RoadGraph, blocked: np.ndarray, owner: np.ndarray,
             if not node_free[node]:
                 continue
             hits = np.nonzero(own[seq] != 0)[0]
-            if hits.size and _meets_ring_squarely(rings[int(own[seq[hits[0]]]) - 1],
+            if hits.size and _meets_ring_squarely(_owned_ring(rings, int(own[seq[hits[0]]]) - 1),
                                                   g.pos[node], pts[int(seq[hits[0]])]):
                 j = int(seq[hits[0]])
                 ring_id = int(own[j]) - 1
@@ -356,7 +356,14 @@ def _cut_at_features(g: RoadGraph, blocked: np.ndarray, owner: np.ndarray,
         if g.node_alive[n] and not node_free[n]:
             g.kill_node(n)
     for ring_id, nodes in attach.items():
-        _close_ring(g, rings[ring_id], ring_id, sorted(set(nodes)), owner, join)
+        _close_ring(g, _owned_ring(rings, ring_id), ring_id, sorted(set(nodes)), owner, join)
+
+
+def _owned_ring(rings: list[Ring | None], ring_id: int) -> Ring:
+    """The ring road of owner-raster id ``ring_id + 1`` (only features with a ring own pixels)."""
+    ring = rings[ring_id]
+    assert ring is not None
+    return ring
 
 
 def _meets_ring_squarely(ring: Ring, start: np.ndarray, hit: np.ndarray,
