@@ -1,5 +1,5 @@
 # scenenav — two commands: `make demo` and `make test`. Both create .venv through `make install`.
-# `make lint` runs the house-rule checkers (ruff, import-linter, mypy); .ci/run runs `make lint` and `make test`.
+# `make lint` runs the house-rule checkers (ruff, import-linter, mypy); `make test` runs it first.
 PYTHON ?= python3.11
 VENV   := .venv
 PY     := $(VENV)/bin/python
@@ -31,7 +31,7 @@ lint: install
 	echo '== mypy'; $(VENV)/bin/mypy || status=1; \
 	exit $$status
 
-test: install
+test: install lint
 	$(PY) -m pytest -q -ra
 
 bench: install
