@@ -21,6 +21,8 @@ from worlds.materials import FLAT_TONES, FLAT_WEIGHTS, GABLE_TONES, GABLE_WEIGHT
 
 
 class BlockKind(IntEnum):
+    """How a block is filled (see :func:`layout_blocks`)."""
+
     YARD = 0
     PERIMETER = 1
     DETACHED = 2
@@ -31,6 +33,8 @@ class BlockKind(IntEnum):
 
 
 class RoofStyle(IntEnum):
+    """Roof shapes, as rendered."""
+
     FLAT = 1      # textured: parapet, HVAC boxes
     GABLE = 2     # two facets and a ridge
     HIP = 3       # four facets
@@ -39,6 +43,8 @@ class RoofStyle(IntEnum):
 
 @dataclass
 class Building:
+    """One building: footprint, height, roof style and tone, roof boxes (continuous px)."""
+
     corners: np.ndarray         # (4, 2) continuous px; corners[0] -> corners[1] is the long side
     height_m: float
     style: RoofStyle

@@ -33,7 +33,10 @@ from worlds.materials import Material
 
 log = logging.getLogger(__name__)
 
+
 class FeatureKind(str, Enum):
+    """Kinds of open feature (the value names them in the world manifest)."""
+
     LAKE = "lake"
     FOREST = "forest"
     PARK = "park"
@@ -51,6 +54,8 @@ class Blocked(IntEnum):
 
 @dataclass
 class Feature:
+    """One placed open feature: kind, centre and size in continuous px, blob shape or square sides."""
+
     kind: FeatureKind
     centre: np.ndarray
     radius_px: float          # core radius (water / canopy / grass / district / square half-diagonal)

@@ -56,6 +56,7 @@ GENERATOR_SOURCES = ("blocks.py", "city_config.py", "drawing.py", "features.py",
                      "landcover.py", "materials.py", "reference.py", "rendering.py", "road_graph.py",
                      "roads.py", "scene.py", "traffic.py", "world.py")
 
+
 def generate_world(cfg: CityConfig, name: str | None = None) -> World:
     """Generate a city world; the same ``cfg`` always gives identical arrays."""
     t0 = time.perf_counter()

@@ -21,7 +21,10 @@ from worlds.landcover import Junction, JunctionKind, classify_arms
 
 log = logging.getLogger(__name__)
 
+
 class RoadClass(IntEnum):
+    """Road classes: grid streets, avenues (every n-th grid line), corner-cutting diagonals."""
+
     STREET = 1
     AVENUE = 2
     DIAGONAL = 3
@@ -29,6 +32,8 @@ class RoadClass(IntEnum):
 
 @dataclass
 class Edge:
+    """One road segment between two graph nodes (straight, or a quadratic Bezier)."""
+
     a: int
     b: int
     width_m: float

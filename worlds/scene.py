@@ -24,8 +24,11 @@ from worlds.roads import Lanes, draw_roads
 
 log = logging.getLogger(__name__)
 
+
 @dataclass
 class Scene:
+    """Layout and material raster of one city, plus its structural noise fields (shared by both days)."""
+
     cfg: CityConfig
     material: np.ndarray
     junctions: tuple[Junction, ...]

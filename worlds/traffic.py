@@ -24,6 +24,8 @@ CAR_HEIGHT_M = 1.5
 
 @dataclass
 class Cars:
+    """The cars of one day, in continuous pixel coordinates."""
+
     corners: np.ndarray     # (n, 4, 2), corners[0] -> corners[1] along the car, [1] at the front
     colour: np.ndarray      # (n, 3)
     centre_v: np.ndarray    # (n,)
