@@ -1,0 +1,1 @@
+"""Worlds: procedural cities, world folders (orthophoto, reference map, ground truth), import, default world."""

@@ -20,8 +20,9 @@ import tempfile
 from pathlib import Path
 
 from scenenav.core.errors import UserError
-from worlds.generator import GENERATOR_VERSION, CityConfig, generate_world
-from worlds.world import MANIFEST_FILE, World
+from scenenav.core.formats.world_manifest import MANIFEST_FILE
+from worlds.generator import GENERATOR_SOURCES, GENERATOR_VERSION, CityConfig, generate_world
+from worlds.world import World
 
 log = logging.getLogger(__name__)
 
@@ -36,13 +37,14 @@ def cache_root() -> Path:
     return Path(env).expanduser() if env else Path.home() / ".cache" / "scenenav"
 
 
-def _generator_fingerprint() -> str:
-    """Short hash of the generator's own source: any change to how worlds are drawn gives the
-    default world a new cache folder, so no machine keeps flying a stale one."""
+def _generator_fingerprint(folder: Path | None = None) -> str:
+    """Short hash of the generator's own source (every file of ``GENERATOR_SOURCES``, sorted, read
+    from ``folder``, default this package): any change to how worlds are drawn gives the default
+    world a new cache folder, so no machine keeps flying a stale one."""
     import hashlib
-    here = Path(__file__).resolve().parent
+    here = folder if folder is not None else Path(__file__).resolve().parent
     h = hashlib.sha256()
-    for name in ("generator.py", "reference.py", "landcover.py"):
+    for name in sorted(GENERATOR_SOURCES):
         try:
             h.update((here / name).read_bytes())
         except OSError:
@@ -72,7 +74,7 @@ def parse_generated_spec(spec: str) -> CityConfig:
         if not sep or key not in fields:
             known = "seed, width_px, height_px, m_per_px, water_share, lake_diameter_m, ..."
             raise UserError(f"world {spec!r}: {item!r} is not KEY=VALUE with a CityConfig key "
-                            f"(e.g. {known}; see worlds/generator.py)")
+                            f"(e.g. {known}; see worlds/city_config.py)")
         default = getattr(CityConfig(), key)
         try:
             kwargs[key] = type(default)(text.strip()) if not isinstance(default, bool) else \

@@ -16,7 +16,8 @@ import cv2
 import numpy as np
 
 from scenenav.core.errors import UserError
-from worlds.world import CONVENTIONS, FORMAT_VERSION, GroundTruth, World, WorldManifest, WorldSource
+from scenenav.core.formats.world_manifest import CONVENTIONS, FORMAT_VERSION, GroundTruth, WorldManifest, WorldSource
+from worlds.world import World
 
 log = logging.getLogger(__name__)
 

@@ -82,7 +82,7 @@ class SmoothNoise:
         c0 = r0 // s - self._PAD
         c1 = (r1 - 1) // s + self._PAD + 1
         grid = self._grid.rows(c0, c1)
-        up = cv2.resize(grid, (self.coarse_width * s, (c1 - c0) * s), interpolation=cv2.INTER_CUBIC)
+        up: np.ndarray = cv2.resize(grid, (self.coarse_width * s, (c1 - c0) * s), interpolation=cv2.INTER_CUBIC)
         y0 = r0 - c0 * s
         x0 = self._PAD * s
         out = up[y0:y0 + (r1 - r0), x0:x0 + self.width]
@@ -187,7 +187,10 @@ def jpeg_round_trip(rgb: np.ndarray, quality: int) -> np.ndarray:
                            [cv2.IMWRITE_JPEG_QUALITY, int(quality)])
     if not ok:
         raise RuntimeError("JPEG encoding failed")
-    return cv2.cvtColor(cv2.imdecode(buf, cv2.IMREAD_COLOR), cv2.COLOR_BGR2RGB)
+    bgr = cv2.imdecode(buf, cv2.IMREAD_COLOR)
+    if bgr is None:
+        raise RuntimeError("JPEG decoding failed")
+    return cv2.cvtColor(bgr, cv2.COLOR_BGR2RGB)
 
 
 _JPEG_PAD_ROWS = 16   # one JPEG MCU row: decoding uses the neighbouring MCU rows

@@ -22,15 +22,20 @@ from pathlib import Path
 import cv2
 import numpy as np
 
-from scenenav.core.errors import UserError
 from scenenav.core import frames
+from scenenav.core.errors import UserError
+from scenenav.core.formats.world_manifest import (
+    JUNCTIONS_FILE,
+    LANDCOVER_FILE,
+    MANIFEST_FILE,
+    ORTHOPHOTO_FILE,
+    PNG_COMPRESSION_LEVEL,
+    REFERENCE_FILE,
+    WorldManifest,
+)
 from worlds.landcover import Junction, LandCover
 
 log = logging.getLogger(__name__)
-
-from scenenav.core.formats.world_manifest import (  # noqa: F401 (the world-folder format)
-    CONVENTIONS, FORMAT_VERSION, JUNCTIONS_FILE, LANDCOVER_FILE, MANIFEST_FILE, ORTHOPHOTO_FILE,
-    PNG_COMPRESSION_LEVEL, REFERENCE_FILE, GroundTruth, WorldManifest, WorldSource)
 
 
 @dataclass(eq=False)

@@ -19,7 +19,10 @@ import yaml
 
 from scenenav.core.errors import UserError
 
-T = TypeVar("T")
+if typing.TYPE_CHECKING:
+    from _typeshed import DataclassInstance
+
+T = TypeVar("T", bound="DataclassInstance")
 
 
 class ConfigError(UserError):
@@ -90,7 +93,7 @@ def _convert(tp: Any, value: Any, key: str, source: str) -> Any:
         try:
             return tp(value)
         except ValueError:
-            allowed = ", ".join(str(m.value) for m in tp)
+            allowed = ", ".join(str(m.value) for m in typing.cast(Any, tp))
             raise ConfigError(f"{source}: {key} = {value!r}: expected one of {allowed}") from None
     return value
 

@@ -415,7 +415,7 @@ def _to_json_obj(msg: Any) -> dict:
     return obj
 
 
-def _from_json_obj(cls: type, obj: Any) -> Any:
+def _from_json_obj(cls: type[Any], obj: Any) -> Any:
     if not isinstance(obj, dict):
         raise DecodeError(f"{cls.__name__}: expected a JSON object")
     if obj.get("type") != cls.__name__:
@@ -423,7 +423,7 @@ def _from_json_obj(cls: type, obj: Any) -> Any:
     if obj.get("version") != cls.VERSION:
         raise DecodeError(f"{cls.__name__}: unsupported version {obj.get('version')!r} "
                           f"(this node speaks version {cls.VERSION})")
-    kwargs = {}
+    kwargs: dict[str, Any] = {}
     for (name, tp), (_, kind) in zip(_schema(cls), _enc_spec(cls)):
         try:
             value = obj[name]

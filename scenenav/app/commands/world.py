@@ -11,8 +11,7 @@ import cv2
 import numpy as np
 
 from scenenav.core.errors import UserError
-from worlds.landcover import (LANDCOVER_COLOURS_RGB, JunctionKind, LandCover, colourise,
-                              cover_shares)
+from worlds.landcover import LANDCOVER_COLOURS_RGB, JunctionKind, LandCover, colourise, cover_shares
 from worlds.world import World, load_world
 
 log = logging.getLogger(__name__)

@@ -3,20 +3,22 @@
 from __future__ import annotations
 
 import argparse
+import ast
 import json
 import math
+from pathlib import Path
 
 import cv2
 import numpy as np
 import pytest
 
+from scenenav.core import frames
 from scenenav.core.config import ConfigError
 from scenenav.core.errors import UserError
-from scenenav.core import frames
+from scenenav.core.formats.world_manifest import WorldManifest
 from worlds.generator import CityConfig, generate_world
-from worlds.landcover import (BAD_MATCHING_COVERS, Junction, JunctionKind, LandCover, classify_arms,
-                              cover_shares)
-from worlds.world import World, WorldManifest, load_world
+from worlds.landcover import BAD_MATCHING_COVERS, Junction, JunctionKind, LandCover, classify_arms, cover_shares
+from worlds.world import World, load_world
 
 FOOTPRINT_PX = 217   # camera footprint at 100 m (60 deg FOV) at 0.53 m/px
 
@@ -380,6 +382,45 @@ def test_default_world_is_cached(tmp_path, monkeypatch, default_world):
     second = default.load_default_world()
     assert np.array_equal(second.reference, first.reference)
     assert [p.name for p in d.parent.iterdir()] == [d.name]   # no temporary folders left
+
+
+def _worlds_imports(path: Path) -> set[str]:
+    """Modules of the worlds package that a source file imports (by file name)."""
+    names = set()
+    for node in ast.walk(ast.parse(path.read_text(encoding="utf-8"))):
+        if isinstance(node, ast.ImportFrom) and node.module and node.module.startswith("worlds."):
+            names.add(node.module.split(".")[1] + ".py")
+        elif isinstance(node, ast.Import):
+            names.update(a.name.split(".")[1] + ".py" for a in node.names if a.name.startswith("worlds."))
+    return names
+
+
+def test_generator_sources_are_every_module_the_generator_imports():
+    from worlds import generator
+    here = Path(generator.__file__).resolve().parent
+    seen, todo = set(), ["generator.py"]
+    while todo:
+        name = todo.pop()
+        if name not in seen:
+            seen.add(name)
+            todo.extend(_worlds_imports(here / name))
+    assert set(generator.GENERATOR_SOURCES) == seen
+
+
+def test_default_world_cache_name_changes_with_any_generator_source(tmp_path):
+    import shutil
+
+    from worlds import default, generator
+    here = Path(generator.__file__).resolve().parent
+    for name in generator.GENERATOR_SOURCES:
+        shutil.copy(here / name, tmp_path / name)
+    base = default._generator_fingerprint(tmp_path)
+    assert base == default._generator_fingerprint()
+    for name in generator.GENERATOR_SOURCES:
+        original = (tmp_path / name).read_bytes()
+        (tmp_path / name).write_bytes(original + b"\n")
+        assert default._generator_fingerprint(tmp_path) != base, name
+        (tmp_path / name).write_bytes(original)
 
 
 def test_generated_world_spec_is_cached_by_config(tmp_path, monkeypatch):
