@@ -7,7 +7,8 @@ the heading therefore makes it north-up; in (u right, v down) pixel coordinates 
 ``[[cos h, -sin h], [sin h, cos h]]``.
 
 The camera ground sampling distance is ``footprint / width`` with ``footprint = 2 h tan(fov / 2)``
-(``fov`` is the horizontal field of view, pixels are square), and the template is resampled by
+(``fov`` is the horizontal field of view, pixels are square;
+``scenenav.core.camera_geometry.ground_footprint_m``), and the template is resampled by
 ``scale = camera_m_per_px / map_m_per_px``. Rotation and scale are one affine transform applied with a
 single ``cv2.warpAffine`` (bilinear); the image centre (the nadir point) maps exactly to the template
 centre, so the matched template centre is the drone's horizontal position.
@@ -25,6 +26,7 @@ import cv2
 import numpy as np
 
 from perception.config import CropMode
+from scenenav.core.camera_geometry import ground_footprint_m
 
 log = logging.getLogger(__name__)
 
@@ -73,11 +75,6 @@ class AlignedCapture:
     def mask_is_full(self) -> bool:
         """True when every template pixel is valid (no mask needed in matching)."""
         return bool(self.mask.all())
-
-
-def footprint_m(altitude_m: float, fov_deg: float) -> float:
-    """Ground width seen by a nadir camera: 2 h tan(fov / 2)."""
-    return 2.0 * altitude_m * math.tan(math.radians(fov_deg) / 2.0)
 
 
 def to_gray_float32(image: np.ndarray) -> np.ndarray:
@@ -150,7 +147,7 @@ def align_capture(image: np.ndarray, heading_rad: float, altitude_m: float, fov_
 
     gray = to_gray_float32(image)
     h_src, w_src = gray.shape
-    foot = footprint_m(altitude, fov)
+    foot = ground_footprint_m(altitude, fov)
     cam_mpp = foot / w_src
     scale = cam_mpp / mpp
     c, s = math.cos(heading), math.sin(heading)
