@@ -111,7 +111,8 @@ def to_gray_float32(image: np.ndarray) -> np.ndarray:
     return np.ascontiguousarray(gray, dtype=np.float32)
 
 
-def _check_sensor(name: str, value: float) -> float:
+def finite_number(name: str, value: float) -> float:
+    """``value`` as a float; BadInput naming ``name`` when it is not a finite number."""
     try:
         v = float(value)
     except (TypeError, ValueError):
@@ -134,14 +135,14 @@ def align_capture(image: np.ndarray, heading_rad: float, altitude_m: float, fov_
     TemplateTooLarge (before any resampling) when the template would be wider or taller than
     ``max_template_px`` = (width, height), e.g. the reference map's size.
     """
-    heading = _check_sensor("heading_rad", heading_rad)
-    altitude = _check_sensor("altitude_m", altitude_m)
+    heading = finite_number("heading_rad", heading_rad)
+    altitude = finite_number("altitude_m", altitude_m)
     if altitude <= 0.0:
         raise BadInput(f"altitude_m = {altitude_m!r}: expected > 0 (metres above ground)")
-    fov = _check_sensor("fov_deg", fov_deg)
+    fov = finite_number("fov_deg", fov_deg)
     if not 0.0 < fov < 180.0:
         raise BadInput(f"fov_deg = {fov_deg!r}: expected a number in (0, 180)")
-    mpp = _check_sensor("map_m_per_px", map_m_per_px)
+    mpp = finite_number("map_m_per_px", map_m_per_px)
     if mpp <= 0.0:
         raise BadInput(f"map_m_per_px = {map_m_per_px!r}: expected > 0")
 

@@ -109,15 +109,6 @@ class MatchabilityResult:
     peaks: np.ndarray
 
 
-def to_gray(image: np.ndarray) -> np.ndarray:
-    """uint8 RGB / grey image -> float32 grey in [0, 1] (BT.601 luma, as the matcher does)."""
-    if image.ndim == 3:
-        image = cv2.cvtColor(image, cv2.COLOR_RGB2GRAY)
-    if image.dtype == np.uint8:
-        return image.astype(np.float32) * np.float32(1.0 / 255.0)
-    return np.ascontiguousarray(image, dtype=np.float32)
-
-
 def footprint_px(altitude_m: float, fov_deg: float, m_per_px: float) -> int:
     """Side of the camera footprint in map pixels, rounded down (100 m, 60 deg, 0.53 m/px -> 217)."""
     return int(math.floor(ground_footprint_m(altitude_m, fov_deg) / m_per_px + 1e-9))

@@ -34,7 +34,7 @@ import cv2
 import numpy as np
 
 from perception.alignment import (AlignedCapture, BadInput, TemplateTooLarge, align_capture,
-                                  to_gray_float32)
+                                  finite_number, to_gray_float32)
 from perception.assistant_map import AssistantMap
 from perception.config import PerceptionConfig, UnknownPolicy
 from perception.decision import (N_PAPER_CLASSES, VARIANCE_WINDOWS, CombinedDecisionModel,
@@ -195,12 +195,7 @@ class PerceptionPipeline:
         was taken with (the node passes ``CameraFrame.fov_deg``); None: ``cfg.fov_deg``.
         """
         t_start = time.perf_counter()
-        try:
-            t_s = float(timestamp_s)
-        except (TypeError, ValueError):
-            raise BadInput(f"timestamp_s = {timestamp_s!r}: expected a finite number") from None
-        if not math.isfinite(t_s):
-            raise BadInput(f"timestamp_s = {timestamp_s!r}: expected a finite number")
+        t_s = finite_number("timestamp_s", timestamp_s)
         cfg = self.cfg
         timings = StageTimes()
         try:
