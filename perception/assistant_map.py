@@ -24,7 +24,7 @@ import cv2
 import numpy as np
 
 from perception.decision import P_BAD_THRESHOLD, split_classifier_output
-from scenenav.core.camera_geometry import ground_footprint_m
+from perception.matchability import footprint_px
 from scenenav.core.errors import UserError
 from scenenav.core.formats.assistant_map_file import (AssistantMapFile, read_assistant_map_file,
                                                      write_assistant_map_file)
@@ -219,7 +219,7 @@ def build_assistant_map(reference_gray: np.ndarray, classify_batch: ClassifyBatc
         raise ValueError("stride_px, batch_size and cnn_input_px must be positive integers")
     h, w = reference_gray.shape
     stride = int(stride_px)
-    fp = int(math.floor(ground_footprint_m(altitude_m, fov_deg) / m_per_px + 1e-9))
+    fp = footprint_px(altitude_m, fov_deg, m_per_px)
     n_rows, n_cols = math.ceil(h / stride), math.ceil(w / stride)
     cells = np.full((n_rows, n_cols), np.nan, dtype=np.float32)
 
