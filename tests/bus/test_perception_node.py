@@ -1,6 +1,7 @@
 """The perception node on a real bus: garbage is dropped and counted, frames from another camera are
 refused (counted, answered with an invalid fix), good frames get fixes scaled with the frame's FOV."""
 
+import contextlib
 import math
 import threading
 import time
@@ -31,7 +32,10 @@ def _frame(world, seq, t_us, size=200, fov_deg=60.0, altitude_m=100.0):
     return CameraFrame(t_us, seq, size, size, "rgb8", fov_deg, "gimbal", np.ascontiguousarray(img))
 
 
-def test_garbage_dropped_good_frames_fixed(world):
+@contextlib.contextmanager
+def _live_node(world, camera=None):
+    """A perception node (method none, lockstep) and a hub on a fresh bus, the node's fixes and acks
+    collected; yields (hub, keys, node, fixes, acks) once the node is a lockstep member."""
     from perception.node import PerceptionNode
     port = free_port()
     hub = Bus(BusConfig("pn", port, listen_hub=True))
@@ -41,11 +45,26 @@ def test_garbage_dropped_good_frames_fixed(world):
     hub.subscribe(keys.lockstep_ack_all, LockstepAck, lambda m, k: acks.append(m))
     up = threading.Event()
     hub.watch_liveliness(keys.lockstep_member_all, lambda k, a: up.set() if a else None)
-    node = PerceptionNode(world, BusConfig("pn", port), node_id="p1", method="none", lockstep=True)
+    node = PerceptionNode(world, BusConfig("pn", port), node_id="p1", method="none", lockstep=True,
+                          camera=camera)
     try:
         assert up.wait(15)
         hub.publish(keys.compass, CompassSample(0, 0.0))
         hub.publish(keys.baro, BaroSample(0, 100.0, 100129.0))
+        yield hub, keys, node, fixes, acks
+    finally:
+        node.close()
+        hub.close()
+
+
+def _wait_for(acks, n):
+    t0 = time.monotonic()
+    while time.monotonic() - t0 < 30 and len(acks) < n:
+        time.sleep(0.05)
+
+
+def test_garbage_dropped_good_frames_fixed(world):
+    with _live_node(world) as (hub, keys, node, fixes, acks):
         hub.publish(keys.camera, _frame(world, 0, 1000))                 # good
         hub.publish(keys.camera, _frame(world, 1, 2000, size=120))       # another camera: refused
         raw = encode(_frame(world, 2, 3000))
@@ -55,9 +74,7 @@ def test_garbage_dropped_good_frames_fixed(world):
         hub.publish(keys.camera, _frame(world, 3, 5000))
         hub.publish(keys.compass, CompassSample(6000, 0.0))
         hub.publish(keys.camera, _frame(world, 4, 7000))                 # good again
-        t0 = time.monotonic()
-        while time.monotonic() - t0 < 30 and len(acks) < 4:
-            time.sleep(0.05)
+        _wait_for(acks, 4)
         assert [f.frame_seq for f in fixes] == [0, 1, 4]
         assert not fixes[1].valid and not fixes[1].accepted           # the refused frame's answer
         good = fixes[0]
@@ -68,37 +85,15 @@ def test_garbage_dropped_good_frames_fixed(world):
         assert node.stats["dropped_nan_sensor"] == 1
         assert node.bus.dropped[keys.camera] == 1                        # the truncated one
         assert node.bus.dropped[keys.compass] == 1
-    finally:
-        node.close()
-        hub.close()
 
 
 def _run_node(world, camera, frames, n_answers):
-    """Publish compass, baro and ``frames`` to a fresh node; return (fixes, acks, node stats)."""
-    from perception.node import PerceptionNode
-    port = free_port()
-    hub = Bus(BusConfig("pc", port, listen_hub=True))
-    keys = Keys("pc")
-    fixes, acks = [], []
-    hub.subscribe(keys.vision_fix_all, VisionFix, lambda m, k: fixes.append(m))
-    hub.subscribe(keys.lockstep_ack_all, LockstepAck, lambda m, k: acks.append(m))
-    up = threading.Event()
-    hub.watch_liveliness(keys.lockstep_member_all, lambda k, a: up.set() if a else None)
-    node = PerceptionNode(world, BusConfig("pc", port), node_id="p1", method="none", lockstep=True,
-                          camera=camera)
-    try:
-        assert up.wait(15)
-        hub.publish(keys.compass, CompassSample(0, 0.0))
-        hub.publish(keys.baro, BaroSample(0, 100.0, 100129.0))
+    """Publish ``frames`` to a fresh node expecting ``camera``; return (fixes, acks, node stats)."""
+    with _live_node(world, camera) as (hub, keys, node, fixes, acks):
         for f in frames:
             hub.publish(keys.camera, f)
-        t0 = time.monotonic()
-        while time.monotonic() - t0 < 30 and len(acks) < n_answers:
-            time.sleep(0.05)
+        _wait_for(acks, n_answers)
         return fixes, acks, dict(node.stats)
-    finally:
-        node.close()
-        hub.close()
 
 
 def test_frames_from_another_camera_are_refused_and_counted(world):
