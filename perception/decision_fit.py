@@ -25,6 +25,7 @@ from __future__ import annotations
 
 import logging
 import math
+from dataclasses import dataclass
 
 import numpy as np
 
@@ -34,6 +35,19 @@ log = logging.getLogger(__name__)
 
 #: The two methods whose samples are pooled: the online CNN, and the flight's assistant map.
 SOURCES = ("cnn", "assistant-map")
+
+
+@dataclass(frozen=True)
+class FlightSamples:
+    """The samples of one flight: per valid fix the label and, per source (``SOURCES``), the
+    combined-rule features and the area P(bad) they were computed from."""
+
+    world: str
+    y: np.ndarray                       # bool: a false fix (error above the threshold)
+    error_m: np.ndarray                 # fix error against the simulator's truth
+    t_s: np.ndarray
+    features: dict[str, np.ndarray]     # source -> (N, len(COMBINED_FEATURES))
+    p_bad: dict[str, np.ndarray]        # source -> (N,)
 
 
 # ------------------------------------------------------------------------------ logistic fit
@@ -90,13 +104,13 @@ def rejection_scores(y: np.ndarray, reject: np.ndarray, error_m: np.ndarray | No
     return out
 
 
-def pool_samples(samples: list[dict], sources: tuple[str, ...]) -> tuple[np.ndarray, np.ndarray]:
+def pool_samples(samples: list[FlightSamples], sources: tuple[str, ...]) -> tuple[np.ndarray, np.ndarray]:
     """Features and labels of ``samples`` (one per flight), every source stacked."""
     xs, ys = [], []
     for s in samples:
         for src in sources:
-            xs.append(s[src])
-            ys.append(s["y"])
+            xs.append(s.features[src])
+            ys.append(s.y)
     return np.vstack(xs), np.concatenate(ys)
 
 
@@ -110,7 +124,7 @@ def choose_threshold(p: np.ndarray, y: np.ndarray, target_recall: float) -> floa
     return float(min(0.5, max(1e-4, t)))
 
 
-def cross_validate(samples: list[dict], l2: float, target_recall: float,
+def cross_validate(samples: list[FlightSamples], l2: float, target_recall: float,
                    sources: tuple[str, ...] = SOURCES) -> dict:
     """Leave-one-world-out: out-of-world P(false) for every sample, the chosen threshold, scores."""
     oof = []
@@ -118,17 +132,17 @@ def cross_validate(samples: list[dict], l2: float, target_recall: float,
         train = [s for j, s in enumerate(samples) if j != i]
         x, y = pool_samples(train, sources)
         m = make_model(x, y, l2)
-        oof.append({src: m.p_false(held[src]) for src in SOURCES})
+        oof.append({src: m.p_false(held.features[src]) for src in SOURCES})
     p_all = np.concatenate([o[src] for o in oof for src in sources])
-    y_all = np.concatenate([s["y"] for s in samples for _ in sources])
+    y_all = np.concatenate([s.y for s in samples for _ in sources])
     thr = choose_threshold(p_all, y_all, target_recall)
     per = {}
     for src in SOURCES:
         p = np.concatenate([o[src] for o in oof])
-        y = np.concatenate([s["y"] for s in samples])
-        e = np.concatenate([s["error_m"] for s in samples])
+        y = np.concatenate([s.y for s in samples])
+        e = np.concatenate([s.error_m for s in samples])
         per[src] = {"t=0.5": rejection_scores(y, p > 0.5, e),
                     "t=chosen": rejection_scores(y, p > thr, e)}
-        per[src]["per_world"] = {s["world"]: rejection_scores(s["y"], o[src] > thr, s["error_m"])
+        per[src]["per_world"] = {s.world: rejection_scores(s.y, o[src] > thr, s.error_m)
                                  for s, o in zip(samples, oof)}
     return {"threshold": thr, "scores": per}

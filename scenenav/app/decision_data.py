@@ -19,7 +19,8 @@ import numpy as np
 
 from perception.decision import (COMBINED_FEATURES, VARIANCE_WINDOWS, CombinedDecisionModel,
                                  TrackEvidence, combined_features)
-from perception.decision_fit import SOURCES, cross_validate, make_model, pool_samples, rejection_scores
+from perception.decision_fit import (SOURCES, FlightSamples, cross_validate, make_model, pool_samples,
+                                     rejection_scores)
 from perception.statistical import StatisticalDetector
 from scenenav.core.errors import UserError
 
@@ -30,7 +31,7 @@ NODE_ID = "perception"
 
 
 # ------------------------------------------------------------------------------ samples
-def flight_samples(run_dir: str | Path, threshold_m: float = 5.0) -> dict:
+def flight_samples(run_dir: str | Path, threshold_m: float = 5.0) -> FlightSamples:
     """Features and labels of one ``cnn`` flight folder (see the module docstring)."""
     from perception.assistant_map import AssistantMap
     from scenenav.app.evaluation import fix_table, read_csv
@@ -70,15 +71,16 @@ def flight_samples(run_dir: str | Path, threshold_m: float = 5.0) -> dict:
         det = StatisticalDetector(w)
         variances.append(np.array([det.update(x, y, t)[1] for x, y, t in zip(
             fx["x_m"][idx_fx], fx["y_m"][idx_fx], fx["t_s"][idx_fx])]))
-    out = {"world": run_dir.name, "y": fx["is_false"][idx_fx].astype(bool),
-           "error_m": fx["error_m"][idx_fx], "t_s": fx["t_s"][idx_fx]}
+    features, p_bads = {}, {}
     for src, p_bad in (("cnn", p_online), ("assistant-map", p_map)):
-        out[src] = np.array([combined_features(pb, pk, ps, sp, inn, int(rn), di, da, v30, v10, re)
+        features[src] = np.array([combined_features(pb, pk, ps, sp, inn, int(rn), di, da, v30, v10, re)
                              for pb, pk, ps, sp, inn, rn, di, da, v30, v10, re
                              in zip(p_bad, peak, psr, spr, innov, run, dr_innov, dr_age, *variances,
                                     reach)])
-        out[f"p_bad_{src}"] = p_bad
-    return out
+        p_bads[src] = p_bad
+    return FlightSamples(world=run_dir.name, y=fx["is_false"][idx_fx].astype(bool),
+                         error_m=fx["error_m"][idx_fx], t_s=fx["t_s"][idx_fx], features=features,
+                         p_bad=p_bads)
 
 
 # ------------------------------------------------------------------------------ flights
@@ -169,7 +171,7 @@ def fit_decision(flight_dirs: list[Path], out: str | Path, cnn_weights: str, l2:
     meta = {
         "command": command,
         "data": data_manifest or {},
-        "training_worlds": [s["world"] for s in samples],
+        "training_worlds": [s.world for s in samples],
         "flight_dirs": [str(d) for d in flight_dirs],
         "samples": int(len(y)), "false_samples": int(y.sum()),
         "sources": list(SOURCES), "l2": l2, "target_recall": target_recall,
@@ -178,10 +180,10 @@ def fit_decision(flight_dirs: list[Path], out: str | Path, cnn_weights: str, l2:
         "wall_time_s": None, "python": platform.python_version(), "numpy": np.__version__,
     }
     model = make_model(x, y, l2, threshold=cv["threshold"], cnn_weights=cnn_rel, meta=meta)
-    train_scores = {src: rejection_scores(np.concatenate([s["y"] for s in samples]),
-                                          np.concatenate([model.p_false(s[src]) for s in samples])
+    train_scores = {src: rejection_scores(np.concatenate([s.y for s in samples]),
+                                          np.concatenate([model.p_false(s.features[src]) for s in samples])
                                           > model.threshold,
-                                          np.concatenate([s["error_m"] for s in samples]))
+                                          np.concatenate([s.error_m for s in samples]))
                     for src in SOURCES}
     meta["training_fit"] = train_scores
     meta["coefficients_raw"] = {f: float(w) for f, w in zip(COMBINED_FEATURES, model._w)}
@@ -198,8 +200,8 @@ def evaluate_flights(model: CombinedDecisionModel, flight_dirs: list[Path]) -> d
         s = flight_samples(d)
         row = {}
         for src in SOURCES:
-            row[src] = {"combined": rejection_scores(s["y"], model.p_false(s[src]) > model.threshold,
-                                                     s["error_m"]),
-                        "paper": rejection_scores(s["y"], s[f"p_bad_{src}"] > 0.5, s["error_m"])}
-        res[s["world"]] = row
+            row[src] = {"combined": rejection_scores(s.y, model.p_false(s.features[src]) > model.threshold,
+                                                     s.error_m),
+                        "paper": rejection_scores(s.y, s.p_bad[src] > 0.5, s.error_m)}
+        res[s.world] = row
     return res

@@ -51,8 +51,9 @@ def test_fit_decision_on_flight_folders(tmp_path):
     dirs = flight_dirs_under(tmp_path)
     assert [d.name for d in dirs] == ["w0", "w1", "w2"]
     s = flight_samples(dirs[0])
-    assert s["y"].sum() == 60 and s["cnn"].shape == (120, K) and s["assistant-map"].shape == (120, K)
-    f = dict(zip(COMBINED_FEATURES, s["cnn"][100]))
+    assert s.y.sum() == 60 and s.features["cnn"].shape == (120, K)
+    assert s.features["assistant-map"].shape == (120, K)
+    f = dict(zip(COMBINED_FEATURES, s.features["cnn"][100]))
     assert f["no_track"] == 1.0 and f["dr_innov"] > math.log(100.0)   # far from the anchor
     out = tmp_path / "model.json"
     model = fit_decision(dirs, out, "", data_manifest={"command": "test"})
