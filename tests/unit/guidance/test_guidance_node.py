@@ -5,11 +5,10 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from guidance.config import PlannerConfig, RouteEnd
+from guidance.config import PlannerConfig
 from guidance.node import ARRIVING_M, cross_track_m, remaining_goals, replan_reason
 from guidance.planner import join_legs, plan_through
 from scenenav.core.errors import UserError
-from scenenav.app.scenario import load_scenario
 from scenenav.core.frames import pixel_to_world
 
 M_PER_PX = 2.0
