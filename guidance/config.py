@@ -1,4 +1,8 @@
-"""Configuration of the potential-field route planner (``scenenav plan``).
+"""Configuration of guidance: the route planner, the scenario's ``guidance`` section, the node.
+
+``PlannerConfig``: the potential-field route planner (``scenenav plan`` and the guidance node).
+``GuidanceNodeConfig``: the scenario's ``guidance`` section. ``GuidanceRunConfig``: what the guidance
+node itself needs (derived from the scenario by ``scenenav/app/nodes.py``).
 
 Every field carries its unit in its name; ``PlannerConfig.__post_init__`` range-checks through
 ``scenenav.core.config.check`` (raising ``ConfigError``, a ``UserError``). Build one from YAML or
@@ -15,7 +19,7 @@ from scenenav.core.camera_geometry import ground_footprint_m
 from scenenav.core.config import check
 
 # Seed paper, section 6.1: the camera has a 60 degree field of view (square 200x200 image);
-# section 6.3: the drone flew at 100 m. Ground footprint width = 2 * h * tan(fov / 2).
+# section 6.3: the drone flew at 100 m. Ground footprint width: scenenav.core.camera_geometry.
 DEFAULT_ALTITUDE_M = 100.0
 DEFAULT_CAMERA_FOV_DEG = 60.0
 # Seed paper, section 5.4: a matching with probability < 0.5 of being true is excluded (bad area).

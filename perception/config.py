@@ -1,4 +1,7 @@
-"""Configuration of the perception algorithms (frozen dataclasses, units in the key names).
+"""Configuration of the perception algorithms and node (frozen dataclasses, units in the key names).
+
+``PerceptionNodeConfig`` is the scenario's ``perception`` section; ``ExpectedCamera`` is the camera the
+node is configured for (derived by the app layer from ``sim.camera``).
 
 Loaded with ``scenenav.core.config.load_config(PerceptionConfig, mapping)``; range checks raise
 ``ConfigError`` through ``scenenav.core.config.check``. See docs/perception.md for what each key does.
@@ -119,7 +122,7 @@ class PerceptionConfig:
     """The whole perception pipeline (alignment, matcher, decision)."""
 
     method: FalseMatchMethod = FalseMatchMethod.NONE
-    fov_deg: float = 60.0                      # camera horizontal field of view
+    fov_deg: float = 60.0                      # horizontal FOV of a capture that does not state its own
     crop_mode: CropMode = CropMode.INSCRIBED_SQUARE
     cnn_input_px: int = 200                    # the classifier sees (N, cnn_input_px, cnn_input_px)
     p_bad_threshold: float = P_BAD_THRESHOLD   # paper 5.4: reject when P(bad) > 0.5
@@ -177,6 +180,7 @@ class PerceptionNodeConfig:
         check(self.swap_method in methods, "swap_method", self.swap_method,
               "one of cnn, assistant-map, statistical, none")
 
+
 #: A frame's FOV may differ from the expected one by this much (JSON round trip, config rounding).
 FOV_TOLERANCE_DEG = 1e-6
 
@@ -204,4 +208,3 @@ class ExpectedCamera:
                                                         abs_tol=FOV_TOLERANCE_DEG)):
             problems.append(f"fov {fov_deg!r} deg, expected {self.fov_deg} deg")
         return "; ".join(problems) or None
-

@@ -14,8 +14,8 @@ Outputs
 A frame whose FOV or size contradicts the configured camera (``ExpectedCamera``) is refused: counted
 (``stats["refused_camera_mismatch"]``), logged once, and answered with an invalid fix (and the ack)
 so that neither lockstep nor the autopilot waits for it. NaN headings/altitudes or undecodable
-bytes are dropped and counted (``stats``), logged, and the node keeps running. Work happens on a worker thread, so Zenoh's
-callback threads never block on matching.
+bytes are dropped and counted (``stats``), logged, and the node keeps running. Work happens on a
+worker thread, so Zenoh's callback threads never block on matching.
 """
 
 from __future__ import annotations
@@ -27,6 +27,7 @@ import queue
 import threading
 from collections import Counter, deque
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import numpy as np
 
@@ -36,6 +37,9 @@ from scenenav.core.bus import Bus, BusConfig
 from scenenav.core.contracts import (BaroSample, CameraFrame, CompassSample, Event, LockstepAck,
                                 LockstepRole, NodeInfo, Severity, VisionFix)
 from scenenav.core.keys import Keys
+
+if TYPE_CHECKING:
+    from perception.pipeline import FixResult
 
 log = logging.getLogger(__name__)
 
@@ -211,7 +215,7 @@ class PerceptionNode:
                     self.bus.publish(self.keys.lockstep_ack(self.node_id), LockstepAck(
                         msg.timestamp_us, self.node_id, LockstepRole.CAMERA.value, msg.seq))
 
-    def _fix_message(self, msg: CameraFrame, r) -> VisionFix:
+    def _fix_message(self, msg: CameraFrame, r: FixResult) -> VisionFix:
         cov = np.asarray(r.covariance_m2, dtype=float).reshape(2, 2)
         pc = tuple(float(x) for x in np.broadcast_to(np.asarray(r.p_classes, dtype=float), (4,)))
         t = r.timings
@@ -228,7 +232,7 @@ class PerceptionNode:
             time_cnn_ms=float(t.cnn_ms), time_lookup_ms=float(t.lookup_ms),
             time_total_ms=float(t.total_ms))
 
-    def _write_diag(self, msg: CameraFrame, r) -> None:
+    def _write_diag(self, msg: CameraFrame, r: FixResult) -> None:
         if self._diag is None:
             return
         m = r.metrics
