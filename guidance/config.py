@@ -1,4 +1,8 @@
-"""Configuration of the potential-field route planner (``scenenav plan``).
+"""Configuration of guidance: the route planner, the scenario's ``guidance`` section, the node.
+
+``PlannerConfig``: the potential-field route planner (``scenenav plan`` and the guidance node).
+``GuidanceNodeConfig``: the scenario's ``guidance`` section. ``GuidanceRunConfig``: what the guidance
+node itself needs (derived from the scenario by ``scenenav/app/nodes.py``).
 
 Every field carries its unit in its name; ``PlannerConfig.__post_init__`` range-checks through
 ``scenenav.core.config.check`` (raising ``ConfigError``, a ``UserError``). Build one from YAML or
@@ -9,13 +13,13 @@ The meaning of every parameter is documented in ``docs/guidance.md``.
 from __future__ import annotations
 
 import enum
-import math
 from dataclasses import dataclass
 
+from scenenav.core.camera_geometry import ground_footprint_m
 from scenenav.core.config import check
 
 # Seed paper, section 6.1: the camera has a 60 degree field of view (square 200x200 image);
-# section 6.3: the drone flew at 100 m. Ground footprint width = 2 * h * tan(fov / 2).
+# section 6.3: the drone flew at 100 m. Ground footprint width: scenenav.core.camera_geometry.
 DEFAULT_ALTITUDE_M = 100.0
 DEFAULT_CAMERA_FOV_DEG = 60.0
 # Seed paper, section 5.4: a matching with probability < 0.5 of being true is excluded (bad area).
@@ -25,11 +29,6 @@ DEFAULT_CRUISE_SPEED_M_S = 10.0
 # A gentle bank for a multicopter at cruise: a_lat = g * tan(bank); 2.5 m/s^2 is ~14 degrees of
 # bank, well inside ArduCopter's default ANGLE_MAX of 30 degrees (ArduPilot parameter docs).
 DEFAULT_MAX_LATERAL_ACCEL_M_S2 = 2.5
-
-
-def footprint_width_m(altitude_m: float, camera_fov_deg: float) -> float:
-    """Ground width of a nadir square camera footprint: 2 * altitude * tan(fov / 2)."""
-    return 2.0 * altitude_m * math.tan(math.radians(camera_fov_deg) / 2.0)
 
 
 class RouteEnd(str, enum.Enum):
@@ -147,7 +146,7 @@ class PlannerConfig:
         """Footprint disc diameter actually used (explicit ``footprint_m`` or from altitude and FOV)."""
         if self.footprint_m is not None:
             return float(self.footprint_m)
-        return footprint_width_m(self.altitude_m, self.camera_fov_deg)
+        return ground_footprint_m(self.altitude_m, self.camera_fov_deg)
 
     @property
     def required_distance_m(self) -> float:
@@ -158,3 +157,68 @@ class PlannerConfig:
     def turn_radius_m(self) -> float:
         """Corner radius flown at cruise speed: v^2 / a_lat."""
         return self.cruise_speed_m_s ** 2 / self.max_lateral_accel_m_s2
+
+
+@dataclass(frozen=True)
+class GuidanceNodeConfig:
+    """The ``guidance`` section of a scenario (YAML key ``guidance``).
+
+    The guidance node (guidance/node.py) plans a route over the assistant map around bad matching
+    areas and flies it as a MAVLink mission. Needs ``flight.mode: autopilot``; the autopilot then
+    waits for this node instead of starting ``flight.route_enu_m`` by itself. The app layer turns it
+    into a ``GuidanceRunConfig`` + ``PlannerConfig`` (scenenav/app/nodes.py).
+    """
+
+    enabled: bool = False              # start the guidance node (needs flight.mode autopilot)
+    # Each leg (take-off point -> first goal -> second ...) is planned around bad areas; the
+    # mission ends with autopilot.mission_end.
+    goals_enu_m: tuple[tuple[float, float], ...] = ()   # via-points and goal, [x east, y north] m
+    assistant_map: str = ""            # .npz; empty: the world's map built with the CNN (cached)
+    assistant_map_stride_px: int = 10  # stride of that built map
+    start_after_s: float = 1.0         # simulated seconds before the mission is uploaded and started
+    check_period_s: float = 1.0        # simulated seconds between drift / map-change checks
+    replan_drift_m: float = 40.0       # replan when the estimate is this far from the route
+    footprint_m: float | None = None   # camera-footprint width kept clear; None: from altitude and FOV
+    clearance_m: float = 10.0          # extra distance kept between footprint edge and bad area
+    unvisited_weight: float = 0.5      # unvisited map cells as obstacles: 0 free .. 1 hard
+    waypoint_spacing_m: float = 50.0   # spacing of the mission's waypoints along the route
+
+    def __post_init__(self) -> None:
+        check(not self.enabled or len(self.goals_enu_m) >= 1, "goals_enu_m", self.goals_enu_m,
+              "at least one [x, y] goal in metres when guidance is enabled")
+        check(self.assistant_map_stride_px >= 1, "assistant_map_stride_px",
+              self.assistant_map_stride_px, "a positive number of pixels")
+        check(self.start_after_s >= 0, "start_after_s", self.start_after_s, ">= 0 s")
+        check(self.check_period_s > 0, "check_period_s", self.check_period_s, "> 0 s")
+        check(self.replan_drift_m > 0, "replan_drift_m", self.replan_drift_m, "> 0 m")
+        check(self.footprint_m is None or self.footprint_m >= 0, "footprint_m", self.footprint_m,
+              "a width >= 0 m, or null for the camera footprint")
+        check(self.clearance_m >= 0, "clearance_m", self.clearance_m, ">= 0 m")
+        check(0 <= self.unvisited_weight <= 1, "unvisited_weight", self.unvisited_weight, "0 to 1")
+        check(self.waypoint_spacing_m > 0, "waypoint_spacing_m", self.waypoint_spacing_m, "> 0 m")
+
+
+@dataclass(frozen=True)
+class GuidanceRunConfig:
+    """What the guidance node needs beyond the planner parameters (units in the names); derived
+    from the scenario by the app layer (scenenav/app/nodes.py)."""
+
+    start_enu_m: tuple[float, float] = (0.0, 0.0)   # take-off point, world metres (east, north)
+    goals_enu_m: tuple[tuple[float, float], ...] = ((0.0, 0.0),)   # via-points and goal
+    assistant_map: str = ""                         # .npz with key ``probability``
+    altitude_m: float = 100.0                       # cruise altitude above home
+    end: RouteEnd = RouteEnd.LAND                   # after the last waypoint
+    replan_drift_m: float = 40.0                    # replan when this far off the route
+    check_period_s: float = 1.0                     # simulated seconds between checks
+    start_after_s: float = 1.0                      # simulated seconds before the first start try
+    retry_period_s: float = 1.0                     # simulated seconds between start tries
+    mavlink_url: str = "tcp:127.0.0.1:5760"
+    lockstep: bool = True                           # hold the simulator while starting the mission
+
+    def __post_init__(self) -> None:
+        check(len(self.goals_enu_m) >= 1, "goals_enu_m", self.goals_enu_m, "at least one goal")
+        check(self.altitude_m > 0, "altitude_m", self.altitude_m, "a positive height in m")
+        check(self.replan_drift_m > 0, "replan_drift_m", self.replan_drift_m, "> 0 m")
+        check(self.check_period_s > 0, "check_period_s", self.check_period_s, "> 0 s")
+        check(self.start_after_s >= 0, "start_after_s", self.start_after_s, ">= 0 s")
+        check(self.retry_period_s > 0, "retry_period_s", self.retry_period_s, "> 0 s")

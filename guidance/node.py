@@ -26,28 +26,26 @@ computer), at the first drift check after the trigger.
 
 from __future__ import annotations
 
-import dataclasses
-import json
 import logging
 import math
 import queue
 import threading
-from dataclasses import dataclass
 from enum import Enum
 from pathlib import Path
 
 import numpy as np
 
-from guidance.config import PlannerConfig, RouteEnd
+from guidance.config import GuidanceRunConfig, PlannerConfig
 from guidance.mavlink_client import AutopilotLink, MavlinkClientError, MissionWaypoint
 from guidance.planner import PlannedRoute, join_legs, plan_through
-from guidance.route import WorldInfo, load_assistant_map
 from guidance.smoothing import polyline_length
 from scenenav.core.bus import Bus, BusConfig
-from scenenav.core.config import check
 from scenenav.core.contracts import (AutopilotStatus, ClockMode, ClockTick, Event, LockstepAck,
                                 LockstepRole, NavEstimate, NodeInfo, RunState, Severity)
 from scenenav.core.errors import UserError
+from scenenav.core.formats.assistant_map_file import read_probability_map
+from scenenav.core.formats.route_file import ROUTE_FORMAT_VERSION, round_or_none, write_route_json
+from scenenav.core.formats.world_manifest import WorldManifest
 from scenenav.core.geometry import distance_to_polyline_m
 from scenenav.core.keys import Keys
 from scenenav.core.frames import enu_to_geodetic
@@ -63,31 +61,6 @@ class Phase(str, Enum):
     WAITING = "waiting"      # before the mission is started
     FLYING = "flying"        # mission running; drift and map checks
     DONE = "done"            # landed, or gave up
-
-
-@dataclass(frozen=True)
-class GuidanceNodeConfig:
-    """What the node needs beyond the planner parameters (units in the names)."""
-
-    start_enu_m: tuple[float, float] = (0.0, 0.0)   # take-off point, world metres (east, north)
-    goals_enu_m: tuple[tuple[float, float], ...] = ((0.0, 0.0),)   # via-points and goal
-    assistant_map: str = ""                         # .npz with key ``probability``
-    altitude_m: float = 100.0                       # cruise altitude above home
-    end: RouteEnd = RouteEnd.LAND                   # after the last waypoint
-    replan_drift_m: float = 40.0                    # replan when this far off the route
-    check_period_s: float = 1.0                     # simulated seconds between checks
-    start_after_s: float = 1.0                      # simulated seconds before the first start try
-    retry_period_s: float = 1.0                     # simulated seconds between start tries
-    mavlink_url: str = "tcp:127.0.0.1:5760"
-    lockstep: bool = True                           # hold the simulator while starting the mission
-
-    def __post_init__(self) -> None:
-        check(len(self.goals_enu_m) >= 1, "goals_enu_m", self.goals_enu_m, "at least one goal")
-        check(self.altitude_m > 0, "altitude_m", self.altitude_m, "a positive height in m")
-        check(self.replan_drift_m > 0, "replan_drift_m", self.replan_drift_m, "> 0 m")
-        check(self.check_period_s > 0, "check_period_s", self.check_period_s, "> 0 s")
-        check(self.start_after_s >= 0, "start_after_s", self.start_after_s, ">= 0 s")
-        check(self.retry_period_s > 0, "retry_period_s", self.retry_period_s, "> 0 s")
 
 
 def cross_track_m(route_xy: np.ndarray, p_xy: np.ndarray) -> float:
@@ -117,7 +90,7 @@ def remaining_goals(goals: tuple[tuple[float, float], ...], reached: int) -> tup
 class GuidanceNode:
     """See the module docstring. ``run()`` blocks until stopped or the vehicle has landed."""
 
-    def __init__(self, world: WorldInfo, bus_cfg: BusConfig, cfg: GuidanceNodeConfig,
+    def __init__(self, world: WorldManifest, bus_cfg: BusConfig, cfg: GuidanceRunConfig,
                  planner_cfg: PlannerConfig | None = None, out_dir: Path | None = None):
         self.world = world
         self.cfg = cfg
@@ -168,7 +141,7 @@ class GuidanceNode:
     def _probability(self) -> np.ndarray:
         path = Path(self.cfg.assistant_map)
         self._map_mtime = path.stat().st_mtime
-        return load_assistant_map(path).probability
+        return read_probability_map(path).probability
 
     def _map_changed(self) -> bool:
         try:
@@ -197,8 +170,9 @@ class GuidanceNode:
         lat, lon = enu_to_geodetic(self.route_xy[:, 0], self.route_xy[:, 1],
                                    self.world.origin_lat_deg, self.world.origin_lon_deg)
         doc = {
-            "format_version": 1, "replan": self.replans, "sim_time_s": self._last_t_us * 1e-6,
-            "length_m": round(float(length_m), 2), "min_clearance_m": _finite(clearance_m),
+            "format_version": ROUTE_FORMAT_VERSION, "replan": self.replans,
+            "sim_time_s": self._last_t_us * 1e-6,
+            "length_m": round(float(length_m), 2), "min_clearance_m": round_or_none(clearance_m, 3),
             "straight_line_bad_fraction": [round(leg.straight_line_bad_fraction, 4) for leg in self.legs],
             "route_bad_fraction": [round(leg.route_bad_fraction, 4) for leg in self.legs],
             "waypoints": [{"x_m": round(float(x), 3), "y_m": round(float(y), 3),
@@ -207,7 +181,7 @@ class GuidanceNode:
             "assistant_map": str(self.cfg.assistant_map),
             "planner": self.legs[0].planner_params(),
         }
-        (self.out_dir / name).write_text(json.dumps(doc, indent=2))
+        write_route_json(self.out_dir / name, doc)
 
     def _mission(self) -> list[MissionWaypoint]:
         # The first point is the take-off (or replan) position: not a waypoint to fly to.
@@ -333,23 +307,3 @@ class GuidanceNode:
         self.stop()
         self.bus.close()
         return dict(self.stats, phase=self.phase.value, replans=self.replans)
-
-
-def _finite(value: float) -> float | None:
-    return round(float(value), 3) if math.isfinite(value) else None
-
-
-def node_config_from_scenario(cfg, mavlink_port: int, lockstep: bool) -> tuple[GuidanceNodeConfig, PlannerConfig]:
-    """GuidanceNodeConfig + PlannerConfig from a ScenarioConfig (flight and guidance sections)."""
-    g = cfg.guidance
-    end = RouteEnd.RTL if cfg.autopilot.mission_end.value == "rtl" else RouteEnd.LAND
-    node_cfg = GuidanceNodeConfig(
-        start_enu_m=tuple(cfg.flight.start_enu_m), goals_enu_m=tuple(tuple(p) for p in g.goals_enu_m),
-        assistant_map=g.assistant_map, altitude_m=cfg.flight.altitude_m, end=end,
-        replan_drift_m=g.replan_drift_m, check_period_s=g.check_period_s,
-        start_after_s=g.start_after_s, mavlink_url=f"tcp:127.0.0.1:{mavlink_port}", lockstep=lockstep)
-    planner_cfg = dataclasses.replace(
-        PlannerConfig(), altitude_m=cfg.flight.altitude_m, camera_fov_deg=cfg.sim.camera.fov_deg,
-        footprint_m=g.footprint_m, clearance_m=g.clearance_m, unvisited_weight=g.unvisited_weight,
-        cruise_speed_m_s=cfg.flight.speed_m_s, waypoint_spacing_m=g.waypoint_spacing_m)
-    return node_cfg, planner_cfg

@@ -32,6 +32,7 @@ from guidance.potential_field import (DescentStatus, PlanningGrid, PotentialFiel
 from guidance.smoothing import (FieldChecker, densify, polyline_length, round_corners, shortcut,
                                 subdivide)
 from scenenav.core.errors import UserError
+from scenenav.core.formats.route_file import round_or_none
 from scenenav.core.frames import world_to_pixel
 
 log = logging.getLogger(__name__)
@@ -88,7 +89,7 @@ class PlannedRoute:
             "cruise_speed_m_s": c.cruise_speed_m_s,
             "max_lateral_accel_m_s2": c.max_lateral_accel_m_s2,
             "turn_radius_m": round(c.turn_radius_m, 3),
-            "min_turn_radius_m": _finite_or_none(self.min_turn_radius_m),
+            "min_turn_radius_m": round_or_none(self.min_turn_radius_m, 3),
             "waypoint_spacing_m": c.waypoint_spacing_m,
             "influence_distance_m": c.influence_distance_m,
             "attractive_gain": c.attractive_gain,
@@ -100,10 +101,6 @@ class PlannedRoute:
             "route_unvisited_fraction": round(self.route_unvisited_fraction, 5),
             "plan_time_s": round(self.plan_time_s, 3),
         }
-
-
-def _finite_or_none(value: float) -> float | None:
-    return round(float(value), 3) if math.isfinite(value) else None
 
 
 def _fmt_xy(xy) -> str:

@@ -7,7 +7,8 @@ the heading therefore makes it north-up; in (u right, v down) pixel coordinates 
 ``[[cos h, -sin h], [sin h, cos h]]``.
 
 The camera ground sampling distance is ``footprint / width`` with ``footprint = 2 h tan(fov / 2)``
-(``fov`` is the horizontal field of view, pixels are square), and the template is resampled by
+(``fov`` is the horizontal field of view, pixels are square;
+``scenenav.core.camera_geometry.ground_footprint_m``), and the template is resampled by
 ``scale = camera_m_per_px / map_m_per_px``. Rotation and scale are one affine transform applied with a
 single ``cv2.warpAffine`` (bilinear); the image centre (the nadir point) maps exactly to the template
 centre, so the matched template centre is the drone's horizontal position.
@@ -25,6 +26,7 @@ import cv2
 import numpy as np
 
 from perception.config import CropMode
+from scenenav.core.camera_geometry import ground_footprint_m
 
 log = logging.getLogger(__name__)
 
@@ -75,11 +77,6 @@ class AlignedCapture:
         return bool(self.mask.all())
 
 
-def footprint_m(altitude_m: float, fov_deg: float) -> float:
-    """Ground width seen by a nadir camera: 2 h tan(fov / 2)."""
-    return 2.0 * altitude_m * math.tan(math.radians(fov_deg) / 2.0)
-
-
 def to_gray_float32(image: np.ndarray) -> np.ndarray:
     """uint8/float32 grey or RGB(A) image -> float32 grey in [0, 1] (one conversion, no extra copies).
 
@@ -114,7 +111,8 @@ def to_gray_float32(image: np.ndarray) -> np.ndarray:
     return np.ascontiguousarray(gray, dtype=np.float32)
 
 
-def _check_sensor(name: str, value: float) -> float:
+def finite_number(name: str, value: float) -> float:
+    """``value`` as a float; BadInput naming ``name`` when it is not a finite number."""
     try:
         v = float(value)
     except (TypeError, ValueError):
@@ -137,20 +135,20 @@ def align_capture(image: np.ndarray, heading_rad: float, altitude_m: float, fov_
     TemplateTooLarge (before any resampling) when the template would be wider or taller than
     ``max_template_px`` = (width, height), e.g. the reference map's size.
     """
-    heading = _check_sensor("heading_rad", heading_rad)
-    altitude = _check_sensor("altitude_m", altitude_m)
+    heading = finite_number("heading_rad", heading_rad)
+    altitude = finite_number("altitude_m", altitude_m)
     if altitude <= 0.0:
         raise BadInput(f"altitude_m = {altitude_m!r}: expected > 0 (metres above ground)")
-    fov = _check_sensor("fov_deg", fov_deg)
+    fov = finite_number("fov_deg", fov_deg)
     if not 0.0 < fov < 180.0:
         raise BadInput(f"fov_deg = {fov_deg!r}: expected a number in (0, 180)")
-    mpp = _check_sensor("map_m_per_px", map_m_per_px)
+    mpp = finite_number("map_m_per_px", map_m_per_px)
     if mpp <= 0.0:
         raise BadInput(f"map_m_per_px = {map_m_per_px!r}: expected > 0")
 
     gray = to_gray_float32(image)
     h_src, w_src = gray.shape
-    foot = footprint_m(altitude, fov)
+    foot = ground_footprint_m(altitude, fov)
     cam_mpp = foot / w_src
     scale = cam_mpp / mpp
     c, s = math.cos(heading), math.sin(heading)

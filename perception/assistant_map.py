@@ -16,7 +16,6 @@ from __future__ import annotations
 import datetime as _dt
 import logging
 import math
-import zipfile
 from enum import Enum, IntEnum
 from pathlib import Path
 from typing import Callable
@@ -24,13 +23,14 @@ from typing import Callable
 import cv2
 import numpy as np
 
-from perception.alignment import footprint_m
 from perception.decision import P_BAD_THRESHOLD, split_classifier_output
+from perception.matchability import footprint_px
 from scenenav.core.errors import UserError
+from scenenav.core.formats.assistant_map_file import (AssistantMapFile, read_assistant_map_file,
+                                                     write_assistant_map_file)
 
 log = logging.getLogger(__name__)
 
-FORMAT_VERSION = 1
 #: Figure 6 colours (8-bit grey levels).
 GREY_FALSE = 0
 GREY_TRUE = 255
@@ -38,9 +38,6 @@ GREY_UNVISITED = 128
 #: Continuous mode: unvisited pixels in this RGB colour (p itself is the grey level).
 RGB_UNVISITED_CONTINUOUS = (40, 70, 160)
 _U8_MAX = 255.0
-_META_STR = ("world_name", "created_utc", "method", "model_id")
-_META_INT = ("width_px", "height_px", "stride_px", "format_version")
-_META_FLOAT = ("m_per_px",)
 
 ClassifyBatch = Callable[[np.ndarray], np.ndarray]
 Progress = Callable[[int, int], None]
@@ -92,7 +89,7 @@ class AssistantMap:
             self.probability = np.ascontiguousarray(probability, dtype=np.float32)
 
     @classmethod
-    def empty(cls, width_px: int, height_px: int, m_per_px: float, **metadata: str | int) -> "AssistantMap":
+    def empty(cls, width_px: int, height_px: int, m_per_px: float, **metadata: str | int) -> AssistantMap:
         """An all-unvisited map (keyword metadata: world_name, method, stride_px, model_id)."""
         return cls(width_px, height_px, m_per_px, **metadata)
 
@@ -142,69 +139,29 @@ class AssistantMap:
 
     # ------------------------------------------------------------------------------ files
     def save(self, path: str | Path) -> Path:
-        """Write a compressed .npz (``probability`` + metadata). Returns the path written."""
-        p = Path(path)
-        if p.suffix != ".npz":
-            p = p.with_suffix(p.suffix + ".npz") if p.suffix else p.with_suffix(".npz")
-        try:
-            p.parent.mkdir(parents=True, exist_ok=True)
-            np.savez_compressed(
-                p, probability=self.probability, format_version=np.int64(FORMAT_VERSION),
-                world_name=np.str_(self.world_name), width_px=np.int64(self.width_px),
-                height_px=np.int64(self.height_px), m_per_px=np.float64(self.m_per_px),
-                created_utc=np.str_(self.created_utc), method=np.str_(self.method),
-                stride_px=np.int64(self.stride_px), model_id=np.str_(self.model_id))
-        except OSError as exc:
-            raise UserError(f"{p}: cannot write the assistant map ({exc.strerror or exc})") from None
+        """Write a compressed .npz (``probability`` + metadata; the format is
+        ``scenenav.core.formats.assistant_map_file``). Returns the path written."""
+        p = write_assistant_map_file(path, self.to_file())
         log.info("assistant map %s written (%dx%d, coverage %.1f %%)", p, self.width_px,
                  self.height_px, 100.0 * self.coverage())
         return p
 
+    def to_file(self) -> AssistantMapFile:
+        """The file content of this map."""
+        return AssistantMapFile(probability=self.probability, m_per_px=self.m_per_px,
+                                world_name=self.world_name, method=self.method,
+                                stride_px=self.stride_px, model_id=self.model_id,
+                                created_utc=self.created_utc)
+
     @classmethod
     def load(cls, path: str | Path, width_px: int | None = None, height_px: int | None = None,
-             m_per_px: float | None = None) -> "AssistantMap":
+             m_per_px: float | None = None) -> AssistantMap:
         """Read a map written by ``save``. One-line UserError on a missing/wrong file, and when the
         size (or resolution) differs from the expected reference map's."""
-        p = Path(path)
-        if not p.is_file():
-            raise UserError(f"{p}: no such file (expected an assistant map .npz)")
-        try:
-            with np.load(p, allow_pickle=False) as data:
-                fields = {k: data[k] for k in data.files}
-        except (OSError, ValueError, EOFError, zipfile.BadZipFile) as exc:
-            raise UserError(f"{p}: not a readable .npz assistant map ({type(exc).__name__})") from None
-        missing = [k for k in ("probability",) + _META_INT + _META_FLOAT if k not in fields]
-        if missing:
-            raise UserError(f"{p}: not an assistant map (missing '{missing[0]}'; expected the keys "
-                            f"written by AssistantMap.save)")
-        try:
-            meta = {k: int(fields[k]) for k in _META_INT}
-            meta.update({k: float(fields[k]) for k in _META_FLOAT})
-            meta.update({k: str(fields[k]) if k in fields else "" for k in _META_STR})
-        except (TypeError, ValueError):
-            raise UserError(f"{p}: assistant map metadata is malformed") from None
-        if meta["format_version"] != FORMAT_VERSION:
-            raise UserError(f"{p}: assistant map format_version {meta['format_version']}: expected "
-                            f"{FORMAT_VERSION}")
-        prob = fields["probability"]
-        if prob.ndim != 2 or prob.dtype != np.float32:
-            raise UserError(f"{p}: probability is {prob.dtype} {prob.shape}: expected float32 (H, W)")
-        h, w = prob.shape
-        if (w, h) != (meta["width_px"], meta["height_px"]):
-            raise UserError(f"{p}: probability is {w}x{h} px but the metadata says "
-                            f"{meta['width_px']}x{meta['height_px']} px")
-        if (width_px is not None and w != width_px) or (height_px is not None and h != height_px):
-            raise UserError(f"{p}: assistant map is {w}x{h} px: expected {width_px}x{height_px} px "
-                            f"(the size of the reference map)")
-        if m_per_px is not None and not math.isclose(meta["m_per_px"], m_per_px, rel_tol=1e-6):
-            raise UserError(f"{p}: assistant map resolution {meta['m_per_px']} m/px: expected "
-                            f"{m_per_px} m/px (the reference map's)")
-        known = prob[~np.isnan(prob)]
-        if known.size and (known.min() < 0.0 or known.max() > 1.0):
-            raise UserError(f"{p}: probability values outside [0, 1]")
-        return cls(w, h, meta["m_per_px"], world_name=meta["world_name"], method=meta["method"],
-                   stride_px=meta["stride_px"], model_id=meta["model_id"], probability=prob,
-                   created_utc=meta["created_utc"] or None)
+        f = read_assistant_map_file(path, width_px, height_px, m_per_px)
+        return cls(f.width_px, f.height_px, f.m_per_px, world_name=f.world_name, method=f.method,
+                   stride_px=f.stride_px, model_id=f.model_id, probability=f.probability,
+                   created_utc=f.created_utc or None)
 
     def render_image(self, mode: RenderMode = RenderMode.BINARY,
                      threshold: float = P_BAD_THRESHOLD) -> np.ndarray:
@@ -262,7 +219,7 @@ def build_assistant_map(reference_gray: np.ndarray, classify_batch: ClassifyBatc
         raise ValueError("stride_px, batch_size and cnn_input_px must be positive integers")
     h, w = reference_gray.shape
     stride = int(stride_px)
-    fp = int(math.floor(footprint_m(altitude_m, fov_deg) / m_per_px + 1e-9))
+    fp = footprint_px(altitude_m, fov_deg, m_per_px)
     n_rows, n_cols = math.ceil(h / stride), math.ceil(w / stride)
     cells = np.full((n_rows, n_cols), np.nan, dtype=np.float32)
 

@@ -1,4 +1,7 @@
-"""Configuration of the perception algorithms (frozen dataclasses, units in the key names).
+"""Configuration of the perception algorithms and node (frozen dataclasses, units in the key names).
+
+``PerceptionNodeConfig`` is the scenario's ``perception`` section; ``ExpectedCamera`` is the camera the
+node is configured for (derived by the app layer from ``sim.camera``).
 
 Loaded with ``scenenav.core.config.load_config(PerceptionConfig, mapping)``; range checks raise
 ``ConfigError`` through ``scenenav.core.config.check``. See docs/perception.md for what each key does.
@@ -119,7 +122,7 @@ class PerceptionConfig:
     """The whole perception pipeline (alignment, matcher, decision)."""
 
     method: FalseMatchMethod = FalseMatchMethod.NONE
-    fov_deg: float = 60.0                      # camera horizontal field of view
+    fov_deg: float = 60.0                      # horizontal FOV of a capture that does not state its own
     crop_mode: CropMode = CropMode.INSCRIBED_SQUARE
     cnn_input_px: int = 200                    # the classifier sees (N, cnn_input_px, cnn_input_px)
     p_bad_threshold: float = P_BAD_THRESHOLD   # paper 5.4: reject when P(bad) > 0.5
@@ -149,3 +152,59 @@ class PerceptionConfig:
               self.assistant_patch_max_px, "an integer >= 1")
         check(self.true_match_tolerance_m > 0.0, "perception.true_match_tolerance_m",
               self.true_match_tolerance_m, "a positive number")
+
+
+@dataclass(frozen=True)
+class PerceptionNodeConfig:
+    """The ``perception`` section of a scenario: which perception node(s) a run starts and how."""
+
+    enabled: bool = True
+    method: str = "none"               # cnn | assistant-map | statistical | none
+    assistant_map: str = ""            # .npz for method assistant-map (empty: built online)
+    weights: str = ""                  # CNN weights .pt (empty: perception/weights/default.pt)
+    lockstep: bool = True              # the simulator waits for this node's answer to each frame
+    decision_rule: str = "paper"       # cnn, assistant-map: paper (P(bad) > 0.5) or combined (docs/perception.md)
+    decision_model: str = ""           # combined rule: model .json (empty: the shipped one)
+    swap_at_s: float = 0.0             # > 0: at this simulated time a second node takes over (swap)
+    swap_method: str = "statistical"   # method of that second node (perception-2)
+
+    def __post_init__(self) -> None:
+        methods = ("cnn", "assistant-map", "statistical", "none")
+        check(self.method in methods, "method", self.method, "one of cnn, assistant-map, statistical, none")
+        check(self.decision_rule in ("paper", "combined"), "decision_rule", self.decision_rule,
+              "paper or combined")
+        check(not (self.decision_rule == "combined" and self.weights.endswith(".pt")), "weights",
+              self.weights, "empty with decision_rule combined (the decision model names the CNN it "
+              "was fitted with; choose another model with decision_model)")
+        check(self.swap_at_s >= 0, "swap_at_s", self.swap_at_s, ">= 0 s (0 = no swap)")
+        check(self.swap_method in methods, "swap_method", self.swap_method,
+              "one of cnn, assistant-map, statistical, none")
+
+
+#: A frame's FOV may differ from the expected one by this much (JSON round trip, config rounding).
+FOV_TOLERANCE_DEG = 1e-6
+
+
+@dataclass(frozen=True)
+class ExpectedCamera:
+    """The camera the perception node expects (the app layer derives it from the scenario's
+    ``sim.camera`` section). A ``CameraFrame`` that contradicts it is refused."""
+
+    fov_deg: float = 60.0          # horizontal field of view
+    width_px: int = 200
+    height_px: int = 200
+
+    def __post_init__(self) -> None:
+        check(0.0 < self.fov_deg < 170.0, "fov_deg", self.fov_deg, "a number in (0, 170)")
+        check(self.width_px >= 8 and self.height_px >= 8, "width_px/height_px",
+              (self.width_px, self.height_px), "integers >= 8")
+
+    def mismatch(self, fov_deg: float, width_px: int, height_px: int) -> str | None:
+        """What in a frame's camera (FOV, size) contradicts this one; None when it matches."""
+        problems = []
+        if (width_px, height_px) != (self.width_px, self.height_px):
+            problems.append(f"{width_px}x{height_px} px, expected {self.width_px}x{self.height_px} px")
+        if not (math.isfinite(fov_deg) and math.isclose(fov_deg, self.fov_deg, rel_tol=0.0,
+                                                        abs_tol=FOV_TOLERANCE_DEG)):
+            problems.append(f"fov {fov_deg!r} deg, expected {self.fov_deg} deg")
+        return "; ".join(problems) or None

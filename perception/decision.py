@@ -51,13 +51,6 @@ def decide_from_p_bad(p_bad: float, threshold: float = P_BAD_THRESHOLD) -> Decis
     return Decision.REJECT if p_bad > threshold else Decision.ACCEPT
 
 
-def decide_from_p_true(p_true: float, threshold: float = P_BAD_THRESHOLD) -> Decision:
-    """Same rule expressed on the assistant-map value p_true = 1 - P(bad)."""
-    if not math.isfinite(p_true):
-        raise ValueError(f"p_true = {p_true!r}: expected a probability in [0, 1]")
-    return decide_from_p_bad(1.0 - p_true, threshold)
-
-
 def split_classifier_output(output: np.ndarray, n_images: int) -> tuple[np.ndarray, np.ndarray | None]:
     """Classifier output -> (P(bad) as float64 (N,), class probabilities (N, K) or None).
 

@@ -1,4 +1,7 @@
-"""Fitting and checking the combined decision rule (``scenenav cnn decision-data`` / ``fit-decision``).
+"""The fit of the combined decision rule: logistic regression, threshold choice, cross-validation.
+
+Pure numpy; the flights and the run folders are read by the app layer
+(``scenenav/app/decision_data.py``: ``scenenav cnn decision-data`` / ``fit-decision``).
 
 Data: full lockstep flights (``scenenav run``, the Table-2 path: the bowtie fitted to the world,
 100 m, 10 m/s, method ``cnn``) over generated TRAINING worlds. Every fix gives two samples from
@@ -20,76 +23,31 @@ world are never read by the fit.
 
 from __future__ import annotations
 
-import json
 import logging
 import math
-import platform
-import time
-from pathlib import Path
+from dataclasses import dataclass
 
 import numpy as np
 
-from perception.decision import (COMBINED_FEATURES, VARIANCE_WINDOWS, CombinedDecisionModel,
-                                 TrackEvidence, combined_features)
-from perception.statistical import StatisticalDetector
-from scenenav.core.errors import UserError
+from perception.decision import CombinedDecisionModel
 
 log = logging.getLogger(__name__)
 
+#: The two methods whose samples are pooled: the online CNN, and the flight's assistant map.
 SOURCES = ("cnn", "assistant-map")
-NODE_ID = "perception"
 
 
-# ------------------------------------------------------------------------------ samples
-def flight_samples(run_dir: str | Path, threshold_m: float = 5.0) -> dict:
-    """Features and labels of one ``cnn`` flight folder (see the module docstring)."""
-    from perception.assistant_map import AssistantMap
-    from scenenav.app.evaluation import fix_table, read_csv
-    run_dir = Path(run_dir)
-    fx = fix_table(run_dir, threshold_m)
-    diag = read_csv(run_dir / f"perception_diag_{NODE_ID}.csv")
-    amap_path = run_dir / f"assistant_map_{NODE_ID}.npz"
-    if not fx or not diag or not amap_path.is_file():
-        raise UserError(f"{run_dir}: not a finished cnn flight with perception diagnostics "
-                        f"(fixes.csv, perception_diag_{NODE_ID}.csv, assistant_map_{NODE_ID}.npz)")
-    seq_fx = fx["frame_seq"].astype(np.int64)
-    seq_d = diag["frame_seq"].astype(np.int64)
-    pos = {int(s): i for i, s in enumerate(seq_d)}
-    keep = np.array([int(s) in pos for s in seq_fx]) & (fx["valid"] > 0.5)
-    idx_fx = np.flatnonzero(keep)
-    idx_d = np.array([pos[int(seq_fx[i])] for i in idx_fx], dtype=np.int64)
-    amap = AssistantMap.load(amap_path)
-    m_per_px = amap.m_per_px
-    p_online = fx["p_bad"][idx_fx]
-    du, dv = diag["drone_u_px"][idx_d], diag["drone_v_px"][idx_d]
-    p_map = np.array([1.0 - amap.lookup(u, v) for u, v in zip(du, dv)])
-    p_map = np.where(np.isfinite(p_map), p_map, p_online)
-    innov = diag["innovation_px"][idx_d] * m_per_px
-    # TrackEvidence replayed exactly as the pipeline feeds it: every valid match, in order.
-    ev = TrackEvidence()
-    run, dr_innov, dr_age, reach = (np.empty(len(idx_d)) for _ in range(4))
-    for k, j in enumerate(idx_d):
-        run[k], dr_innov[k], dr_age[k], reach[k] = ev.observe(
-            float(diag["t_s"][j]), (float(diag["u_px"][j]), float(diag["v_px"][j])),
-            bool(diag["quality_ok"][j] > 0.5), str(diag["search"][j]) != "window")
-    dr_innov *= m_per_px
-    reach *= m_per_px
-    peak, psr, spr = (diag[k][idx_d] for k in ("ncc_peak", "ncc_psr", "ncc_second_peak_ratio"))
-    # The statistical indicators as the pipeline computes them: every valid fix, in order.
-    variances = []
-    for w in VARIANCE_WINDOWS:
-        det = StatisticalDetector(w)
-        variances.append(np.array([det.update(x, y, t)[1] for x, y, t in zip(
-            fx["x_m"][idx_fx], fx["y_m"][idx_fx], fx["t_s"][idx_fx])]))
-    out = {"world": run_dir.name, "y": fx["is_false"][idx_fx].astype(bool),
-           "error_m": fx["error_m"][idx_fx], "t_s": fx["t_s"][idx_fx]}
-    for src, p_bad in (("cnn", p_online), ("assistant-map", p_map)):
-        out[src] = np.array([combined_features(pb, pk, ps, sp, inn, int(rn), di, da, v30, v10, re)
-                             for pb, pk, ps, sp, inn, rn, di, da, v30, v10, re
-                             in zip(p_bad, peak, psr, spr, innov, run, dr_innov, dr_age, *variances,
-                                    reach)])
-        out[f"p_bad_{src}"] = p_bad
-    return out
+@dataclass(frozen=True)
+class FlightSamples:
+    """The samples of one flight: per valid fix the label and, per source (``SOURCES``), the
+    combined-rule features and the area P(bad) they were computed from."""
+
+    world: str
+    y: np.ndarray                       # bool: a false fix (error above the threshold)
+    error_m: np.ndarray                 # fix error against the simulator's truth
+    t_s: np.ndarray
+    features: dict[str, np.ndarray]     # source -> (N, len(COMBINED_FEATURES))
+    p_bad: dict[str, np.ndarray]        # source -> (N,)
 
 
 # ------------------------------------------------------------------------------ logistic fit
@@ -146,12 +104,13 @@ def rejection_scores(y: np.ndarray, reject: np.ndarray, error_m: np.ndarray | No
     return out
 
 
-def _pool(samples: list[dict], sources: tuple[str, ...]) -> tuple[np.ndarray, np.ndarray]:
+def pool_samples(samples: list[FlightSamples], sources: tuple[str, ...]) -> tuple[np.ndarray, np.ndarray]:
+    """Features and labels of ``samples`` (one per flight), every source stacked."""
     xs, ys = [], []
     for s in samples:
         for src in sources:
-            xs.append(s[src])
-            ys.append(s["y"])
+            xs.append(s.features[src])
+            ys.append(s.y)
     return np.vstack(xs), np.concatenate(ys)
 
 
@@ -165,149 +124,25 @@ def choose_threshold(p: np.ndarray, y: np.ndarray, target_recall: float) -> floa
     return float(min(0.5, max(1e-4, t)))
 
 
-def cross_validate(samples: list[dict], l2: float, target_recall: float,
+def cross_validate(samples: list[FlightSamples], l2: float, target_recall: float,
                    sources: tuple[str, ...] = SOURCES) -> dict:
     """Leave-one-world-out: out-of-world P(false) for every sample, the chosen threshold, scores."""
     oof = []
     for i, held in enumerate(samples):
         train = [s for j, s in enumerate(samples) if j != i]
-        x, y = _pool(train, sources)
+        x, y = pool_samples(train, sources)
         m = make_model(x, y, l2)
-        oof.append({src: m.p_false(held[src]) for src in SOURCES})
+        oof.append({src: m.p_false(held.features[src]) for src in SOURCES})
     p_all = np.concatenate([o[src] for o in oof for src in sources])
-    y_all = np.concatenate([s["y"] for s in samples for _ in sources])
+    y_all = np.concatenate([s.y for s in samples for _ in sources])
     thr = choose_threshold(p_all, y_all, target_recall)
     per = {}
     for src in SOURCES:
         p = np.concatenate([o[src] for o in oof])
-        y = np.concatenate([s["y"] for s in samples])
-        e = np.concatenate([s["error_m"] for s in samples])
+        y = np.concatenate([s.y for s in samples])
+        e = np.concatenate([s.error_m for s in samples])
         per[src] = {"t=0.5": rejection_scores(y, p > 0.5, e),
                     "t=chosen": rejection_scores(y, p > thr, e)}
-        per[src]["per_world"] = {s["world"]: rejection_scores(s["y"], o[src] > thr, s["error_m"])
+        per[src]["per_world"] = {s.world: rejection_scores(s.y, o[src] > thr, s.error_m)
                                  for s, o in zip(samples, oof)}
     return {"threshold": thr, "scores": per}
-
-
-# ------------------------------------------------------------------------------ flights
-def fly_cnn(world_dir: str | Path, run_dir: str | Path, weights: str = "", seed: int = 0,
-            progress: bool = False) -> dict:
-    """One Table-2 style flight (bowtie, scripted, method cnn) over ``world_dir``."""
-    from scenenav.app.launcher import run
-    from scenenav.app.nodes import load_world_for
-    from scenenav.app.scenario import load_scenario, route_for
-    base = ["flight.mode=scripted", f"seed={seed}", f"world={Path(world_dir).resolve()}"]
-    cfg0 = load_scenario(None, tuple(base))
-    route = route_for(cfg0, load_world_for(cfg0))
-    sets = base + ["flight.route_enu_m=" + json.dumps([list(p) for p in route]),
-                   "duration_s=100000", "perception.method=cnn", "name=decision-data-cnn"]
-    if weights:
-        sets.append(f"perception.weights={Path(weights).resolve()}")
-    return run(None, str(run_dir), tuple(sets), progress=progress)
-
-
-def collect(out: str | Path, world_seeds: tuple[int, ...], size_px: tuple[int, int] = (900, 1000),
-            weights: str = "", progress: bool = False, command: str = "") -> list[Path]:
-    """Generate each training world and fly it once with the online CNN (skips finished ones).
-    Writes ``manifest.json`` (command, seeds, size, weights) beside ``worlds/`` and ``flights/``."""
-    from worlds.generator import CityConfig, generate_world
-    reserved = sorted(set(world_seeds) & RESERVED_SEEDS)
-    if reserved:
-        raise UserError(f"world seed(s) {reserved} reserved for held-out evaluation "
-                        f"({sorted(RESERVED_SEEDS)}); choose other training seeds")
-    out = Path(out)
-    (out / "worlds").mkdir(parents=True, exist_ok=True)
-    runs = []
-    for seed in world_seeds:
-        wdir = out / "worlds" / f"w{seed}"
-        if not (wdir / "manifest.json").is_file():
-            world = generate_world(CityConfig(seed=seed, width_px=size_px[0], height_px=size_px[1]),
-                                   name=f"w{seed}")
-            world.save(wdir)
-        rdir = out / "flights" / f"w{seed}"
-        if not (rdir / "summary.json").is_file():
-            if rdir.exists():
-                raise UserError(f"{rdir}: an unfinished flight; delete it and run again")
-            log.info("decision data: flying world %d", seed)
-            fly_cnn(wdir, rdir, weights, progress=progress)
-        runs.append(rdir)
-    (out / "manifest.json").write_text(json.dumps({
-        "command": command, "world_seeds": list(world_seeds), "world_size_px": list(size_px),
-        "weights": str(Path(weights).resolve()) if weights else "perception/weights/default.pt",
-        "flights": [str(r) for r in runs]}, indent=2) + "\n")
-    return runs
-
-
-#: Never used for fitting: the default world (seed 0) and the held-out evaluation worlds.
-RESERVED_SEEDS = frozenset({0, 9001, 9002, 9003, 9101, 9102, 9103})
-#: Training worlds of the shipped model (disjoint from the CNN's training worlds 1-12 too).
-DEFAULT_TRAIN_SEEDS = tuple(range(101, 111))
-
-
-def flight_dirs_under(path: str | Path) -> list[Path]:
-    """Finished flight folders: ``path`` itself, ``path/flights/*`` or ``path/*`` (sorted)."""
-    p = Path(path)
-    if (p / "fixes.csv").is_file():
-        return [p]
-    base = p / "flights" if (p / "flights").is_dir() else p
-    dirs = sorted(d for d in base.iterdir() if (d / "summary.json").is_file()) if base.is_dir() else []
-    if not dirs:
-        raise UserError(f"{p}: no finished flights found")
-    return dirs
-
-
-def fit_decision(flight_dirs: list[Path], out: str | Path, cnn_weights: str, l2: float = 1.0,
-                 target_recall: float = 0.987, command: str = "",
-                 data_manifest: dict | None = None) -> CombinedDecisionModel:
-    """LOWO cross-validation, threshold choice, final fit on all flights; writes the model JSON."""
-    t0 = time.perf_counter()
-    samples = [flight_samples(d) for d in flight_dirs]
-    if len(samples) < 2:
-        raise UserError("fit-decision needs flights over at least two training worlds")
-    cv = cross_validate(samples, l2, target_recall)
-    x, y = _pool(samples, SOURCES)
-    out = Path(out)
-    cnn_rel = ""
-    if cnn_weights:
-        cw = Path(cnn_weights).resolve()
-        try:
-            cnn_rel = str(cw.relative_to(out.resolve().parent))
-        except ValueError:
-            cnn_rel = str(cw)
-    meta = {
-        "command": command,
-        "data": data_manifest or {},
-        "training_worlds": [s["world"] for s in samples],
-        "flight_dirs": [str(d) for d in flight_dirs],
-        "samples": int(len(y)), "false_samples": int(y.sum()),
-        "sources": list(SOURCES), "l2": l2, "target_recall": target_recall,
-        "threshold_rule": "largest threshold with pooled leave-one-world-out recall >= target_recall",
-        "cross_validation": cv["scores"],
-        "wall_time_s": None, "python": platform.python_version(), "numpy": np.__version__,
-    }
-    model = make_model(x, y, l2, threshold=cv["threshold"], cnn_weights=cnn_rel, meta=meta)
-    train_scores = {src: rejection_scores(np.concatenate([s["y"] for s in samples]),
-                                          np.concatenate([model.p_false(s[src]) for s in samples])
-                                          > model.threshold,
-                                          np.concatenate([s["error_m"] for s in samples]))
-                    for src in SOURCES}
-    meta["training_fit"] = train_scores
-    meta["coefficients_raw"] = {f: float(w) for f, w in zip(COMBINED_FEATURES, model._w)}
-    meta["intercept_raw"] = float(model._b)
-    meta["wall_time_s"] = round(time.perf_counter() - t0, 2)
-    model.save(out)
-    return model
-
-
-def evaluate_flights(model: CombinedDecisionModel, flight_dirs: list[Path]) -> dict:
-    """Scores of the model (and of the paper rule) on flights it was not fitted on."""
-    res = {}
-    for d in flight_dirs:
-        s = flight_samples(d)
-        row = {}
-        for src in SOURCES:
-            row[src] = {"combined": rejection_scores(s["y"], model.p_false(s[src]) > model.threshold,
-                                                     s["error_m"]),
-                        "paper": rejection_scores(s["y"], s[f"p_bad_{src}"] > 0.5, s["error_m"])}
-        res[s["world"]] = row
-    return res

@@ -1,4 +1,5 @@
-"""Whole-world assistant maps built once per (reference map, CNN weights, stride, altitude) and cached.
+"""Whole-world assistant maps: built for a world folder (``build_world_map``), and cached per
+(reference map, CNN weights, stride, altitude, FOV) (``cached_assistant_map``).
 
 A scenario whose guidance plans over "the world's assistant map" without naming a file gets one from
 here: ``$SCENENAV_CACHE_DIR/assistant-maps/<world>-<hash>.npz`` (``~/.cache/scenenav`` by default),
@@ -14,7 +15,10 @@ import hashlib
 import logging
 import os
 import tempfile
+import time
 from pathlib import Path
+
+import cv2
 
 from scenenav.core.errors import UserError
 
@@ -44,13 +48,57 @@ def cache_key(world_dir: Path, weights: Path, stride_px: int, altitude_m: float,
     return h.hexdigest()[:16]
 
 
+def build_world_map(world_dir: str, out: str, stride_px: int = 5, altitude_m: float = 100.0,
+                    fov_deg: float = 60.0, weights: str | None = None, batch_size: int = 256,
+                    progress: bool = True, png: bool = True):
+    """Build the whole assistant map of the world folder ``world_dir`` with the CNN ``weights``
+    (default: the shipped ones) and write it to ``out`` (.npz, and a Figure-6 PNG beside it with
+    ``png``). Returns (AssistantMap, build seconds). Used by ``scenenav assistant-map build``."""
+    from perception.assistant_map import RenderMode, build_assistant_map
+    from perception.cnn import MatchClassifier
+    from worlds.world import load_world
+    if stride_px < 1:
+        raise UserError(f"--stride-px {stride_px}: expected a positive integer")
+    if not (5.0 <= altitude_m <= 1000.0):
+        raise UserError(f"--altitude-m {altitude_m}: expected 5 to 1000 m")
+    out_path = Path(out)
+    if out_path.suffix != ".npz":
+        raise UserError(f"--out {out}: expected a .npz file name")
+    world = load_world(world_dir)
+    clf = MatchClassifier.from_file(weights) if weights else MatchClassifier.default()
+    gray = cv2.cvtColor(world.reference, cv2.COLOR_RGB2GRAY)
+    bar = None
+    if progress:
+        from tqdm import tqdm
+        bar = tqdm(unit="crop", desc="assistant map")
+
+    def on_progress(done: int, total: int) -> None:
+        if bar is not None:
+            bar.total = total
+            bar.n = done
+            bar.refresh()
+    t0 = time.perf_counter()
+    amap = build_assistant_map(gray, clf.predict_proba, world.m_per_px, altitude_m=altitude_m,
+                               fov_deg=fov_deg, stride_px=stride_px, batch_size=batch_size,
+                               progress=on_progress, cnn_input_px=clf.input_px,
+                               world_name=world.manifest.name,
+                               model_id=str(getattr(clf.meta, "training_record_id", "")))
+    elapsed = time.perf_counter() - t0
+    if bar is not None:
+        bar.close()
+    out_path.parent.mkdir(parents=True, exist_ok=True)
+    amap.save(out_path)
+    if png:
+        amap.render_png(out_path.with_suffix(".png"), RenderMode.BINARY)
+    return amap, elapsed
+
+
 def cached_assistant_map(world_dir: str | Path, stride_px: int = 10, altitude_m: float = 100.0,
                          fov_deg: float = 60.0, weights: str | Path | None = None,
                          progress: bool = False) -> Path:
     """Path of the world's assistant map built with the CNN ``weights`` (default: the shipped ones);
     built (with a progress bar if asked) and cached on first use."""
     from perception.cnn import DEFAULT_WEIGHTS_PATH
-    from scenenav.app.commands.assistant_map import build
     from worlds.default import cache_root
     world_dir = Path(world_dir)
     weights_path = Path(weights) if weights else DEFAULT_WEIGHTS_PATH
@@ -71,7 +119,7 @@ def cached_assistant_map(world_dir: str | Path, stride_px: int = 10, altitude_m:
     os.close(fd)
     tmp = Path(tmp_name)
     try:
-        _, elapsed = build(str(world_dir), str(tmp), stride_px=stride_px, altitude_m=altitude_m,
+        _, elapsed = build_world_map(str(world_dir), str(tmp), stride_px=stride_px, altitude_m=altitude_m,
                            fov_deg=fov_deg, weights=str(weights_path), progress=progress, png=False)
         os.replace(tmp, final)
     finally:

@@ -33,7 +33,8 @@ import cv2
 import numpy as np
 from tqdm import tqdm
 
-from perception.alignment import align_capture, footprint_m
+from perception.alignment import align_capture
+from scenenav.core.camera_geometry import ground_footprint_m
 
 log = logging.getLogger(__name__)
 
@@ -108,18 +109,9 @@ class MatchabilityResult:
     peaks: np.ndarray
 
 
-def to_gray(image: np.ndarray) -> np.ndarray:
-    """uint8 RGB / grey image -> float32 grey in [0, 1] (BT.601 luma, as the matcher does)."""
-    if image.ndim == 3:
-        image = cv2.cvtColor(image, cv2.COLOR_RGB2GRAY)
-    if image.dtype == np.uint8:
-        return image.astype(np.float32) * np.float32(1.0 / 255.0)
-    return np.ascontiguousarray(image, dtype=np.float32)
-
-
 def footprint_px(altitude_m: float, fov_deg: float, m_per_px: float) -> int:
     """Side of the camera footprint in map pixels, rounded down (100 m, 60 deg, 0.53 m/px -> 217)."""
-    return int(math.floor(footprint_m(altitude_m, fov_deg) / m_per_px + 1e-9))
+    return int(math.floor(ground_footprint_m(altitude_m, fov_deg) / m_per_px + 1e-9))
 
 
 def render_camera(ortho_gray: np.ndarray, u: float, v: float, heading_rad: float, altitude_m: float,
@@ -129,7 +121,7 @@ def render_camera(ortho_gray: np.ndarray, u: float, v: float, heading_rad: float
     Image-up is the forward direction: camera offset (dx right, dy down) -> map offset
     g R(psi) (dx, dy) with R = [[cos, -sin], [sin, cos]] and g = map px per camera px.
     """
-    g = footprint_m(altitude_m, fov_deg) / m_per_px / camera_px
+    g = ground_footprint_m(altitude_m, fov_deg) / m_per_px / camera_px
     c, s = math.cos(heading_rad), math.sin(heading_rad)
     a = g * np.array([[c, -s], [s, c]])
     c_cam = np.array([(camera_px - 1) / 2.0, (camera_px - 1) / 2.0])

@@ -1,7 +1,8 @@
 """Perception node: scene-matching fixes from camera frames, one per frame.
 
 Inputs
-  ``sensors/camera``    CameraFrame     (rgb8 or mono8, the configured size)
+  ``sensors/camera``    CameraFrame     (rgb8 or mono8; its ``fov_deg`` scales the capture, and its
+                                         FOV and size must be the configured camera's)
   ``sensors/compass``   CompassSample   (newest before the frame is used for alignment)
   ``sensors/baro``      BaroSample      (newest before the frame is used for scale)
 Outputs
@@ -10,9 +11,11 @@ Outputs
   liveliness ``nodes/perception/<node_id>`` and, in lockstep, ``lockstep/member/camera/<node_id>``
   ``info/<node_id>``, ``events/<node_id>``
 
-Frames of the wrong size, NaN headings/altitudes or undecodable bytes are dropped and counted
-(``stats``), logged, and the node keeps running. Work happens on a worker thread, so Zenoh's
-callback threads never block on matching.
+A frame whose FOV or size contradicts the configured camera (``ExpectedCamera``) is refused: counted
+(``stats["refused_camera_mismatch"]``), logged once, and answered with an invalid fix (and the ack)
+so that neither lockstep nor the autopilot waits for it. NaN headings/altitudes or undecodable
+bytes are dropped and counted (``stats``), logged, and the node keeps running. Work happens on a
+worker thread, so Zenoh's callback threads never block on matching.
 """
 
 from __future__ import annotations
@@ -24,33 +27,41 @@ import queue
 import threading
 from collections import Counter, deque
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import numpy as np
 
+from perception.config import ExpectedCamera, PerceptionConfig
+from perception.match_metrics import MatchMetrics
 from scenenav.core.bus import Bus, BusConfig
 from scenenav.core.contracts import (BaroSample, CameraFrame, CompassSample, Event, LockstepAck,
                                 LockstepRole, NodeInfo, Severity, VisionFix)
 from scenenav.core.keys import Keys
 
+if TYPE_CHECKING:
+    from perception.pipeline import FixResult
+
 log = logging.getLogger(__name__)
 
 
-def make_pipeline(world, method: str, assistant_map_path: str | None, weights: str | None = None):
-    """The pure perception pipeline for a world and a false-match method.
+def make_pipeline(world, method: str, assistant_map_path: str | None, weights: str | None = None,
+                  fov_deg: float = PerceptionConfig.fov_deg):
+    """The pure perception pipeline for a world and a false-match method (``fov_deg``: the camera's,
+    used when a capture does not state its own).
 
     ``weights``: a CNN ``.pt`` (the paper's rule, P(bad) > 0.5) or a combined decision-model
     ``.json`` (perception.decision.CombinedDecisionModel): that file selects the combined rule and
     names the CNN weights it was fitted with. Empty: ``perception/weights/default.pt``, paper rule.
     """
-    from perception.config import PerceptionConfig
     from perception.decision import CombinedDecisionModel, DecisionRule, FalseMatchMethod
     from perception.pipeline import PerceptionPipeline
     m = FalseMatchMethod(method)
-    cfg = PerceptionConfig()
+    cfg = PerceptionConfig(fov_deg=fov_deg)
     decision_model = None
     if weights and str(weights).endswith(".json"):
         decision_model = CombinedDecisionModel.load(weights)
-        cfg = PerceptionConfig(decision_rule=DecisionRule.COMBINED, decision_model=str(weights))
+        cfg = PerceptionConfig(fov_deg=fov_deg, decision_rule=DecisionRule.COMBINED,
+                               decision_model=str(weights))
         cnn = decision_model.cnn_weights_path()
         weights = str(cnn) if cnn is not None else None
     classify = None
@@ -79,18 +90,20 @@ DIAG_COLUMNS = ("t_s", "frame_seq", "valid", "accepted", "rule", "reason", "sear
 
 
 class PerceptionNode:
+    """See the module docstring. ``camera``: the camera this node expects (FOV and size)."""
+
     def __init__(self, world, bus_cfg: BusConfig, node_id: str, method: str,
                  assistant_map_path: str | None = None, lockstep: bool = True,
-                 out_dir: Path | None = None, expected_size_px: tuple[int, int] = (200, 200),
+                 out_dir: Path | None = None, camera: ExpectedCamera | None = None,
                  weights: str | None = None):
         self.world = world
         self.node_id = node_id
         self.method = method
         self.lockstep = lockstep
         self.out_dir = out_dir
-        self.expected_size_px = expected_size_px
+        self.camera = camera if camera is not None else ExpectedCamera()
         self.keys = Keys(bus_cfg.namespace)
-        self.pipeline = make_pipeline(world, method, assistant_map_path, weights)
+        self.pipeline = make_pipeline(world, method, assistant_map_path, weights, self.camera.fov_deg)
         self._diag = None
         if out_dir is not None:
             try:
@@ -153,6 +166,20 @@ class PerceptionNode:
             self.bus.publish(self.keys.events(self.node_id), Event(
                 msg.timestamp_us, self.node_id, int(Severity.WARNING), text))
 
+    def _refuse(self, msg: CameraFrame, mismatch: str) -> None:
+        """A frame from another camera than configured: count, log once, answer with an invalid fix."""
+        from perception.pipeline import Reason
+        self.stats["refused_camera_mismatch"] += 1
+        if self.stats["refused_camera_mismatch"] == 1:
+            text = (f"refusing camera frames that contradict the configured camera ({mismatch}); "
+                    f"first: frame {msg.seq}")
+            log.warning("%s", text)
+            self.bus.publish(self.keys.events(self.node_id), Event(
+                msg.timestamp_us, self.node_id, int(Severity.WARNING), text))
+        res = self.pipeline.refused(msg.timestamp_us * 1e-6, Reason.CAMERA_MISMATCH)
+        self.bus.publish(self.keys.vision_fix(self.node_id), self._fix_message(msg, res))
+        self._write_diag(msg, res)
+
     def _work(self) -> None:
         from perception.pipeline import BadInput
         while not self._stop.is_set():
@@ -162,8 +189,9 @@ class PerceptionNode:
                 continue
             msg, heading, altitude = item
             try:
-                if (msg.width_px, msg.height_px) != self.expected_size_px:
-                    self._drop("wrong_size", msg)
+                mismatch = self.camera.mismatch(msg.fov_deg, msg.width_px, msg.height_px)
+                if mismatch is not None:
+                    self._refuse(msg, mismatch)
                 elif heading is None or altitude is None:
                     self._drop("no_compass_or_baro_yet", msg)
                 elif not (math.isfinite(heading) and math.isfinite(altitude)):
@@ -171,7 +199,7 @@ class PerceptionNode:
                 else:
                     try:
                         res = self.pipeline.process(msg.pixels, heading, altitude,
-                                                    msg.timestamp_us * 1e-6)
+                                                    msg.timestamp_us * 1e-6, fov_deg=msg.fov_deg)
                     except BadInput as exc:
                         self._drop("bad_input", msg, str(exc))
                     else:
@@ -187,24 +215,24 @@ class PerceptionNode:
                     self.bus.publish(self.keys.lockstep_ack(self.node_id), LockstepAck(
                         msg.timestamp_us, self.node_id, LockstepRole.CAMERA.value, msg.seq))
 
-    def _fix_message(self, msg: CameraFrame, r) -> VisionFix:
+    def _fix_message(self, msg: CameraFrame, r: FixResult) -> VisionFix:
         cov = np.asarray(r.covariance_m2, dtype=float).reshape(2, 2)
         pc = tuple(float(x) for x in np.broadcast_to(np.asarray(r.p_classes, dtype=float), (4,)))
-        t = r.timings_ms
+        t = r.timings
+        m: MatchMetrics = r.metrics
         return VisionFix(
             timestamp_us=msg.timestamp_us, frame_seq=msg.seq, node_id=self.node_id,
             method=self.method, valid=bool(r.valid), accepted=bool(r.accepted),
             position_xy_enu_m=(float(r.position_enu_m[0]), float(r.position_enu_m[1])),
             covariance_xy_m2=(float(cov[0, 0]), float(cov[0, 1]), float(cov[1, 0]), float(cov[1, 1])),
             p_true=float(r.p_true), p_classes=pc,
-            ncc_peak=float(r.metrics.get("peak", math.nan)),
-            ncc_psr=float(r.metrics.get("psr", math.nan)),
-            ncc_second_peak_ratio=float(r.metrics.get("second_peak_ratio", math.nan)),
-            time_align_ms=float(t.get("align", 0.0)), time_ncc_ms=float(t.get("ncc", 0.0)),
-            time_cnn_ms=float(t.get("cnn", 0.0)), time_lookup_ms=float(t.get("lookup", 0.0)),
-            time_total_ms=float(t.get("total", 0.0)))
+            ncc_peak=float(m.peak), ncc_psr=float(m.psr),
+            ncc_second_peak_ratio=float(m.second_peak_ratio),
+            time_align_ms=float(t.align_ms), time_ncc_ms=float(t.ncc_ms),
+            time_cnn_ms=float(t.cnn_ms), time_lookup_ms=float(t.lookup_ms),
+            time_total_ms=float(t.total_ms))
 
-    def _write_diag(self, msg: CameraFrame, r) -> None:
+    def _write_diag(self, msg: CameraFrame, r: FixResult) -> None:
         if self._diag is None:
             return
         m = r.metrics
@@ -213,7 +241,7 @@ class PerceptionNode:
                 r.track_state.value, int(r.quality_ok), r.position_px[0], r.position_px[1],
                 r.drone_px[0], r.drone_px[1], r.innovation_px, r.track_fixes, r.run,
                 r.dr_innovation_px, r.dr_age_s, r.reach_excess_px, r.p_true, r.p_false,
-                m.get("peak", math.nan), m.get("psr", math.nan), m.get("second_peak_ratio", math.nan))
+                m.peak, m.psr, m.second_peak_ratio)
         self._diag.write(",".join(f"{v:.6g}" if isinstance(v, float) else str(v) for v in vals) + "\n")
 
     def close(self) -> None:

@@ -34,14 +34,16 @@ import cv2
 import numpy as np
 
 from perception.alignment import (AlignedCapture, BadInput, TemplateTooLarge, align_capture,
-                                  to_gray_float32)
+                                  finite_number, to_gray_float32)
 from perception.assistant_map import AssistantMap
 from perception.config import PerceptionConfig, UnknownPolicy
 from perception.decision import (N_PAPER_CLASSES, VARIANCE_WINDOWS, CombinedDecisionModel,
                                  Decision, DecisionRule, FalseMatchMethod,
                                  TrackEvidence, combined_features, decide_from_p_bad,
                                  split_classifier_output)
-from perception.matcher import MatchResult, MatchTracker, SceneMatcher, SearchMode, TrackState
+from perception.match_metrics import MatchMetrics, StageTimes
+from perception.ncc_search import MatchResult, SceneMatcher, SearchMode
+from perception.tracker import MatchTracker, TrackState
 from perception.statistical import StatisticalDetector
 from scenenav.core.errors import UserError
 
@@ -68,6 +70,7 @@ class Reason(str, Enum):
     TEMPLATE_TOO_SMALL = "template-too-small"
     TEMPLATE_TOO_LARGE = "template-too-large"
     FLAT_CAPTURE = "flat-capture"            # uniform capture: NCC undefined, no match computed
+    CAMERA_MISMATCH = "camera-mismatch"      # the frame's FOV or size is not the configured camera's
 
 
 @dataclass(frozen=True)
@@ -76,9 +79,8 @@ class FixResult:
 
     ``valid``: a match was computed (position NaN otherwise). ``accepted``: the false-match verdict.
     ``p_true``: probability of a true match (NaN when not evaluated). ``p_classes``: the classifier's
-    4 class probabilities (bad, 4-, 3-, 2-arm) or NaNs. ``metrics``: ``peak``, ``psr``,
-    ``second_peak_ratio`` of the NCC match (NaN when invalid). ``timings_ms``: ``align``, ``ncc``
-    (crop + NCC + refine), ``cnn``, ``lookup``, ``total``.
+    4 class probabilities (bad, 4-, 3-, 2-arm) or NaNs. ``metrics``: the NCC match's quality
+    (NaN when invalid). ``timings``: wall-clock time per stage.
     """
 
     timestamp_s: float
@@ -92,13 +94,13 @@ class FixResult:
     covariance_m2: np.ndarray
     p_true: float
     p_classes: tuple[float, float, float, float]
-    metrics: dict[str, float]
+    metrics: MatchMetrics
     quality_ok: bool
     search: SearchMode | None
     track_state: TrackState
     statistical_variance_m2: float
     template_side_px: int
-    timings_ms: dict[str, float] = field(default_factory=dict)
+    timings: StageTimes = field(default_factory=StageTimes)
     innovation_px: float = _NAN
     track_fixes: int = 0
     run: int = 0
@@ -117,10 +119,6 @@ class FixResult:
 
 
 _NAN_CLASSES = (_NAN,) * N_PAPER_CLASSES
-
-
-def _metrics(peak: float, psr: float, second_peak_ratio: float) -> dict[str, float]:
-    return {"peak": float(peak), "psr": float(psr), "second_peak_ratio": float(second_peak_ratio)}
 
 
 class PerceptionPipeline:
@@ -188,35 +186,33 @@ class PerceptionPipeline:
 
     # ------------------------------------------------------------------------------ main
     def process(self, image_rgb: np.ndarray, heading_rad: float, altitude_m: float,
-                timestamp_s: float, prior_enu_m: tuple[float, float] | None = None) -> FixResult:
+                timestamp_s: float, prior_enu_m: tuple[float, float] | None = None, *,
+                fov_deg: float | None = None) -> FixResult:
         """One capture -> FixResult. Raises BadInput for unusable inputs (the node drops those).
 
         ``prior_enu_m`` (optional, e.g. the autopilot's estimate) seeds the search window when the
-        tracker has no prediction of its own.
+        tracker has no prediction of its own. ``fov_deg``: the horizontal field of view the capture
+        was taken with (the node passes ``CameraFrame.fov_deg``); None: ``cfg.fov_deg``.
         """
         t_start = time.perf_counter()
-        try:
-            t_s = float(timestamp_s)
-        except (TypeError, ValueError):
-            raise BadInput(f"timestamp_s = {timestamp_s!r}: expected a finite number") from None
-        if not math.isfinite(t_s):
-            raise BadInput(f"timestamp_s = {timestamp_s!r}: expected a finite number")
+        t_s = finite_number("timestamp_s", timestamp_s)
         cfg = self.cfg
-        timings = {"align": 0.0, "ncc": 0.0, "cnn": 0.0, "lookup": 0.0}
+        timings = StageTimes()
         try:
-            aligned = align_capture(image_rgb, heading_rad, altitude_m, cfg.fov_deg, self.m_per_px,
+            aligned = align_capture(image_rgb, heading_rad, altitude_m,
+                                    cfg.fov_deg if fov_deg is None else fov_deg, self.m_per_px,
                                     cfg.crop_mode, (self.matcher.width_px, self.matcher.height_px))
         except TemplateTooLarge as exc:
             log.debug("capture unusable: %s", exc)
-            timings["total"] = (time.perf_counter() - t_start) * _MS
+            timings.total_ms = (time.perf_counter() - t_start) * _MS
             return self._invalid(t_s, Reason.TEMPLATE_TOO_LARGE, 0, timings)
         t_align = time.perf_counter()
-        timings["align"] = (t_align - t_start) * _MS
+        timings.align_ms = (t_align - t_start) * _MS
 
         side = aligned.side_px
         if side < cfg.matcher.min_template_px:
             log.debug("capture at %.1f m gives a %d px template: too small", aligned.altitude_m, side)
-            timings["total"] = (time.perf_counter() - t_start) * _MS
+            timings.total_ms = (time.perf_counter() - t_start) * _MS
             return self._invalid(t_s, Reason.TEMPLATE_TOO_SMALL, side, timings)
 
         prior_uv = None
@@ -236,9 +232,9 @@ class PerceptionPipeline:
                                        match.position_px[1] - pred.uv[1])
         t_match = time.perf_counter()
         self.last_aligned, self.last_match = aligned, match   # for benchmarks and inspection
-        timings["ncc"] = (t_match - t_align) * _MS
+        timings.ncc_ms = (t_match - t_align) * _MS
         if match.flat_template:
-            timings["total"] = (time.perf_counter() - t_start) * _MS
+            timings.total_ms = (time.perf_counter() - t_start) * _MS
             return self._invalid(t_s, Reason.FLAT_CAPTURE, side, timings)
 
         run, dr_innovation_px, dr_age_s, reach_excess_px = self.track_evidence.observe(
@@ -249,15 +245,15 @@ class PerceptionPipeline:
             dr_innovation_px * self.m_per_px, dr_age_s, reach_excess_px * self.m_per_px)
         if cfg.quality_gate and not match.quality_ok and decision is Decision.ACCEPT:
             decision, reason = Decision.REJECT, Reason.LOW_QUALITY
-        timings["total"] = (time.perf_counter() - t_start) * _MS
+        timings.total_ms = (time.perf_counter() - t_start) * _MS
         return FixResult(
             timestamp_s=t_s, valid=True, accepted=decision is Decision.ACCEPT, decision=decision,
             reason=reason, method=self.method, position_enu_m=match.position_enu_m,
             position_px=match.position_px, covariance_m2=match.covariance_m2, p_true=p_true,
             p_classes=p_classes,
-            metrics=_metrics(match.peak, match.psr, match.second_peak_ratio),
+            metrics=match.metrics,
             quality_ok=match.quality_ok, search=match.search, track_state=self.tracker.state,
-            statistical_variance_m2=variance, template_side_px=side, timings_ms=timings,
+            statistical_variance_m2=variance, template_side_px=side, timings=timings,
             innovation_px=innovation_px, track_fixes=track_fixes, run=run,
             dr_innovation_px=dr_innovation_px, dr_age_s=dr_age_s,
             reach_excess_px=reach_excess_px, drone_px=drone, p_false=p_false,
@@ -270,7 +266,7 @@ class PerceptionPipeline:
 
     # ------------------------------------------------------------------------------ decisions
     def _decide(self, aligned: AlignedCapture, match: MatchResult, t_s: float,
-                timings: dict[str, float], innovation_m: float, run: int,
+                timings: StageTimes, innovation_m: float, run: int,
                 dr_innovation_m: float, dr_age_s: float, reach_excess_m: float) -> tuple[Decision, Reason, float, tuple, float, float, tuple[float, float]]:
         method = self.method
         no_px = (_NAN, _NAN)
@@ -279,7 +275,7 @@ class PerceptionPipeline:
         if method is FalseMatchMethod.STATISTICAL:
             t0 = time.perf_counter()
             flag, var = self._detector.update(match.position_enu_m[0], match.position_enu_m[1], t_s)
-            timings["lookup"] = (time.perf_counter() - t0) * _MS
+            timings.lookup_ms = (time.perf_counter() - t0) * _MS
             if flag:
                 return (Decision.REJECT, Reason.STATISTICAL_VARIANCE, _NAN, _NAN_CLASSES, var, _NAN,
                         no_px)
@@ -296,7 +292,7 @@ class PerceptionPipeline:
         if method is FalseMatchMethod.ASSISTANT_MAP:
             t0 = time.perf_counter()
             p_true = self.assistant_map.lookup(u, v)
-            timings["lookup"] = (time.perf_counter() - t0) * _MS
+            timings.lookup_ms = (time.perf_counter() - t0) * _MS
             if math.isfinite(p_true):
                 p_bad = 1.0 - p_true
             elif self.classify is None:
@@ -308,7 +304,7 @@ class PerceptionPipeline:
             p_bad, p_classes = self._classify(aligned, timings)
             t0 = time.perf_counter()
             self.assistant_map.write_patch(u, v, self._patch_side_px(), 1.0 - p_bad)
-            timings["lookup"] += (time.perf_counter() - t0) * _MS
+            timings.lookup_ms += (time.perf_counter() - t0) * _MS
             bad_reason = Reason.CNN_BAD_AREA
         p_false = _NAN
         if self.decision_model is None:
@@ -323,7 +319,7 @@ class PerceptionPipeline:
         return decision, reason, 1.0 - p_bad, p_classes, _NAN, p_false, (u, v)
 
     def _classify(self, aligned: AlignedCapture,
-                  timings: dict[str, float]) -> tuple[float, tuple[float, float, float, float]]:
+                  timings: StageTimes) -> tuple[float, tuple[float, float, float, float]]:
         t0 = time.perf_counter()
         n = self.cfg.cnn_input_px
         gray = aligned.gray
@@ -331,7 +327,7 @@ class PerceptionPipeline:
             interp = cv2.INTER_AREA if min(gray.shape) > n else cv2.INTER_LINEAR
             gray = cv2.resize(gray, (n, n), interpolation=interp)
         p_bad, classes = split_classifier_output(self.classify(gray[None, :, :]), 1)
-        timings["cnn"] = (time.perf_counter() - t0) * _MS
+        timings.cnn_ms = (time.perf_counter() - t0) * _MS
         if classes is not None and classes.shape[1] == N_PAPER_CLASSES:
             p_classes = tuple(float(c) for c in classes[0])
         else:
@@ -348,12 +344,16 @@ class PerceptionPipeline:
         movement = self.tracker.last_movement_px()
         return float(min(self.cfg.assistant_patch_max_px, max(1.0, 2.0 * movement)))
 
-    def _invalid(self, t_s: float, reason: Reason, side: int, timings: dict[str, float]) -> FixResult:
+    def refused(self, t_s: float, reason: Reason) -> FixResult:
+        """An invalid result for a capture refused before any processing (e.g. Reason.CAMERA_MISMATCH)."""
+        return self._invalid(t_s, reason, 0, StageTimes())
+
+    def _invalid(self, t_s: float, reason: Reason, side: int, timings: StageTimes) -> FixResult:
         nan_cov = np.full((2, 2), np.nan)
         return FixResult(
             timestamp_s=t_s, valid=False, accepted=False, decision=Decision.REJECT, reason=reason,
             method=self.method, position_enu_m=(_NAN, _NAN), position_px=(_NAN, _NAN),
             covariance_m2=nan_cov, p_true=_NAN, p_classes=_NAN_CLASSES,
-            metrics=_metrics(_NAN, _NAN, _NAN), quality_ok=False, search=None,
+            metrics=MatchMetrics.unknown(), quality_ok=False, search=None,
             track_state=self.tracker.state, statistical_variance_m2=_NAN, template_side_px=side,
-            timings_ms=timings)
+            timings=timings)

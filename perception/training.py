@@ -36,8 +36,10 @@ from tqdm import tqdm
 
 from perception.cnn import (BAD_THRESHOLD, DEFAULT_INPUT_PX, NUM_CLASSES, PAPER_INPUT_PX, Labelling, MatchClass,
                             MatchClassifier, SceneMatchNet, WeightsMeta, check_input_px, normalise, save_weights)
-from perception.dataset import (EVAL_WORLD_SEEDS, DatasetConfig, LoadedDataset, generate_world_data, load_dataset,
-                                read_manifest, render_crop, select_base_samples)
+from perception.dataset_config import EVAL_WORLD_SEEDS, DatasetConfig
+from perception.dataset_files import LoadedDataset, load_dataset, read_manifest
+from perception.dataset_images import render_crop
+from perception.dataset_samples import generate_world_data, select_base_samples
 from perception.matchability import MatchabilityConfig, footprint_px, simulate_capture
 from scenenav.core.errors import UserError
 

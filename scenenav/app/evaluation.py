@@ -22,6 +22,9 @@ from typing import Any
 
 import numpy as np
 
+from scenenav.core.errors import UserError
+from scenenav.core.formats.route_file import RouteFile, read_route_file
+
 log = logging.getLogger(__name__)
 
 
@@ -138,15 +141,15 @@ def evaluate_run(run_dir: Path, cfg, world, wall_time_s: float, interrupted: boo
     return summary
 
 
-def _routes(run_dir: Path) -> list[dict]:
+def _routes(run_dir: Path) -> list[RouteFile]:
     """The guidance node's route files (route.json, route-1.json, ...) in order."""
     files = sorted(Path(run_dir).glob("route*.json"),
                    key=lambda p: int(p.stem.split("-")[1]) if "-" in p.stem else 0)
     out = []
     for f in files:
         try:
-            out.append(json.loads(f.read_text()))
-        except (OSError, ValueError):
+            out.append(read_route_file(f))
+        except UserError:
             log.warning("unreadable route file %s", f)
     return out
 
@@ -155,8 +158,8 @@ def _guidance_metrics(run_dir: Path) -> dict[str, Any]:
     routes = _routes(run_dir)
     if not routes:
         return {}
-    return {"route_length_m": routes[0].get("length_m"),
-            "route_min_clearance_m": routes[0].get("min_clearance_m"),
+    return {"route_length_m": routes[0].length_m,
+            "route_min_clearance_m": routes[0].min_clearance_m,
             "replans": len(routes) - 1}
 
 
@@ -181,7 +184,7 @@ def plot_run(run_dir: Path, world, fx: dict) -> None:
     ax.imshow(world.orthophoto[::step, ::step], extent=(-half_w, half_w, -half_h, half_h),
               origin="upper", alpha=0.8)
     for i, route in enumerate(_routes(run_dir)):
-        xy = np.array([[w["x_m"], w["y_m"]] for w in route.get("waypoints", [])])
+        xy = np.array(route.waypoints_xy_m)
         if len(xy):
             ax.plot(xy[:, 0], xy[:, 1], "--", c="magenta" if i == 0 else "purple", lw=1.2,
                     label="planned route" if i == 0 else ("replanned route" if i == 1 else None))

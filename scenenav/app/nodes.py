@@ -7,6 +7,7 @@ cleanly on SIGINT/SIGTERM.
 
 from __future__ import annotations
 
+import dataclasses
 import json
 import logging
 import signal
@@ -83,6 +84,13 @@ def _perception_weights(pcfg) -> str | None:
     return pcfg.weights or None
 
 
+def perception_camera(cfg: ScenarioConfig):
+    """The camera the perception node expects: the scenario's simulated camera (FOV and size)."""
+    from perception.config import ExpectedCamera
+    cam = cfg.sim.camera
+    return ExpectedCamera(fov_deg=cam.fov_deg, width_px=cam.width_px, height_px=cam.height_px)
+
+
 def run_perception(run_dir: Path | None, bus_cfg: BusConfig, method: str | None,
                    node_id: str, world_dir: str | None, assistant_map: str | None,
                    lockstep: bool | None) -> int:
@@ -95,21 +103,39 @@ def run_perception(run_dir: Path | None, bus_cfg: BusConfig, method: str | None,
         world, bus_cfg, node_id=node_id, method=method or pcfg.method,
         assistant_map_path=assistant_map if assistant_map is not None else (pcfg.assistant_map or None),
         lockstep=pcfg.lockstep if lockstep is None else lockstep,
-        out_dir=run_dir, weights=_perception_weights(pcfg))
+        out_dir=run_dir, camera=perception_camera(cfg), weights=_perception_weights(pcfg))
     stop = _stop_event()
     stop.wait()
     node.close()
     return 0
 
 
+def guidance_config_from_scenario(cfg: ScenarioConfig, mavlink_port: int, lockstep: bool):
+    """GuidanceRunConfig + PlannerConfig from a ScenarioConfig (its flight, guidance, autopilot and
+    sim.camera sections)."""
+    from guidance.config import GuidanceRunConfig, PlannerConfig, RouteEnd
+    g = cfg.guidance
+    end = RouteEnd.RTL if cfg.autopilot.mission_end.value == "rtl" else RouteEnd.LAND
+    node_cfg = GuidanceRunConfig(
+        start_enu_m=tuple(cfg.flight.start_enu_m), goals_enu_m=tuple(tuple(p) for p in g.goals_enu_m),
+        assistant_map=g.assistant_map, altitude_m=cfg.flight.altitude_m, end=end,
+        replan_drift_m=g.replan_drift_m, check_period_s=g.check_period_s,
+        start_after_s=g.start_after_s, mavlink_url=f"tcp:127.0.0.1:{mavlink_port}", lockstep=lockstep)
+    planner_cfg = dataclasses.replace(
+        PlannerConfig(), altitude_m=cfg.flight.altitude_m, camera_fov_deg=cfg.sim.camera.fov_deg,
+        footprint_m=g.footprint_m, clearance_m=g.clearance_m, unvisited_weight=g.unvisited_weight,
+        cruise_speed_m_s=cfg.flight.speed_m_s, waypoint_spacing_m=g.waypoint_spacing_m)
+    return node_cfg, planner_cfg
+
+
 def run_guidance(run_dir: Path, bus_cfg: BusConfig) -> int:
-    from guidance.node import GuidanceNode, node_config_from_scenario
-    from guidance.route import load_world_manifest
+    from guidance.node import GuidanceNode
     from scenenav.core.contracts import ClockMode
+    from scenenav.core.formats.world_manifest import read_manifest
     from worlds.default import world_folder
     cfg = load_scenario(run_dir / "scenario.yaml")
-    world = load_world_manifest(world_folder(cfg.world))
-    node_cfg, planner_cfg = node_config_from_scenario(
+    world = read_manifest(world_folder(cfg.world))
+    node_cfg, planner_cfg = guidance_config_from_scenario(
         cfg, cfg.autopilot.mavlink_tcp_port, lockstep=cfg.clock.mode == ClockMode.LOCKSTEP)
     node = GuidanceNode(world, bus_cfg, node_cfg, planner_cfg, out_dir=run_dir)
     stop = _stop_event()

@@ -7,14 +7,16 @@ values are one-line errors naming the file and the key.
 from __future__ import annotations
 
 import dataclasses
-import math
 from dataclasses import dataclass, field
 from enum import Enum
 from pathlib import Path
 
+from scenenav.core.camera_geometry import ground_footprint_m
 from scenenav.core.config import apply_overrides, check, load_config, load_yaml, to_dict
 from scenenav.core.contracts import ClockMode
 from scenenav.core.errors import UserError
+from guidance.config import GuidanceNodeConfig
+from perception.config import PerceptionNodeConfig
 from sitl.config import SimConfig
 
 
@@ -56,31 +58,6 @@ class FlightConfig:
         check(5.0 <= self.altitude_m <= 1000.0, "altitude_m", self.altitude_m, "5 to 1000 m")
         check(0.5 <= self.speed_m_s <= 30.0, "speed_m_s", self.speed_m_s, "0.5 to 30 m/s")
         check(self.turn_radius_m >= 0, "turn_radius_m", self.turn_radius_m, ">= 0 m")
-
-
-@dataclass(frozen=True)
-class PerceptionNodeConfig:
-    enabled: bool = True
-    method: str = "none"               # cnn | assistant-map | statistical | none
-    assistant_map: str = ""            # .npz for method assistant-map (empty: built online)
-    weights: str = ""                  # CNN weights .pt (empty: perception/weights/default.pt)
-    lockstep: bool = True              # the simulator waits for this node's answer to each frame
-    decision_rule: str = "paper"       # cnn, assistant-map: paper (P(bad) > 0.5) or combined (docs/perception.md)
-    decision_model: str = ""           # combined rule: model .json (empty: the shipped one)
-    swap_at_s: float = 0.0             # > 0: at this simulated time a second node takes over (swap)
-    swap_method: str = "statistical"   # method of that second node (perception-2)
-
-    def __post_init__(self) -> None:
-        methods = ("cnn", "assistant-map", "statistical", "none")
-        check(self.method in methods, "method", self.method, "one of cnn, assistant-map, statistical, none")
-        check(self.decision_rule in ("paper", "combined"), "decision_rule", self.decision_rule,
-              "paper or combined")
-        check(not (self.decision_rule == "combined" and self.weights.endswith(".pt")), "weights",
-              self.weights, "empty with decision_rule combined (the decision model names the CNN it "
-              "was fitted with; choose another model with decision_model)")
-        check(self.swap_at_s >= 0, "swap_at_s", self.swap_at_s, ">= 0 s (0 = no swap)")
-        check(self.swap_method in methods, "swap_method", self.swap_method,
-              "one of cnn, assistant-map, statistical, none")
 
 
 @dataclass(frozen=True)
@@ -148,41 +125,6 @@ class AutopilotNodeConfig:
 
 
 @dataclass(frozen=True)
-class GuidanceConfig:
-    """The guidance node (guidance/node.py): plans a route over the assistant map around bad
-    matching areas and flies it as a MAVLink mission. Needs ``flight.mode: autopilot``; the
-    autopilot then waits for this node instead of starting ``flight.route_enu_m`` by itself."""
-
-    enabled: bool = False              # start the guidance node (needs flight.mode autopilot)
-    # Each leg (take-off point -> first goal -> second ...) is planned around bad areas; the
-    # mission ends with autopilot.mission_end.
-    goals_enu_m: tuple[tuple[float, float], ...] = ()   # via-points and goal, [x east, y north] m
-    assistant_map: str = ""            # .npz; empty: the world's map built with the CNN (cached)
-    assistant_map_stride_px: int = 10  # stride of that built map
-    start_after_s: float = 1.0         # simulated seconds before the mission is uploaded and started
-    check_period_s: float = 1.0        # simulated seconds between drift / map-change checks
-    replan_drift_m: float = 40.0       # replan when the estimate is this far from the route
-    footprint_m: float | None = None   # camera-footprint width kept clear; None: from altitude and FOV
-    clearance_m: float = 10.0          # extra distance kept between footprint edge and bad area
-    unvisited_weight: float = 0.5      # unvisited map cells as obstacles: 0 free .. 1 hard
-    waypoint_spacing_m: float = 50.0   # spacing of the mission's waypoints along the route
-
-    def __post_init__(self) -> None:
-        check(not self.enabled or len(self.goals_enu_m) >= 1, "goals_enu_m", self.goals_enu_m,
-              "at least one [x, y] goal in metres when guidance is enabled")
-        check(self.assistant_map_stride_px >= 1, "assistant_map_stride_px",
-              self.assistant_map_stride_px, "a positive number of pixels")
-        check(self.start_after_s >= 0, "start_after_s", self.start_after_s, ">= 0 s")
-        check(self.check_period_s > 0, "check_period_s", self.check_period_s, "> 0 s")
-        check(self.replan_drift_m > 0, "replan_drift_m", self.replan_drift_m, "> 0 m")
-        check(self.footprint_m is None or self.footprint_m >= 0, "footprint_m", self.footprint_m,
-              "a width >= 0 m, or null for the camera footprint")
-        check(self.clearance_m >= 0, "clearance_m", self.clearance_m, ">= 0 m")
-        check(0 <= self.unvisited_weight <= 1, "unvisited_weight", self.unvisited_weight, "0 to 1")
-        check(self.waypoint_spacing_m > 0, "waypoint_spacing_m", self.waypoint_spacing_m, "> 0 m")
-
-
-@dataclass(frozen=True)
 class ScenarioConfig:
     name: str = "default"
     seed: int = 0
@@ -195,7 +137,7 @@ class ScenarioConfig:
     recorder: RecorderConfig = field(default_factory=RecorderConfig)
     evaluation: EvaluationConfig = field(default_factory=EvaluationConfig)
     autopilot: AutopilotNodeConfig = field(default_factory=AutopilotNodeConfig)
-    guidance: GuidanceConfig = field(default_factory=GuidanceConfig)
+    guidance: GuidanceNodeConfig = field(default_factory=GuidanceNodeConfig)
 
     def __post_init__(self) -> None:
         check(self.duration_s > 0, "duration_s", self.duration_s, "a positive number of seconds")
@@ -209,7 +151,7 @@ def bowtie_route(world, altitude_m: float = 100.0, fov_deg: float = 60.0,
                  margin_m: float = 10.0) -> tuple[tuple[float, float], ...]:
     """A route for any world: SW -> SE -> NW -> NE -> SW, inset so the camera footprint stays on
     the map. The diagonals cross the centre; the legs cover the edge districts."""
-    half_fp = altitude_m * math.tan(math.radians(fov_deg / 2))
+    half_fp = ground_footprint_m(altitude_m, fov_deg) / 2.0
     hx = world.width_px * world.m_per_px / 2 - half_fp - margin_m
     hy = world.height_px * world.m_per_px / 2 - half_fp - margin_m
     if hx < 20 or hy < 20:

@@ -13,12 +13,12 @@ import numpy as np
 import pytest
 from support.fake_vehicle import running_server
 
-from guidance.config import PlannerConfig, RouteEnd
-from guidance.node import GuidanceNode, GuidanceNodeConfig
-from guidance.route import WorldInfo
+from guidance.config import GuidanceRunConfig, PlannerConfig, RouteEnd
+from guidance.node import GuidanceNode
 from scenenav.core.bus import Bus, BusConfig, free_port
 from scenenav.core.contracts import ClockMode, ClockTick, NavEstimate, RunState
 from scenenav.core.keys import Keys
+from scenenav.core.formats.world_manifest import WorldManifest
 from scenenav.core.frames import pixel_to_world
 
 M_PER_PX = 2.0
@@ -49,9 +49,10 @@ def setup(tmp_path):
     np.savez(map_path, probability=lake_map())
     ns = f"t{uuid.uuid4().hex[:8]}"
     hub = Bus(BusConfig(ns, free_port(), listen_hub=True))
-    world = WorldInfo("lakeworld", SIZE_PX, SIZE_PX, M_PER_PX, 48.0, 11.0)
+    world = WorldManifest(1, "lakeworld", SIZE_PX, SIZE_PX, M_PER_PX, 48.0, 11.0, "generated", None,
+                          False, False)
     with running_server() as (server, vehicle):
-        cfg = GuidanceNodeConfig(start_enu_m=START, goals_enu_m=(GOAL,), assistant_map=str(map_path),
+        cfg = GuidanceRunConfig(start_enu_m=START, goals_enu_m=(GOAL,), assistant_map=str(map_path),
                                  altitude_m=100.0, end=RouteEnd.LAND, replan_drift_m=40.0,
                                  check_period_s=1.0, start_after_s=1.0,
                                  mavlink_url=f"tcp:127.0.0.1:{server.tcp_port}", lockstep=False)

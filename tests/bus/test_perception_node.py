@@ -1,5 +1,7 @@
-"""The perception node on a real bus: garbage is dropped and counted, good frames get fixes."""
+"""The perception node on a real bus: garbage is dropped and counted, frames from another camera are
+refused (counted, answered with an invalid fix), good frames get fixes scaled with the frame's FOV."""
 
+import contextlib
 import math
 import threading
 import time
@@ -8,6 +10,7 @@ import numpy as np
 import pytest
 
 from scenenav.core.bus import Bus, BusConfig, free_port
+from scenenav.core.camera_geometry import ground_footprint_m
 from scenenav.core.contracts import (BaroSample, CameraFrame, CompassSample, LockstepAck, VisionFix,
                                 encode)
 from scenenav.core.keys import Keys
@@ -19,17 +22,20 @@ def world():
     return load_default_world()
 
 
-def _frame(world, seq, t_us, size=200):
+def _frame(world, seq, t_us, size=200, fov_deg=60.0, altitude_m=100.0):
     # a north-up crop of the orthophoto at the map centre, resized to the camera size
     import cv2
-    fp = int(2 * 100 * math.tan(math.radians(30)) / world.m_per_px)
+    fp = int(ground_footprint_m(altitude_m, fov_deg) / world.m_per_px)
     cu, cv = world.width_px // 2, world.height_px // 2
     crop = world.orthophoto[cv - fp // 2:cv + fp // 2, cu - fp // 2:cu + fp // 2]
     img = cv2.resize(crop, (size, size), interpolation=cv2.INTER_AREA)
-    return CameraFrame(t_us, seq, size, size, "rgb8", 60.0, "gimbal", np.ascontiguousarray(img))
+    return CameraFrame(t_us, seq, size, size, "rgb8", fov_deg, "gimbal", np.ascontiguousarray(img))
 
 
-def test_garbage_dropped_good_frames_fixed(world):
+@contextlib.contextmanager
+def _live_node(world, camera=None):
+    """A perception node (method none, lockstep) and a hub on a fresh bus, the node's fixes and acks
+    collected; yields (hub, keys, node, fixes, acks) once the node is a lockstep member."""
     from perception.node import PerceptionNode
     port = free_port()
     hub = Bus(BusConfig("pn", port, listen_hub=True))
@@ -39,13 +45,28 @@ def test_garbage_dropped_good_frames_fixed(world):
     hub.subscribe(keys.lockstep_ack_all, LockstepAck, lambda m, k: acks.append(m))
     up = threading.Event()
     hub.watch_liveliness(keys.lockstep_member_all, lambda k, a: up.set() if a else None)
-    node = PerceptionNode(world, BusConfig("pn", port), node_id="p1", method="none", lockstep=True)
+    node = PerceptionNode(world, BusConfig("pn", port), node_id="p1", method="none", lockstep=True,
+                          camera=camera)
     try:
         assert up.wait(15)
         hub.publish(keys.compass, CompassSample(0, 0.0))
         hub.publish(keys.baro, BaroSample(0, 100.0, 100129.0))
+        yield hub, keys, node, fixes, acks
+    finally:
+        node.close()
+        hub.close()
+
+
+def _wait_for(acks, n):
+    t0 = time.monotonic()
+    while time.monotonic() - t0 < 30 and len(acks) < n:
+        time.sleep(0.05)
+
+
+def test_garbage_dropped_good_frames_fixed(world):
+    with _live_node(world) as (hub, keys, node, fixes, acks):
         hub.publish(keys.camera, _frame(world, 0, 1000))                 # good
-        hub.publish(keys.camera, _frame(world, 1, 2000, size=120))       # wrong size
+        hub.publish(keys.camera, _frame(world, 1, 2000, size=120))       # another camera: refused
         raw = encode(_frame(world, 2, 3000))
         hub.put_raw(keys.camera, raw[:len(raw) // 2])                    # truncated bytes
         hub.put_raw(keys.compass, b'{"type":"CompassSample","version":1,"timestamp_us":5,"heading_rad":"x"}')
@@ -53,18 +74,46 @@ def test_garbage_dropped_good_frames_fixed(world):
         hub.publish(keys.camera, _frame(world, 3, 5000))
         hub.publish(keys.compass, CompassSample(6000, 0.0))
         hub.publish(keys.camera, _frame(world, 4, 7000))                 # good again
-        t0 = time.monotonic()
-        while time.monotonic() - t0 < 30 and len(acks) < 4:
-            time.sleep(0.05)
-        assert [f.frame_seq for f in fixes] == [0, 4]
+        _wait_for(acks, 4)
+        assert [f.frame_seq for f in fixes] == [0, 1, 4]
+        assert not fixes[1].valid and not fixes[1].accepted           # the refused frame's answer
         good = fixes[0]
         assert good.valid and good.accepted and good.method == "none"
         assert math.hypot(*good.position_xy_enu_m) < 2.0                 # map centre = world origin
         assert [a.seq for a in acks] == [0, 1, 3, 4]                     # every decodable frame answered
-        assert node.stats["dropped_wrong_size"] == 1
+        assert node.stats["refused_camera_mismatch"] == 1
         assert node.stats["dropped_nan_sensor"] == 1
         assert node.bus.dropped[keys.camera] == 1                        # the truncated one
         assert node.bus.dropped[keys.compass] == 1
-    finally:
-        node.close()
-        hub.close()
+
+
+def _run_node(world, camera, frames, n_answers):
+    """Publish ``frames`` to a fresh node expecting ``camera``; return (fixes, acks, node stats)."""
+    with _live_node(world, camera) as (hub, keys, node, fixes, acks):
+        for f in frames:
+            hub.publish(keys.camera, f)
+        _wait_for(acks, n_answers)
+        return fixes, acks, dict(node.stats)
+
+
+def test_frames_from_another_camera_are_refused_and_counted(world):
+    from perception.config import ExpectedCamera
+    frames = [_frame(world, 0, 1000, fov_deg=45.0),       # FOV differs from the configured 60
+              _frame(world, 1, 2000, size=160),            # size differs
+              _frame(world, 2, 3000)]                      # the configured camera
+    fixes, acks, stats = _run_node(world, ExpectedCamera(60.0, 200, 200), frames, 3)
+    assert [a.seq for a in acks] == [0, 1, 2]              # lockstep never waits for a refused frame
+    assert [f.frame_seq for f in fixes] == [0, 1, 2]
+    assert [f.valid for f in fixes] == [False, False, True]
+    assert stats["refused_camera_mismatch"] == 2 and stats["fixes"] == 1
+
+
+def test_node_scales_captures_with_the_frames_fov(world):
+    """A 45-degree, 240 px camera configured as such: the fix lands on the map centre, which needs
+    the frame's FOV (the old fixed 60 degrees would scale the template by tan(30)/tan(22.5))."""
+    from perception.config import ExpectedCamera
+    frames = [_frame(world, 0, 1000, size=240, fov_deg=45.0)]
+    fixes, acks, stats = _run_node(world, ExpectedCamera(45.0, 240, 240), frames, 1)
+    assert len(fixes) == 1 and fixes[0].valid
+    assert math.hypot(*fixes[0].position_xy_enu_m) < 2.0
+    assert stats.get("refused_camera_mismatch", 0) == 0

@@ -87,7 +87,7 @@ def _run_method(world, frames, method: str, classifier, amap) -> dict:
         if not r.valid:
             continue
         for k in stages:
-            stages[k].append(r.timings_ms.get(k, 0.0))
+            stages[k].append(getattr(r.timings, f"{k}_ms"))
         raw.append(_raw_match_ms(pipe))
     med = {k: round(statistics.median(v), 3) if v else None for k, v in stages.items()}
     return {"method": method, "fixes": len(stages["total"]), "fix_time_ms_median": med["total"],

@@ -8,60 +8,14 @@ from __future__ import annotations
 
 import argparse
 import logging
-import time
-from pathlib import Path
 
-import cv2
-
-from scenenav.core.errors import UserError
+from perception.map_cache import build_world_map
 
 log = logging.getLogger(__name__)
 
 
-def build(world_dir: str, out: str, stride_px: int = 5, altitude_m: float = 100.0,
-          fov_deg: float = 60.0, weights: str | None = None, batch_size: int = 256,
-          progress: bool = True, png: bool = True):
-    from perception.assistant_map import RenderMode, build_assistant_map
-    from perception.cnn import MatchClassifier
-    from worlds.world import load_world
-    if stride_px < 1:
-        raise UserError(f"--stride-px {stride_px}: expected a positive integer")
-    if not (5.0 <= altitude_m <= 1000.0):
-        raise UserError(f"--altitude-m {altitude_m}: expected 5 to 1000 m")
-    out_path = Path(out)
-    if out_path.suffix != ".npz":
-        raise UserError(f"--out {out}: expected a .npz file name")
-    world = load_world(world_dir)
-    clf = MatchClassifier.from_file(weights) if weights else MatchClassifier.default()
-    gray = cv2.cvtColor(world.reference, cv2.COLOR_RGB2GRAY)
-    bar = None
-    if progress:
-        from tqdm import tqdm
-        bar = tqdm(unit="crop", desc="assistant map")
-
-    def on_progress(done: int, total: int) -> None:
-        if bar is not None:
-            bar.total = total
-            bar.n = done
-            bar.refresh()
-    t0 = time.perf_counter()
-    amap = build_assistant_map(gray, clf.predict_proba, world.m_per_px, altitude_m=altitude_m,
-                               fov_deg=fov_deg, stride_px=stride_px, batch_size=batch_size,
-                               progress=on_progress, cnn_input_px=clf.input_px,
-                               world_name=world.manifest.name,
-                               model_id=str(getattr(clf.meta, "training_record_id", "")))
-    elapsed = time.perf_counter() - t0
-    if bar is not None:
-        bar.close()
-    out_path.parent.mkdir(parents=True, exist_ok=True)
-    amap.save(out_path)
-    if png:
-        amap.render_png(out_path.with_suffix(".png"), RenderMode.BINARY)
-    return amap, elapsed
-
-
 def _build(args: argparse.Namespace) -> int:
-    amap, elapsed = build(args.world, args.out, args.stride_px, args.altitude_m, args.fov_deg,
+    amap, elapsed = build_world_map(args.world, args.out, args.stride_px, args.altitude_m, args.fov_deg,
                           args.weights, args.batch_size, progress=not args.quiet, png=not args.no_png)
     print(f"assistant map {amap.width_px}x{amap.height_px} px, stride {args.stride_px} px, "
           f"coverage {amap.coverage():.1%}, built in {elapsed:.1f} s -> {args.out}")

@@ -63,7 +63,8 @@ def _command_line() -> str:
 
 def _dataset(args: argparse.Namespace) -> int:
     from perception.cnn import Labelling
-    from perception.dataset import DatasetConfig, build_dataset
+    from perception.dataset import build_dataset
+    from perception.dataset_config import DatasetConfig
     w, h = args.world_size
     cfg = DatasetConfig(n_worlds=args.worlds, seed=args.seed, labelling=Labelling(args.labelling),
                         base_crops=args.base_crops, augment_to=args.augment_to, world_width_px=w,
@@ -147,7 +148,7 @@ def _bench(args: argparse.Namespace) -> int:
 
 
 def _decision_data(args: argparse.Namespace) -> int:
-    from perception.decision_fit import collect
+    from scenenav.app.decision_data import collect
     runs = collect(args.out, args.worlds, args.world_size, args.weights or "", progress=not args.quiet,
                    command=_command_line())
     print(f"decision data {args.out}: {len(runs)} cnn flights: " + ", ".join(str(r) for r in runs))
@@ -155,7 +156,7 @@ def _decision_data(args: argparse.Namespace) -> int:
 
 
 def _fit_decision(args: argparse.Namespace) -> int:
-    from perception.decision_fit import evaluate_flights, fit_decision, flight_dirs_under
+    from scenenav.app.decision_data import evaluate_flights, fit_decision, flight_dirs_under
     flights = flight_dirs_under(args.data)
     man_path = Path(args.data) / "manifest.json"
     manifest = json.loads(man_path.read_text(encoding="utf-8")) if man_path.is_file() else None
@@ -183,7 +184,7 @@ def _fit_decision(args: argparse.Namespace) -> int:
 def register(subparsers) -> None:
     """Add `dataset`, `train` and `cnn` to the scenenav command."""
     from perception.cnn import DEFAULT_INPUT_PX
-    from perception.dataset import DatasetConfig, EVAL_WORLD_SEEDS
+    from perception.dataset_config import EVAL_WORLD_SEEDS, DatasetConfig
     from perception.training import CompareConfig, TrainConfig
     dc, tc, cc = DatasetConfig(), TrainConfig(), CompareConfig()
 
@@ -277,7 +278,7 @@ def register(subparsers) -> None:
     cb.add_argument("--json", action="store_true", help="print JSON")
     cb.set_defaults(func=_bench)
 
-    from perception.decision_fit import DEFAULT_TRAIN_SEEDS
+    from scenenav.app.decision_data import DEFAULT_TRAIN_SEEDS
     dd = csub.add_parser(
         "decision-data", help="fly training worlds with the online CNN (data for fit-decision)",
         description="Generate each training world (seeded) and fly the Table-2 path over it once with "

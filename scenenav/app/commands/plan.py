@@ -20,10 +20,12 @@ from pathlib import Path
 
 from guidance.config import PlannerConfig, RouteEnd, RouteFormat
 from guidance.planner import plan_route
-from guidance.route import (check_map_matches_world, load_assistant_map, load_world_manifest,
-                            write_route_json, write_route_png, write_wpl)
+from guidance.route import mission_items, route_to_dict, write_route_png
 from scenenav.core.config import apply_overrides, load_config
 from scenenav.core.errors import UserError, run_command
+from scenenav.core.formats.assistant_map_file import check_map_matches_world, read_probability_map
+from scenenav.core.formats.route_file import write_route_json, write_wpl
+from scenenav.core.formats.world_manifest import read_manifest
 
 log = logging.getLogger(__name__)
 
@@ -93,17 +95,18 @@ def run_plan(args: argparse.Namespace) -> int:
     start = parse_xy(args.start, "--start")
     goal = parse_xy(args.goal, "--goal")
     cfg = planner_config_from_args(args)
-    world = load_world_manifest(args.world)
-    amap = load_assistant_map(args.assistant_map)
+    world = read_manifest(args.world)
+    amap = read_probability_map(args.assistant_map)
     check_map_matches_world(amap, world, args.assistant_map)
     route = plan_route(amap.probability, world.m_per_px, start, goal, cfg, names=("--start", "--goal"))
     out = Path(args.out)
     try:
         out.parent.mkdir(parents=True, exist_ok=True)
-        write_route_json(out, route, world, args.home_alt_m)
+        write_route_json(out, route_to_dict(route, world, args.home_alt_m))
         write_route_png(out.with_suffix(".png"), route, amap.probability, world.m_per_px)
         if RouteFormat(args.format) is RouteFormat.WPL:
-            write_wpl(out.with_suffix(".waypoints"), route, world, args.home_alt_m, RouteEnd(args.end))
+            write_wpl(out.with_suffix(".waypoints"), mission_items(route, world, args.home_alt_m,
+                                                                   RouteEnd(args.end)))
     except OSError as exc:
         raise UserError(f"--out {out}: cannot write: {exc.strerror or exc}") from None
     clear = f"{route.min_clearance_m:.1f} m" if math.isfinite(route.min_clearance_m) else "n/a (no bad cell)"

@@ -14,6 +14,7 @@ import pytest
 from scenenav.app.bench.plan import run_bench
 from scenenav.app.commands.plan import main, parse_xy
 from scenenav.core.errors import UserError
+from scenenav.core.formats.world_manifest import WorldManifest
 from scenenav.core.frames import enu_to_geodetic, pixel_to_world
 from support import REPO_ROOT
 
@@ -27,9 +28,10 @@ def world(tmp_path: Path) -> dict:
     """A world directory with manifest.json and an assistant map with one lake."""
     wdir = tmp_path / "world"
     wdir.mkdir()
-    (wdir / "manifest.json").write_text(json.dumps({
-        "name": "testworld", "width_px": W, "height_px": H, "m_per_px": M_PER_PX,
-        "origin_lat_deg": LAT0, "origin_lon_deg": LON0}))
+    (wdir / "manifest.json").write_text(WorldManifest(
+        format_version=1, name="testworld", width_px=W, height_px=H, m_per_px=M_PER_PX,
+        origin_lat_deg=LAT0, origin_lon_deg=LON0, source="generated", seed=None,
+        has_landcover=False, has_junctions=False).to_json())
     prob = np.full((H, W), 0.9, dtype=np.float32)
     v, u = np.mgrid[0:H, 0:W]
     x, y = pixel_to_world(u + 0.5, v + 0.5, W, H, M_PER_PX)

@@ -5,12 +5,10 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from guidance.config import PlannerConfig, RouteEnd
-from guidance.node import (ARRIVING_M, cross_track_m, node_config_from_scenario, remaining_goals,
-                           replan_reason)
+from guidance.config import PlannerConfig
+from guidance.node import ARRIVING_M, cross_track_m, remaining_goals, replan_reason
 from guidance.planner import join_legs, plan_through
 from scenenav.core.errors import UserError
-from scenenav.app.scenario import load_scenario
 from scenenav.core.frames import pixel_to_world
 
 M_PER_PX = 2.0
@@ -70,19 +68,6 @@ def test_legs_need_a_goal_and_reject_goals_in_bad_area():
         plan_through(prob, M_PER_PX, [(-250.0, 0.0)])
     with pytest.raises(UserError, match="goal 1"):
         plan_through(prob, M_PER_PX, [(-250.0, 0.0), (0.0, 0.0)], PlannerConfig(footprint_m=0.0))
-
-
-def test_node_config_follows_the_scenario():
-    cfg = load_scenario(None, ("flight.mode=autopilot", "guidance.enabled=true",
-                               "guidance.goals_enu_m=[[10,20],[30,40]]", "flight.start_enu_m=[1,2]",
-                               "flight.altitude_m=80", "autopilot.mission_end=rtl",
-                               "guidance.footprint_m=0", "guidance.clearance_m=15"))
-    node_cfg, planner_cfg = node_config_from_scenario(cfg, 5761, lockstep=True)
-    assert node_cfg.start_enu_m == (1.0, 2.0)
-    assert node_cfg.goals_enu_m == ((10.0, 20.0), (30.0, 40.0))
-    assert node_cfg.end is RouteEnd.RTL and node_cfg.mavlink_url == "tcp:127.0.0.1:5761"
-    assert planner_cfg.altitude_m == 80.0 and planner_cfg.footprint_width_m == 0.0
-    assert planner_cfg.clearance_m == 15.0
 
 
 def test_distance_to_polyline_vectorised():

@@ -8,9 +8,10 @@ import cv2
 import numpy as np
 import pytest
 
-from perception.alignment import BadInput, align_capture, footprint_m, to_gray_float32
+from perception.alignment import BadInput, align_capture, to_gray_float32
 from perception.config import CropMode
-from perception.matcher import SceneMatcher
+from perception.ncc_search import SceneMatcher
+from scenenav.core.camera_geometry import ground_footprint_m
 
 FOV = 60.0
 CAM = 200
@@ -29,7 +30,7 @@ def altitude_for_scale(scale: float, map_m_per_px: float) -> float:
 
 def render(world: np.ndarray, u: float, v: float, heading: float, alt: float, mpp: float) -> np.ndarray:
     """Independent camera model: camera pixel offset (right, down) = R(-heading) (east, south)."""
-    g = footprint_m(alt, FOV) / CAM / mpp                     # map px per camera px
+    g = ground_footprint_m(alt, FOV) / CAM / mpp                     # map px per camera px
     jj, ii = np.meshgrid(np.arange(CAM) - (CAM - 1) / 2.0, np.arange(CAM) - (CAM - 1) / 2.0)
     # A camera pixel `right` along the forward-right axes maps to map east/south by the heading.
     c, s = math.cos(heading), math.sin(heading)

@@ -11,9 +11,11 @@ import numpy as np
 import pytest
 
 from perception.cnn import Labelling, MatchClass
-from perception.dataset import (EVAL_WORLD_SEEDS, INDEX_FILE, MANIFEST_FILE, AugmentRecipe, BaseSample, CropSource,
-                                DatasetConfig, allocate_augmentation, arm_class, augment_image, build_dataset,
-                                load_dataset, read_manifest, render_crop, training_world_seeds)
+from perception.dataset import build_dataset
+from perception.dataset_config import EVAL_WORLD_SEEDS, AugmentRecipe, DatasetConfig, training_world_seeds
+from perception.dataset_files import INDEX_FILE, MANIFEST_FILE, load_dataset, read_manifest
+from perception.dataset_images import augment_image, render_crop
+from perception.dataset_samples import BaseSample, CropSource, allocate_augmentation, arm_class
 from perception.matchability import (GLOBAL_SEARCH, CaptureNoise, MatchabilityConfig, footprint_px, matchability,
                                      ncc_peak, render_camera)
 from scenenav.core.errors import UserError
@@ -85,7 +87,7 @@ def test_augmentation_allocation_evens_out_classes():
 
 
 def test_bad_area_candidates_need_dominant_bad_cover_and_no_junction():
-    from perception.dataset import WorldData, _bad_candidates
+    from perception.dataset_samples import WorldData, _bad_candidates
     from worlds.landcover import Junction, JunctionKind, LandCover
     lc = np.full((600, 600), int(LandCover.BUILDING_TEXTURED), np.uint8)
     lc[:, :300] = int(LandCover.WATER)                 # west half: a lake

@@ -9,7 +9,8 @@ import numpy as np
 import pytest
 
 from perception.config import MatcherConfig, NccMethod
-from perception.matcher import MatchTracker, SceneMatcher, SearchMode, TrackState
+from perception.ncc_search import SceneMatcher, SearchMode
+from perception.tracker import MatchTracker, TrackState
 
 M_PER_PX = 0.5
 
@@ -47,7 +48,7 @@ def test_integer_shift_found_exactly(ref):
     assert r.quality_ok
     # ENU: x = (u - W/2) m_per_px, y = (H/2 - v) m_per_px.
     assert r.position_enu_m == pytest.approx(((155 - 200) * M_PER_PX, (150 - 119) * M_PER_PX), abs=0.05)
-    assert set(r.timings_ms) == {"crop", "ncc", "refine"}
+    assert r.timings.ncc_ms > 0.0 and r.timings.crop_ms >= 0.0 and r.timings.refine_ms >= 0.0
 
 
 @pytest.mark.parametrize("dx,dy", [(0.3, -0.4), (-0.25, 0.45), (0.5, 0.0)])

@@ -1,0 +1,90 @@
+"""What determines a CNN dataset (``DatasetConfig``, the augmentation recipe) and its checks.
+
+See ``perception.dataset`` for how a dataset is built.
+"""
+
+from __future__ import annotations
+
+import logging
+from dataclasses import dataclass, field
+
+
+from perception.cnn import PAPER_INPUT_PX, Labelling, MatchClass
+from perception.matchability import MatchabilityConfig, footprint_px
+from scenenav.core.errors import UserError
+
+log = logging.getLogger(__name__)
+
+
+EVAL_WORLD_SEEDS: tuple[int, ...] = (9001, 9002)
+"""World seeds reserved for held-out evaluation (``scenenav cnn compare``); never used for training."""
+
+
+WORLD_SEEDS_PER_DATASET_SEED = 1000
+
+
+@dataclass(frozen=True)
+class AugmentRecipe:
+    """Random transforms of one augmented copy (uniform ranges)."""
+
+    rotation_deg: tuple[float, float] = (0.0, 360.0)
+    flip_probability: float = 0.5
+    scale: tuple[float, float] = (0.9, 1.1)
+    log_gamma: tuple[float, float] = (-0.3, 0.3)
+    gain: tuple[float, float] = (0.75, 1.25)
+    offset: tuple[float, float] = (-0.08, 0.08)
+    blur_sigma_px: tuple[float, float] = (0.0, 1.2)
+    noise_sigma: tuple[float, float] = (0.0, 0.03)
+
+
+@dataclass(frozen=True)
+class DatasetConfig:
+    """Everything that determines a dataset (stored in its manifest)."""
+
+    n_worlds: int = 12
+    seed: int = 0
+    labelling: Labelling = Labelling.PAPER
+    base_crops: int = 1500
+    augment_to: int = 3920
+    world_width_px: int = 2000
+    world_height_px: int = 2000
+    m_per_px: float = 0.53
+    altitude_m: float = 100.0
+    fov_deg: float = 60.0
+    image_px: int = PAPER_INPUT_PX
+    bad_min_share: float = 0.6
+    junction_jitter_px: float = 40.0
+    max_crops_per_junction: int = 3
+    bad_min_spacing_px: int = 24
+    validate_global_n: int = 16
+    matchability_extra_positions: int = 2000
+    augment: AugmentRecipe = field(default_factory=AugmentRecipe)
+    matchability: MatchabilityConfig = field(default_factory=MatchabilityConfig)
+
+    def world_seeds(self) -> tuple[int, ...]:
+        return training_world_seeds(self.seed, self.n_worlds)
+
+
+def training_world_seeds(seed: int, n_worlds: int) -> tuple[int, ...]:
+    """World seeds used for a dataset built with ``--seed seed --worlds n_worlds``."""
+    return tuple(1 + WORLD_SEEDS_PER_DATASET_SEED * seed + i for i in range(n_worlds))
+
+
+def check_config(cfg: DatasetConfig) -> None:
+    """One-line UserError for out-of-range settings."""
+    if cfg.n_worlds < 1 or cfg.n_worlds >= WORLD_SEEDS_PER_DATASET_SEED:
+        raise UserError(f"--worlds = {cfg.n_worlds}: expected an integer in [1, {WORLD_SEEDS_PER_DATASET_SEED - 1}]")
+    if cfg.seed < 0:
+        raise UserError(f"--seed = {cfg.seed}: expected an integer >= 0")
+    clash = sorted(set(cfg.world_seeds()) & set(EVAL_WORLD_SEEDS))
+    if clash:
+        raise UserError(f"--seed {cfg.seed} --worlds {cfg.n_worlds}: world seed {clash[0]} is reserved for "
+                        f"held-out evaluation (use another --seed)")
+    if cfg.base_crops < len(MatchClass):
+        raise UserError(f"--base-crops = {cfg.base_crops}: expected at least {len(MatchClass)}")
+    if cfg.augment_to < cfg.base_crops:
+        raise UserError(f"--augment-to = {cfg.augment_to}: expected >= --base-crops ({cfg.base_crops})")
+    crop = footprint_px(cfg.altitude_m, cfg.fov_deg, cfg.m_per_px)
+    if min(cfg.world_width_px, cfg.world_height_px) < crop + 2 * cfg.junction_jitter_px + 8:
+        raise UserError(f"world size {cfg.world_width_px}x{cfg.world_height_px} px: expected both sides > "
+                        f"{crop + 2 * cfg.junction_jitter_px + 8:.0f} px (the camera footprint is {crop} px)")
