@@ -43,22 +43,23 @@ from typing import NamedTuple, Sequence
 
 import numpy as np
 
-from autopilot_bridge.config import (AutopilotAlgorithmsConfig, ControlConfig, GuidanceConfig,
-                                     PositionSource, YawBehaviour)
+from autopilot_bridge.airframe import AIRFRAME_PARAM_NAMES, Airframe
+from autopilot_bridge.battery import BatteryMonitor
+from autopilot_bridge.config import (AutopilotAlgorithmsConfig, ControlConfig, FlightCoreConfig,
+                                     GuidanceConfig, MissionEndMode, PositionSource, YawBehaviour)
 from autopilot_bridge.control import ControlOutput, FlightController, PositionTarget, stopping_point
-from autopilot_bridge.ekf import NavFilter, NavState, aviation_euler_from_quat
+from autopilot_bridge.ekf import NavFilter, NavState
 from autopilot_bridge.failsafe import (FailsafeAction, FailsafeEvent, FailsafeInputs,
                                        FailsafeKind, FailsafeMonitor, FailsafeSettings)
 from autopilot_bridge.guidance_law import (GuidanceEventKind, Lander, ReturnToLaunch, RtlPhase,
                                            Waypoint, WaypointTracker, make_takeoff)
 from autopilot_bridge.mixer import QuadXMixer
 from autopilot_bridge.modes import CopterMode
-from autopilot_bridge.params import DEFAULT_PARAM_SPECS, ParameterStore, ParamSpec, ParamType
+from autopilot_bridge.params import ParameterStore
 from autopilot_bridge.vehicle_interface import (
     DEFAULT_SENSORS,
     AltFrame,
     GlobalPositionTarget,
-    GpsFixType,
     HomeChangedEvent,
     LandedState,
     LocalPositionTarget,
@@ -79,24 +80,14 @@ from autopilot_bridge.vehicle_interface import (
     VehicleEvent,
     VehicleTelemetry,
 )
-from sitl.vehicle import VehicleParams
-from scenenav.core.frames import enu_to_geodetic, geodetic_to_enu
+from scenenav.core.contracts import GpsFixType
+from scenenav.core.frames import enu_to_geodetic, geodetic_to_enu, wrap_pi
+from scenenav.core.numeric import all_finite
+from scenenav.core.rotations import aviation_euler_from_quat
 
 logger = logging.getLogger(__name__)
 
 _TWO_PI = 2.0 * math.pi
-
-# scenenav parameters, served with ArduCopter's (``ParameterStore(PARAM_SPECS)``).
-SN_PARAM_SPECS: tuple[ParamSpec, ...] = (
-    ParamSpec("SN_VIS_TIMEOUT", ParamType.REAL32, 5.0, 0.0, 120.0, "s",
-              "Vision failsafe: hold position after this long without a usable fix in "
-              "GPS-denied flight (EK3_SRC1_POSXY 6); 0 disables"),
-    ParamSpec("SN_VIS_FS_LAND", ParamType.REAL32, 10.0, 0.0, 600.0, "s",
-              "Vision failsafe: land after holding this long without a fix"),
-    ParamSpec("SN_VIS_MIN_ALT", ParamType.REAL32, 35.0, 0.0, 1000.0, "m",
-              "Vision fixes are used (and expected) only this high above home"),
-)
-PARAM_SPECS: tuple[ParamSpec, ...] = DEFAULT_PARAM_SPECS + SN_PARAM_SPECS
 
 NAV_COMMANDS = frozenset({MissionCommand.NAV_WAYPOINT, MissionCommand.NAV_TAKEOFF,
                           MissionCommand.NAV_LAND, MissionCommand.NAV_RETURN_TO_LAUNCH})
@@ -111,10 +102,6 @@ GPS_FRESH_S = 2.0
 TAKEOFF_DONE_TOLERANCE_M = 0.5
 SAME_TARGET_M = 0.01
 MAX_VELOCITY_TARGET_M_S = 30.0
-BATTERY_FULL_V = 12.6
-BATTERY_EMPTY_V = 10.5
-BATTERY_IDLE_A = 0.5
-BATTERY_MAX_A = 40.0
 
 
 class EkfStatusFlag(IntFlag):
@@ -157,13 +144,6 @@ class AutoStage(Enum):
     COMPLETE = "complete"
 
 
-class MissionEnd(str, Enum):
-    """What follows the last waypoint of a route mission."""
-
-    LAND = "land"   # land at the last waypoint
-    RTL = "rtl"     # return to launch and land
-
-
 # ------------------------------------------------------------------------------- data
 
 
@@ -191,33 +171,6 @@ class _VisionReading:
     xy_enu_m: tuple[float, float]
     cov_m2: np.ndarray                            # (2, 2)
     source: str
-
-
-@dataclass(frozen=True)
-class FlightCoreConfig:
-    """Where the vehicle is and how the core treats its inputs (not ArduPilot parameters)."""
-
-    origin_lat_deg: float = 0.0           # geodetic position of the world origin (ENU 0, 0)
-    origin_lon_deg: float = 0.0
-    origin_alt_amsl_m: float = 0.0        # AMSL altitude of the ground plane (ENU z = 0)
-    start_enu_m: tuple[float, float] = (0.0, 0.0)   # known take-off point (home without GPS)
-    ground_z_m: float = 0.0               # ENU height of the ground under the take-off point
-    align_time_s: float = 1.0             # samples averaged at rest before the EKF is aligned
-    gps_wait_s: float = 5.0               # with GPS as source: wait this long for fixes to align
-    gps_velocity_std_m_s: float = 0.2     # GPS velocity accuracy (GpsSample carries none)
-    ground_position_std_m: float = 0.3    # on-ground pseudo position fix without a source
-    ground_fusion_period_s: float = 0.2
-    ext_nav_std_m: float = 0.5            # MAVLink external nav without a covariance
-    ext_nav_fresh_s: float = 1.0          # MAVLink external nav counts as a source this long
-    vision_max_age_s: float = 1.0         # older vision fixes are dropped
-
-    def __post_init__(self) -> None:
-        for name in ("align_time_s", "gps_wait_s", "gps_velocity_std_m_s", "ground_position_std_m",
-                     "ground_fusion_period_s", "ext_nav_std_m", "ext_nav_fresh_s",
-                     "vision_max_age_s"):
-            value = getattr(self, name)
-            if not (math.isfinite(value) and value > 0):
-                raise ValueError(f"FlightCoreConfig.{name} = {value!r}: expected > 0")
 
 
 @dataclass(frozen=True)
@@ -256,16 +209,8 @@ def enu_to_ned(v) -> tuple[float, float, float]:
     return (float(v[1]), float(v[0]), -float(v[2]))
 
 
-def _finite(*values: float) -> bool:
-    return all(math.isfinite(float(v)) for v in values)
-
-
-def _wrap_pi(a: float) -> float:
-    return (a + math.pi) % _TWO_PI - math.pi
-
-
 def build_route_mission(geo: GeoFrame, route_enu_m: Sequence[Sequence[float]], altitude_m: float,
-                        end: MissionEnd) -> tuple[MissionItem, ...]:
+                        end: MissionEndMode) -> tuple[MissionItem, ...]:
     """A mission for a route: NAV_TAKEOFF to ``altitude_m`` above home, one NAV_WAYPOINT per route
     point at that height, then NAV_LAND at the last point or NAV_RETURN_TO_LAUNCH (seq 1..n)."""
     rel = int(MavFrame.GLOBAL_RELATIVE_ALT_INT)
@@ -278,7 +223,7 @@ def build_route_mission(geo: GeoFrame, route_enu_m: Sequence[Sequence[float]], a
         items.append(MissionItem(seq=len(items) + 1, command=int(MissionCommand.NAV_WAYPOINT),
                                  frame=rel, lat_e7=last[0], lon_e7=last[1],
                                  alt_m=float(altitude_m)))
-    if end == MissionEnd.RTL:
+    if end == MissionEndMode.RTL:
         items.append(MissionItem(seq=len(items) + 1,
                                  command=int(MissionCommand.NAV_RETURN_TO_LAUNCH), frame=rel))
     else:
@@ -433,21 +378,20 @@ class FlightCore:
     """The flight core; see the module docstring. Not thread-safe: call from one thread."""
 
     def __init__(self, params: ParameterStore, cfg: FlightCoreConfig | None = None,
-                 algorithms: AutopilotAlgorithmsConfig | None = None,
-                 vehicle: VehicleParams | None = None) -> None:
+                 algorithms: AutopilotAlgorithmsConfig | None = None) -> None:
         self.params = params
         self.cfg = cfg if cfg is not None else FlightCoreConfig()
         self._algo = algorithms if algorithms is not None else AutopilotAlgorithmsConfig()
-        self._veh = vehicle if vehicle is not None else VehicleParams()
+        self.airframe = Airframe.from_params(params)
         self.geo = GeoFrame(self.cfg.origin_lat_deg, self.cfg.origin_lon_deg,
                             self.cfg.origin_alt_amsl_m)
         source = self._source_param()
         self.nav = NavFilter(dataclasses.replace(self._algo.ekf, position_source=source))
-        self.fc = FlightController(self._control_config(), self._veh)
-        self.mixer = QuadXMixer(self._veh, self._algo.mixer)
+        self.fc = FlightController(self._control_config(), self.airframe)
+        self.mixer = QuadXMixer(self.airframe)
         self.failsafe = FailsafeMonitor()
+        self.battery = BatteryMonitor()
         self.stats: Counter[str] = Counter()
-        self._hover_fraction = self._veh.mass_kg * self._veh.gravity_m_s2 / self._veh.max_thrust_n
         self._now_s = 0.0
         self._armed = False
         self._mode = CopterMode.STABILIZE
@@ -503,8 +447,6 @@ class FlightCore:
         self._motors = np.zeros(4)
         self._last_out: ControlOutput | None = None
         self._gyro = np.zeros(3)
-        self._consumed_mah = 0.0
-        self._current_a = 0.0
         self._events: list[VehicleEvent] = []
         self._texts: list[tuple[MavSeverity, str]] = []
         self._tel: VehicleTelemetry | None = None
@@ -580,7 +522,7 @@ class FlightCore:
         self._vision_available = bool(available)
 
     def on_baro(self, t_s: float, altitude_m: float) -> None:
-        if not _finite(altitude_m):
+        if not all_finite(altitude_m):
             self.stats["baro_nan"] += 1
             return
         if self.nav.aligned:
@@ -589,7 +531,7 @@ class FlightCore:
             self._align_baro.append(float(altitude_m))
 
     def on_compass(self, t_s: float, heading_rad: float) -> None:
-        if not _finite(heading_rad):
+        if not all_finite(heading_rad):
             self.stats["compass_nan"] += 1
             return
         h = float(heading_rad) % _TWO_PI
@@ -601,7 +543,7 @@ class FlightCore:
 
     def on_gps(self, reading: GpsReading) -> None:
         values = (reading.lat_deg, reading.lon_deg, reading.alt_m, *reading.velocity_enu_m_s)
-        if not _finite(*values) or abs(reading.lat_deg) > 90.0 or abs(reading.lon_deg) > 180.0:
+        if not all_finite(*values) or abs(reading.lat_deg) > 90.0 or abs(reading.lon_deg) > 180.0:
             self.stats["gps_nan"] += 1
             return
         self._last_gps = reading
@@ -612,6 +554,10 @@ class FlightCore:
         else:
             self._align_gps.append(self.geo.to_enu(reading.lat_deg, reading.lon_deg))
 
+    def on_power(self, t_s: float, voltage_v: float, current_a: float) -> None:
+        """A power-module measurement (battery voltage and current), reported over MAVLink."""
+        self.battery.on_sample(t_s, voltage_v, current_a)
+
     def on_vision_fix(self, capture_t_s: float, xy_enu_m, cov_2x2_m2, valid: bool, accepted: bool,
                       source: str = "") -> None:
         """A scene-matching fix from the followed perception node; fused at the next step when
@@ -621,7 +567,7 @@ class FlightCore:
             self.stats["vision_not_accepted"] += 1
             return
         xy = tuple(float(v) for v in xy_enu_m)
-        if len(xy) != 2 or not _finite(*xy, capture_t_s):
+        if len(xy) != 2 or not all_finite(*xy, capture_t_s):
             self.stats["vision_nan"] += 1
             return
         cov = np.asarray(cov_2x2_m2, dtype=float).reshape(2, 2)
@@ -663,7 +609,6 @@ class FlightCore:
             self._motors = np.asarray(mix.commands, dtype=float)
         else:
             self._motors = np.zeros(4)
-        self._update_battery(dt_s)
         return self._motors.copy()
 
     # --------------------------------------------------------------------------- alignment
@@ -865,7 +810,7 @@ class FlightCore:
         fc = self.fc
         mode = self._mode
         if mode == CopterMode.STABILIZE:
-            frac = 0.0 if fc.landed else self._hover_fraction
+            frac = 0.0 if fc.landed else self.airframe.hover_thrust_fraction
             return fc.update_stabilize(est, gyro, 0.0, 0.0, 0.0, frac, dt)
         if mode == CopterMode.ALT_HOLD:
             return fc.update_alt_hold(est, gyro, 0.0, 0.0, 0.0, 0.0, dt)
@@ -1339,21 +1284,24 @@ class FlightCore:
             self._announce(MavSeverity.INFO, f"EKF3 IMU0 is using {self._source_name()}")
         if name in ("ANGLE_MAX", "PILOT_SPEED_UP", "PILOT_SPEED_DN", "WPNAV_SPEED_UP",
                     "WPNAV_SPEED_DN", "LAND_SPEED", "LAND_SPEED_HIGH"):
-            landed = self.fc.landed
-            self.fc = FlightController(self._control_config(), self._veh)
-            if self.nav.aligned:
-                self.fc.reset(self.nav.state(), landed=landed)
-            else:
-                self.fc.set_landed(landed)
+            self._rebuild_controller()
+        if name in AIRFRAME_PARAM_NAMES:
+            self.airframe = Airframe.from_params(self.params)
+            self.mixer = QuadXMixer(self.airframe)
+            self._rebuild_controller()
         if name.startswith(("WPNAV_", "RTL_", "LAND_", "WP_YAW", "PILOT_")):
             self._gcfg = self._guidance_config()
             if isinstance(self._law, _Tracker):
                 self._law.retune(self._gcfg)
 
-    def _update_battery(self, dt_s: float) -> None:
-        frac = float(np.mean(self._motors ** 2)) if self._armed else 0.0
-        self._current_a = BATTERY_IDLE_A + BATTERY_MAX_A * frac
-        self._consumed_mah += self._current_a * dt_s / 3.6
+    def _rebuild_controller(self) -> None:
+        """A new controller for changed limits or a changed airframe model (integrators restart)."""
+        landed = self.fc.landed
+        self.fc = FlightController(self._control_config(), self.airframe)
+        if self.nav.aligned:
+            self.fc.reset(self.nav.state(), landed=landed)
+        else:
+            self.fc.set_landed(landed)
 
     def _disarm(self, why: str) -> None:
         if not self._armed:
@@ -1532,10 +1480,10 @@ class FlightCore:
             else:
                 pos = np.array(est.position_enu_m, dtype=float) + rotate(target.position_m)
         if target.kind in (SetpointKind.POSITION_VELOCITY, SetpointKind.VELOCITY) or \
-                (target.kind == SetpointKind.ACCELERATION and _finite(*target.velocity_m_s)):
-            if _finite(*target.velocity_m_s):
+                (target.kind == SetpointKind.ACCELERATION and all_finite(*target.velocity_m_s)):
+            if all_finite(*target.velocity_m_s):
                 vel = rotate(target.velocity_m_s)
-        if _finite(*target.acceleration_m_s2):
+        if all_finite(*target.acceleration_m_s2):
             acc = rotate(target.acceleration_m_s2)
         yaw = target.yaw_rad
         if yaw is not None and body:
@@ -1549,9 +1497,9 @@ class FlightCore:
         if target.kind in (SetpointKind.POSITION, SetpointKind.POSITION_VELOCITY):
             x, y = self.geo.to_enu(target.lat_deg, target.lon_deg)
             pos = np.array([x, y, self._alt_to_z(target.alt_m, target.alt_frame)])
-        if _finite(*target.velocity_m_s):
+        if all_finite(*target.velocity_m_s):
             vel = ned_to_enu(target.velocity_m_s)
-        if _finite(*target.acceleration_m_s2):
+        if all_finite(*target.acceleration_m_s2):
             acc = ned_to_enu(target.acceleration_m_s2)
         self._guided_setpoint(target.kind, pos, vel, acc, target.yaw_rad, target.yaw_rate_rad_s)
 
@@ -1620,7 +1568,7 @@ class FlightCore:
             return
         enu = self._origin_enu() + ned_to_enu(pos_ned)
         cov = None
-        if len(cov21) >= 7 and _finite(cov21[0], cov21[1], cov21[6]) and cov21[0] > 0 and cov21[6] > 0:
+        if len(cov21) >= 7 and all_finite(cov21[0], cov21[1], cov21[6]) and cov21[0] > 0 and cov21[6] > 0:
             # upper triangle of the 6x6 (x, y, z, roll, pitch, yaw): [0] xx, [1] xy, [6] yy (NED)
             cov = np.array([[cov21[6], cov21[1]], [cov21[1], cov21[0]]])   # ENU: swap x/y
         if cov is None:
@@ -1687,9 +1635,7 @@ class FlightCore:
         gps_fix = GpsFixType(min(max(g.fix_type, 0), GpsFixType.FIX_3D)) if g is not None \
             else GpsFixType.NO_GPS
         sensors = self._sensor_flags(aligned)
-        volt = BATTERY_FULL_V - (BATTERY_FULL_V - BATTERY_EMPTY_V) * min(
-            1.0, self._consumed_mah / max(self.params.get("BATT_CAPACITY"), 1.0))
-        remaining = max(0, 100 - int(100.0 * self._consumed_mah / max(self.params.get("BATT_CAPACITY"), 1.0)))
+        battery = self.battery.state(self.params.get("BATT_CAPACITY"))
         ok = self.nav.config.position_ok_max_std_m
         return VehicleTelemetry(
             time_boot_ms=int(self._now_s * 1000.0), armed=self._armed, mode=self._mode,
@@ -1697,12 +1643,12 @@ class FlightCore:
             lat_deg=lat, lon_deg=lon, alt_amsl_m=self.geo.origin_alt_amsl_m + float(pos[2]),
             relative_alt_m=float(pos[2] - home[2]),
             position_ned_m=enu_to_ned(pos - origin), velocity_ned_m_s=enu_to_ned(vel),
-            attitude_rpy_rad=(roll, pitch, _wrap_pi(heading)),
+            attitude_rpy_rad=(roll, pitch, wrap_pi(heading)),
             body_rates_rad_s=(float(w[0]), -float(w[1]), -float(w[2])),
             heading_deg=math.degrees(heading) % 360.0,
             groundspeed_m_s=float(math.hypot(vel[0], vel[1])),
             airspeed_m_s=float(math.hypot(vel[0], vel[1])), climb_m_s=float(vel[2]),
-            throttle_pct=100.0 * thrust / self._veh.max_thrust_n,
+            throttle_pct=100.0 * thrust / self.airframe.max_thrust_n,
             gps_fix_type=gps_fix, gps_satellites=g.satellites if g is not None else 0,
             gps_hdop=g.eph_m if g is not None else math.nan,
             gps_vdop=g.epv_m if g is not None else math.nan,
@@ -1712,8 +1658,8 @@ class FlightCore:
             gps_ground_speed_m_s=float(math.hypot(*g.velocity_enu_m_s[:2])) if g is not None else math.nan,
             gps_course_deg=(math.degrees(math.atan2(g.velocity_enu_m_s[0], g.velocity_enu_m_s[1])) % 360.0)
             if g is not None else math.nan,
-            battery_voltage_v=volt, battery_current_a=self._current_a,
-            battery_remaining_pct=remaining,
+            battery_voltage_v=battery.voltage_v, battery_current_a=battery.current_a,
+            battery_remaining_pct=battery.remaining_pct,
             home_set=self._home is not None, home_lat_deg=home_lat, home_lon_deg=home_lon,
             home_alt_amsl_m=self.geo.origin_alt_amsl_m + float(home[2]),
             home_position_ned_m=enu_to_ned(np.asarray(home) - origin),

@@ -152,7 +152,8 @@ def test_gps_denied_flight_on_vision_fixes(tmp_path):
 # ------------------------------------------------------------------------------ garbage in
 def test_node_survives_garbage_and_nan(tmp_path):
     """In-process node against a test hub that plays the simulator, in lockstep."""
-    from autopilot_bridge.node import AutopilotNode, WorldOrigin
+    from autopilot_bridge.node import AutopilotNode
+    from scenenav.app.nodes import autopilot_setup
     from scenenav.app.scenario import load_scenario
 
     cfg = load_scenario(None, ("flight.mode=idle", "sim.gps.enabled=false",
@@ -168,7 +169,7 @@ def test_node_survives_garbage_and_nan(tmp_path):
     hub.subscribe(keys.motors, MotorCommand, lambda m, _k: motors.append(m))
     member = threading.Event()
     hub.watch_liveliness(keys.lockstep_member_all, lambda _k, alive: alive and member.set())
-    node = AutopilotNode(cfg, BusConfig("aptest", port), WorldOrigin(48.0, 11.0), run_dir=tmp_path)
+    node = AutopilotNode(autopilot_setup(cfg, (48.0, 11.0)), BusConfig("aptest", port), run_dir=tmp_path)
     try:
         assert member.wait(30), "the autopilot never declared its lockstep token"
         for payload in (b"\xff\x00garbage", b"{}", b'{"type": "ImuSample", "version": 99}'):
@@ -202,7 +203,8 @@ def test_node_survives_garbage_and_nan(tmp_path):
 def test_node_follows_the_newest_perception_node_and_logs_the_gap(tmp_path):
     """Two perception nodes (tokens and fixes played by the test hub): the newest is followed;
     when it leaves, the other one again; each swap and the gap in fixes is an Event."""
-    from autopilot_bridge.node import AutopilotNode, WorldOrigin
+    from autopilot_bridge.node import AutopilotNode
+    from scenenav.app.nodes import autopilot_setup
     from scenenav.core.contracts import Event, VisionFix
     from scenenav.app.scenario import load_scenario
 
@@ -215,7 +217,7 @@ def test_node_follows_the_newest_perception_node_and_logs_the_gap(tmp_path):
     hub.subscribe(keys.events("autopilot"), Event, lambda m, _k: events.append(m.text))
     acked = threading.Event()
     hub.subscribe(keys.lockstep_ack("autopilot"), LockstepAck, lambda m, _k: acked.set())
-    node = AutopilotNode(cfg, BusConfig("apswap", port), WorldOrigin(48.0, 11.0), run_dir=tmp_path)
+    node = AutopilotNode(autopilot_setup(cfg, (48.0, 11.0)), BusConfig("apswap", port), run_dir=tmp_path)
 
     def fix(node_id: str, seq: int, t_us: int) -> VisionFix:
         nan4 = (math.nan,) * 4
@@ -267,7 +269,9 @@ class CoreFlight:
     def __init__(self, gps: bool = True, seed: int = 3, **params) -> None:
         from support.quad_model import QuadModel
 
-        from autopilot_bridge.flight_core import PARAM_SPECS, FlightCore, FlightCoreConfig
+        from autopilot_bridge.config import FlightCoreConfig
+        from autopilot_bridge.flight_core import FlightCore
+        from autopilot_bridge.param_specs import PARAM_SPECS
         from autopilot_bridge.params import ParameterStore
         from sitl.vehicle import VehicleParams
         self.rng = np.random.default_rng(seed)
@@ -286,7 +290,7 @@ class CoreFlight:
     def tick(self) -> None:
         from support.quad_model import ACCEL_BIAS, GYRO_BIAS, SUBSTEPS
 
-        from autopilot_bridge.ekf import heading_from_quat
+        from scenenav.core.rotations import heading_from_quat
         from autopilot_bridge.flight_core import GpsReading, ImuReading
         f_sum, w_sum = np.zeros(3), np.zeros(3)
         for _ in range(SUBSTEPS):

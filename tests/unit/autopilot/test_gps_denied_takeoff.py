@@ -22,8 +22,10 @@ import math
 import numpy as np
 import pytest
 
-from autopilot_bridge.ekf import quat_from_rotation_vector, quat_multiply, quat_normalise
-from autopilot_bridge.flight_core import PARAM_SPECS, FlightCore, FlightCoreConfig, ImuReading
+from autopilot_bridge.config import FlightCoreConfig
+from autopilot_bridge.flight_core import FlightCore, ImuReading
+from autopilot_bridge.param_specs import PARAM_SPECS
+from scenenav.core.rotations import quat_from_rotation_vector, quat_multiply, quat_normalise
 from autopilot_bridge.modes import CopterMode
 from autopilot_bridge.params import ParameterStore
 from sitl.config import SimConfig
