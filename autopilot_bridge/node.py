@@ -56,7 +56,9 @@ import numpy as np
 import zenoh
 
 from autopilot_bridge.config import AutopilotSetup, PositionSource
-from autopilot_bridge.flight_core import FlightCore, GpsReading, ImuReading, build_route_mission
+from autopilot_bridge.flight_core import FlightCore
+from autopilot_bridge.fusion import GpsReading, ImuReading
+from autopilot_bridge.route_mission import build_route_mission
 from autopilot_bridge.mavlink_server import MavlinkServer, MavlinkServerConfig
 from autopilot_bridge.modes import CopterMode
 from autopilot_bridge.param_specs import PARAM_SPECS

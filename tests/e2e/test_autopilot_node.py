@@ -291,7 +291,7 @@ class CoreFlight:
         from support.quad_model import ACCEL_BIAS, GYRO_BIAS, SUBSTEPS
 
         from scenenav.core.rotations import heading_from_quat
-        from autopilot_bridge.flight_core import GpsReading, ImuReading
+        from autopilot_bridge.fusion import GpsReading, ImuReading
         f_sum, w_sum = np.zeros(3), np.zeros(3)
         for _ in range(SUBSTEPS):
             f, w = self.model.step(self.cmd, np.zeros(3))
