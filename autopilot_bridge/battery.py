@@ -3,10 +3,10 @@ simulator), as ArduPilot's ``AP_BattMonitor_Analog`` reports it.
 
 Voltage and current are the newest measurement; consumed charge is the measured current integrated
 over the time between samples (``consumed_mah += current_a * dt_ms / 3600``, not across gaps of 2 s
-or more, as ``AP_BattMonitor_Analog::read`` does); remaining % = 100 (1 - consumed / BATT_CAPACITY),
-clamped to [0, 100]. Before the first measurement everything is unknown: NaN voltage and current
-(BATTERY_STATUS / SYS_STATUS then carry UINT16_MAX and -1) and remaining -1, as ArduPilot reports a
-monitor without data.
+or more, as ``AP_BattMonitor_Analog::read`` does); remaining % = 100 (BATT_CAPACITY - consumed) /
+BATT_CAPACITY, clamped to [0, 100] and truncated. Before the first measurement everything is
+unknown: NaN voltage and current (BATTERY_STATUS / SYS_STATUS then carry UINT16_MAX and -1) and
+remaining -1, as ArduPilot reports a monitor without data.
 
 Pure module: no zenoh, no pymavlink.
 """
@@ -64,5 +64,7 @@ class BatteryMonitor:
             return BatteryState()
         remaining = -1
         if capacity_mah > 0:
-            remaining = int(max(0.0, min(100.0, 100.0 * (1.0 - self._consumed_mah / capacity_mah))))
+            # AP_BattMonitor_Backend::capacity_remaining_pct (truncated, as its uint8_t)
+            pct = 100.0 * (capacity_mah - self._consumed_mah) / capacity_mah
+            remaining = int(max(0.0, min(100.0, pct)))
         return BatteryState(self._voltage_v, self._current_a, self._consumed_mah, remaining)

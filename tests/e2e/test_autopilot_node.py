@@ -24,7 +24,7 @@ import pytest
 import yaml
 
 from scenenav.core.bus import Bus, BusConfig, free_port
-from scenenav.core.contracts import (BaroSample, ClockMode, ClockTick, CompassSample, ImuSample,
+from scenenav.core.contracts import (BaroSample, ClockMode, ClockTick, CompassSample, ImuSample, PowerSample,
                                 LockstepAck, MotorCommand, RunState)
 from scenenav.core.keys import Keys
 from support import REPO_ROOT
@@ -183,6 +183,8 @@ def test_node_survives_garbage_and_nan(tmp_path):
             if tick % 5 == 0:
                 hub.publish(keys.baro, BaroSample(t_us, math.nan if nan else 0.0, 101325.0))
                 hub.publish(keys.compass, CompassSample(t_us, math.nan if tick % 10 == 5 else 0.5))
+            if tick % 10 == 0:
+                hub.publish(keys.power, PowerSample(t_us, math.nan if nan else 12.4, 3.0))
             got.clear()
             hub.publish(keys.clock, ClockTick(t_us, tick, 10_000, -1, ClockMode.LOCKSTEP.value,
                                               RunState.RUNNING.value))
@@ -191,6 +193,9 @@ def test_node_survives_garbage_and_nan(tmp_path):
         assert acks == list(range(200))
         assert all(m.command == (0.0, 0.0, 0.0, 0.0) and not m.armed for m in motors)
         assert node.core.aligned
+        battery = node.core.battery.state(3300.0)
+        assert battery.voltage_v == 12.4 and battery.current_a == 3.0   # measured, not modelled
+        assert battery.consumed_mah == pytest.approx(3.0 * 1.9 / 3.6)
     finally:
         stats = node.close()
         hub.close()
