@@ -15,12 +15,11 @@ import math
 
 import numpy as np
 
-from autopilot_bridge.config import (PositionSource)
+from autopilot_bridge.config import PositionSource
 from autopilot_bridge.vehicle_interface import (
     HomeChangedEvent,
     MavSeverity,
 )
-
 
 logger = logging.getLogger(__name__)
 

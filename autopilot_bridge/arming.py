@@ -7,21 +7,17 @@ Pure module: no zenoh, no pymavlink.
 
 from __future__ import annotations
 
-
 import numpy as np
 
-from autopilot_bridge.config import (PositionSource)
-from autopilot_bridge.modes import CopterMode
+from autopilot_bridge.config import PositionSource
+from autopilot_bridge.flight_laws import LawKind
+from autopilot_bridge.modes import ARMABLE_MODES, NEEDS_POSITION, POSITION_MODES, CopterMode
 from autopilot_bridge.vehicle_interface import (
     HomeChangedEvent,
     MavSeverity,
     Outcome,
 )
 from scenenav.core.contracts import GpsFixType
-
-from autopilot_bridge.flight_laws import LawKind
-from autopilot_bridge.modes import ARMABLE_MODES, NEEDS_POSITION, POSITION_MODES
-
 
 GPS_FRESH_S = 2.0
 

@@ -13,7 +13,8 @@ import numpy as np
 
 from autopilot_bridge.control import stopping_point
 from autopilot_bridge.ekf import NavState
-from autopilot_bridge.guidance_law import (GuidanceEventKind, Waypoint, make_takeoff)
+from autopilot_bridge.flight_laws import Hold, Land, LawKind, Tracker
+from autopilot_bridge.guidance_law import GuidanceEventKind, Waypoint, make_takeoff
 from autopilot_bridge.modes import CopterMode
 from autopilot_bridge.vehicle_interface import (
     AltFrame,
@@ -25,8 +26,6 @@ from autopilot_bridge.vehicle_interface import (
     Outcome,
     SpeedType,
 )
-
-from autopilot_bridge.flight_laws import Hold, Land, LawKind, Tracker
 
 
 class AutoStage(Enum):

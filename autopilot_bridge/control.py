@@ -52,9 +52,16 @@ from autopilot_bridge.config import ControlConfig
 from autopilot_bridge.ekf import NavState
 from autopilot_bridge.mixer import MixerLimits
 from scenenav.core.frames import wrap_pi
-from scenenav.core.rotations import (heading_from_quat, quat_conjugate, quat_from_aviation_euler,
-                                     quat_from_euler_zyx, quat_from_rotation_vector, quat_multiply,
-                                     quat_normalise, quat_rotate)
+from scenenav.core.rotations import (
+    heading_from_quat,
+    quat_conjugate,
+    quat_from_aviation_euler,
+    quat_from_euler_zyx,
+    quat_from_rotation_vector,
+    quat_multiply,
+    quat_normalise,
+    quat_rotate,
+)
 
 logger = logging.getLogger(__name__)
 

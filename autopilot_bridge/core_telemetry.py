@@ -15,7 +15,9 @@ from enum import IntFlag
 
 import numpy as np
 
-from autopilot_bridge.config import (PositionSource)
+from autopilot_bridge.config import PositionSource
+from autopilot_bridge.flight_laws import LawKind
+from autopilot_bridge.geo_frame import enu_to_ned
 from autopilot_bridge.vehicle_interface import (
     DEFAULT_SENSORS,
     LandedState,
@@ -26,9 +28,6 @@ from autopilot_bridge.vehicle_interface import (
 from scenenav.core.contracts import GpsFixType
 from scenenav.core.frames import wrap_pi
 from scenenav.core.rotations import aviation_euler_from_quat
-
-from autopilot_bridge.flight_laws import LawKind
-from autopilot_bridge.geo_frame import enu_to_ned
 
 
 class EkfStatusFlag(IntFlag):

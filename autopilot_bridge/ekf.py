@@ -58,9 +58,15 @@ import numpy as np
 
 from autopilot_bridge.config import EkfConfig, PositionSource
 from scenenav.core.frames import wrap_pi
-from scenenav.core.rotations import (heading_from_quat, quat_from_euler_zyx,
-                                     quat_from_rotation_vector, quat_multiply, quat_normalise,
-                                     quat_rotate, quat_to_rotation_matrix)
+from scenenav.core.rotations import (
+    heading_from_quat,
+    quat_from_euler_zyx,
+    quat_from_rotation_vector,
+    quat_multiply,
+    quat_normalise,
+    quat_rotate,
+    quat_to_rotation_matrix,
+)
 
 logger = logging.getLogger(__name__)
 

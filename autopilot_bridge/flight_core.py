@@ -49,27 +49,31 @@ from typing import Sequence
 import numpy as np
 
 from autopilot_bridge.airframe import Airframe
-from autopilot_bridge.battery import BatteryMonitor
-from autopilot_bridge.config import (AutopilotAlgorithmsConfig, FlightCoreConfig,
-                                     PositionSource, YawBehaviour)
-from autopilot_bridge.control import ControlOutput, FlightController, PositionTarget, stopping_point
-from autopilot_bridge.ekf import NavFilter, NavState
-from autopilot_bridge.failsafe import (FailsafeAction, FailsafeEvent, FailsafeInputs,
-                                       FailsafeKind, FailsafeMonitor, FailsafeSettings)
-from autopilot_bridge.guidance_law import (GuidanceEventKind, Waypoint)
-from autopilot_bridge.mixer import QuadXMixer
-from autopilot_bridge.modes import CopterMode
-from autopilot_bridge.params import ParameterStore
 from autopilot_bridge.alignment import AlignmentMixin
 from autopilot_bridge.arming import GPS_FRESH_S, ArmingMixin
 from autopilot_bridge.auto_mission import AutoMissionMixin, AutoStage
+from autopilot_bridge.battery import BatteryMonitor
+from autopilot_bridge.config import AutopilotAlgorithmsConfig, FlightCoreConfig, PositionSource, YawBehaviour
+from autopilot_bridge.control import ControlOutput, FlightController, PositionTarget, stopping_point
 from autopilot_bridge.core_telemetry import TelemetryMixin
+from autopilot_bridge.ekf import NavFilter, NavState
+from autopilot_bridge.failsafe import (
+    FailsafeAction,
+    FailsafeEvent,
+    FailsafeInputs,
+    FailsafeKind,
+    FailsafeMonitor,
+    FailsafeSettings,
+)
 from autopilot_bridge.flight_laws import Hold, Land, LawKind, Rtl, Tracker
 from autopilot_bridge.fusion import ImuReading, SensorFusionMixin
 from autopilot_bridge.geo_frame import GeoFrame
+from autopilot_bridge.guidance_law import GuidanceEventKind, Waypoint
 from autopilot_bridge.guided import GuidedMixin
-from autopilot_bridge.modes import NEEDS_POSITION, POSITION_MODES
+from autopilot_bridge.mixer import QuadXMixer
+from autopilot_bridge.modes import NEEDS_POSITION, POSITION_MODES, CopterMode
 from autopilot_bridge.param_binding import ParamBindingMixin
+from autopilot_bridge.params import ParameterStore
 from autopilot_bridge.vehicle_interface import (
     MavSeverity,
     MissionItem,

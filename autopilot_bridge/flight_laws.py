@@ -12,11 +12,18 @@ from typing import Sequence
 
 import numpy as np
 
-from autopilot_bridge.config import (GuidanceConfig)
+from autopilot_bridge.config import GuidanceConfig
 from autopilot_bridge.control import PositionTarget
 from autopilot_bridge.ekf import NavState
-from autopilot_bridge.guidance_law import (GuidanceEventKind, Lander, ReturnToLaunch, RtlPhase,
-                                           Waypoint, WaypointTracker)
+from autopilot_bridge.guidance_law import (
+    GuidanceEventKind,
+    GuidanceLaw,
+    Lander,
+    ReturnToLaunch,
+    RtlPhase,
+    Waypoint,
+    WaypointTracker,
+)
 
 
 class LawKind(Enum):
@@ -99,7 +106,7 @@ class Tracker(WaypointTracker):
         self._v = min(v, self._v_max)
 
 
-class Rtl:
+class Rtl(GuidanceLaw):
     """ReturnToLaunch plus RTL_ALT_FINAL (hold above home instead of landing when > 0)."""
 
     kind = LawKind.RTL
@@ -114,20 +121,12 @@ class Rtl:
         self._events: list = []
 
     @property
-    def complete(self) -> bool:
-        return False
-
-    @property
     def landing(self) -> bool:
         return self._final is None and self._rtl.phase == RtlPhase.LAND
 
     @property
     def phase_name(self) -> str:
         return "final" if self._final is not None else self._rtl.phase.value
-
-    def pop_events(self) -> list:
-        events, self._events = self._events, []
-        return events
 
     def handle_position_reset(self, delta_xy_m) -> None:
         if self._final is not None:

@@ -19,15 +19,14 @@ from typing import NamedTuple
 
 import numpy as np
 
-from autopilot_bridge.config import (PositionSource)
+from autopilot_bridge.config import PositionSource
+from autopilot_bridge.geo_frame import ned_to_enu
 from autopilot_bridge.vehicle_interface import (
     MavSeverity,
     Odometry,
 )
 from scenenav.core.contracts import GpsFixType
 from scenenav.core.numeric import all_finite
-
-from autopilot_bridge.geo_frame import ned_to_enu
 
 logger = logging.getLogger(__name__)
 

@@ -14,7 +14,9 @@ import numpy as np
 
 from autopilot_bridge.control import ControlOutput, PositionTarget
 from autopilot_bridge.ekf import NavState
-from autopilot_bridge.guidance_law import (Waypoint, make_takeoff)
+from autopilot_bridge.flight_laws import LawKind, Tracker
+from autopilot_bridge.geo_frame import ned_to_enu
+from autopilot_bridge.guidance_law import Waypoint, make_takeoff
 from autopilot_bridge.modes import CopterMode
 from autopilot_bridge.vehicle_interface import (
     AltFrame,
@@ -27,10 +29,6 @@ from autopilot_bridge.vehicle_interface import (
     SpeedType,
 )
 from scenenav.core.numeric import all_finite
-
-from autopilot_bridge.flight_laws import LawKind, Tracker
-from autopilot_bridge.geo_frame import ned_to_enu
-
 
 _TWO_PI = 2.0 * math.pi
 

@@ -8,8 +8,6 @@ import logging
 
 from pymavlink.dialects.v20 import ardupilotmega as mavlink2
 
-
-
 logger = logging.getLogger(__name__)
 
 

@@ -15,12 +15,11 @@ from collections import deque
 
 from pymavlink.dialects.v20 import ardupilotmega as mavlink2
 
+from autopilot_bridge.mavlink_framing import FrameParser
 from autopilot_bridge.telemetry import (
     TelemetryScheduler,
 )
 from scenenav.core.errors import UserError
-
-from autopilot_bridge.mavlink_framing import FrameParser
 
 logger = logging.getLogger(__name__)
 

@@ -10,15 +10,13 @@ from collections import deque
 
 from pymavlink.dialects.v20 import ardupilotmega as mavlink2
 
+from autopilot_bridge.mavlink_links import Link
 from autopilot_bridge.telemetry import (
     statustext_messages,
 )
 from autopilot_bridge.vehicle_interface import (
     MavSeverity,
 )
-
-
-from autopilot_bridge.mavlink_links import Link
 
 logger = logging.getLogger(__name__)
 

@@ -44,9 +44,9 @@ from autopilot_bridge.mavlink_framing import frame_is_signed, frame_msg_id
 from autopilot_bridge.mavlink_links import Link, LinkKind, LinkTransportMixin, close_socket
 from autopilot_bridge.mavlink_params import ParamProtocolMixin
 from autopilot_bridge.mission import MissionManager
-from autopilot_bridge.setpoints import global_position_target, local_position_target, odometry_from_message
 from autopilot_bridge.modes import CopterMode
 from autopilot_bridge.params import ParameterStore
+from autopilot_bridge.setpoints import global_position_target, local_position_target, odometry_from_message
 from autopilot_bridge.signing import Signer, SigningConfig
 from autopilot_bridge.telemetry import (
     STREAMABLE_MSG_IDS,

@@ -58,17 +58,34 @@ import zenoh
 from autopilot_bridge.config import AutopilotSetup, PositionSource
 from autopilot_bridge.flight_core import FlightCore
 from autopilot_bridge.fusion import GpsReading, ImuReading
-from autopilot_bridge.route_mission import build_route_mission
 from autopilot_bridge.mavlink_server import MavlinkServer, MavlinkServerConfig
 from autopilot_bridge.modes import CopterMode
 from autopilot_bridge.param_specs import PARAM_SPECS
 from autopilot_bridge.params import ParameterStore, load_param_file
+from autopilot_bridge.route_mission import build_route_mission
 from autopilot_bridge.vehicle_interface import MissionState
 from scenenav.core.bus import Bus, BusConfig
-from scenenav.core.contracts import (AutopilotStatus, BaroSample, ClockMode, ClockTick, CompassSample,
-                                     DecodeError, Event, GpsSample, ImuSample, LockstepAck, LockstepRole,
-                                     MotorCommand, NavEstimate, NodeInfo, PowerSample, RunState,
-                                     Severity, VisionFix, decode)
+from scenenav.core.contracts import (
+    AutopilotStatus,
+    BaroSample,
+    ClockMode,
+    ClockTick,
+    CompassSample,
+    DecodeError,
+    Event,
+    GpsSample,
+    ImuSample,
+    LockstepAck,
+    LockstepRole,
+    MotorCommand,
+    NavEstimate,
+    NodeInfo,
+    PowerSample,
+    RunState,
+    Severity,
+    VisionFix,
+    decode,
+)
 from scenenav.core.errors import UserError
 from scenenav.core.keys import Keys
 

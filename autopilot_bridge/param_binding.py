@@ -10,17 +10,15 @@ from __future__ import annotations
 import dataclasses
 import logging
 
-
 from autopilot_bridge.airframe import AIRFRAME_PARAM_NAMES, Airframe
-from autopilot_bridge.config import (ControlConfig, GuidanceConfig, PositionSource, YawBehaviour)
+from autopilot_bridge.config import ControlConfig, GuidanceConfig, PositionSource, YawBehaviour
 from autopilot_bridge.control import FlightController
+from autopilot_bridge.flight_laws import Tracker
 from autopilot_bridge.mixer import QuadXMixer
 from autopilot_bridge.vehicle_interface import (
     MavSeverity,
     SpeedType,
 )
-
-from autopilot_bridge.flight_laws import Tracker
 
 logger = logging.getLogger(__name__)
 

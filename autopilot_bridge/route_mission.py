@@ -6,15 +6,13 @@ from __future__ import annotations
 
 from typing import Sequence
 
-
-from autopilot_bridge.config import (MissionEndMode)
+from autopilot_bridge.config import MissionEndMode
+from autopilot_bridge.geo_frame import GeoFrame
 from autopilot_bridge.vehicle_interface import (
     MavFrame,
     MissionCommand,
     MissionItem,
 )
-
-from autopilot_bridge.geo_frame import GeoFrame
 
 
 def build_route_mission(geo: GeoFrame, route_enu_m: Sequence[Sequence[float]], altitude_m: float,

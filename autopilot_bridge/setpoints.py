@@ -23,8 +23,6 @@ from autopilot_bridge.vehicle_interface import (
     PositionTargetTypeMask,
     setpoint_kind,
 )
-
-
 from scenenav.core.numeric import all_finite
 
 logger = logging.getLogger(__name__)
