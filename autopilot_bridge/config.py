@@ -296,11 +296,22 @@ class MissionEndMode(str, Enum):
 UDP_OUT_OFF = ("none", "off", "0", "")
 
 
-def _udp_out_ok(text: str) -> bool:
+def parse_udp_out(text: str) -> tuple[str, int] | None:
+    """``HOST:PORT`` -> (host, port); None for off (``UDP_OUT_OFF``). ValueError when malformed."""
     if text.lower() in UDP_OUT_OFF:
-        return True
+        return None
     host, sep, port = text.rpartition(":")
-    return bool(sep and host and port.isdigit() and 0 < int(port) <= 65535)
+    if not (sep and host and port.isdigit() and 0 < int(port) <= 65535):
+        raise ValueError(f"not HOST:PORT: {text!r}")
+    return host, int(port)
+
+
+def _udp_out_ok(text: str) -> bool:
+    try:
+        parse_udp_out(text)
+    except ValueError:
+        return False
+    return True
 
 
 @dataclass(frozen=True)
@@ -331,10 +342,7 @@ class AutopilotNodeConfig:
     @property
     def udp_target(self) -> tuple[str, int] | None:
         """``mavlink_udp_out`` as (host, port), or None when off."""
-        if self.mavlink_udp_out.lower() in UDP_OUT_OFF:
-            return None
-        host, _, port = self.mavlink_udp_out.rpartition(":")
-        return host, int(port)
+        return parse_udp_out(self.mavlink_udp_out)
 
 
 @dataclass(frozen=True)

@@ -396,7 +396,7 @@ class AutopilotNode:
         self.bus.publish(k.lockstep_ack(NODE_ID), LockstepAck(
             tick.timestamp_us, NODE_ID, LockstepRole.TICK.value, tick.tick))
         self.stats["ticks"] += 1
-        self._scenario_flight(tick.timestamp_us)
+        self._fly_own_mission(tick.timestamp_us)
         self._publish_outputs(tick.timestamp_us)
         self._poll_server()
 
@@ -500,8 +500,8 @@ class AutopilotNode:
             self.core.on_vision_fix(t_s, fix.position_xy_enu_m, cov, fix.valid, fix.accepted, node)
             self.stats["fixes_delivered"] += 1
 
-    # ------------------------------------------------------------------ scenario flight
-    def _scenario_flight(self, t_us: int) -> None:
+    # ------------------------------------------------------------------ the run's own mission
+    def _fly_own_mission(self, t_us: int) -> None:
         if not self._auto_start or self._auto_started or not self.core.aligned:
             return
         core = self.core
