@@ -32,9 +32,10 @@ ground without a position source the last landed position is fused as a pseudo-m
 ArduPilot's EKF does when it is not aiding), so the estimate does not drift before take-off.
 
 Where each part lives: this module has the control tick, the modes and the failsafes; the class's
-mixins are ``alignment``, ``fusion`` (sensor inputs), ``arming``, ``guided``, ``auto_mission``,
+mixins are ``fusion`` (sensor inputs), ``arming``, ``guided``, ``auto_mission``,
 ``param_binding`` and ``core_telemetry`` (the telemetry model); the guidance laws are in
-``flight_laws``; battery reporting in ``battery`` (from the simulator's ``PowerSample``).
+``flight_laws``; the samples at rest before the EKF starts in ``alignment``; battery reporting in
+``battery`` (from the simulator's ``PowerSample``).
 """
 
 from __future__ import annotations
@@ -49,7 +50,7 @@ from typing import Sequence
 import numpy as np
 
 from autopilot_bridge.airframe import Airframe
-from autopilot_bridge.alignment import AlignmentMixin
+from autopilot_bridge.alignment import Alignment
 from autopilot_bridge.arming import GPS_FRESH_S, ArmingMixin
 from autopilot_bridge.auto_mission import AutoMissionMixin, AutoStage
 from autopilot_bridge.battery import BatteryMonitor
@@ -75,6 +76,7 @@ from autopilot_bridge.modes import NEEDS_POSITION, POSITION_MODES, CopterMode
 from autopilot_bridge.param_binding import ParamBindingMixin
 from autopilot_bridge.params import ParameterStore
 from autopilot_bridge.vehicle_interface import (
+    HomeChangedEvent,
     MavSeverity,
     MissionItem,
     MissionState,
@@ -101,12 +103,12 @@ class CoreStatus:
     gps_used: bool
 
 
-class FlightCore(AlignmentMixin, SensorFusionMixin, ArmingMixin, GuidedMixin, AutoMissionMixin,
+class FlightCore(SensorFusionMixin, ArmingMixin, GuidedMixin, AutoMissionMixin,
                  ParamBindingMixin, TelemetryMixin):
     """The flight core; see the module docstring. Not thread-safe: call from one thread.
 
-    One class, one concept per module: the control tick, modes and failsafes are here; alignment
-    (``alignment``), sensor fusion (``fusion``), arming (``arming``), GUIDED (``guided``), AUTO
+    One class, one concept per module: the control tick, modes and failsafes are here (alignment:
+    ``alignment.Alignment``); sensor fusion (``fusion``), arming (``arming``), GUIDED (``guided``), AUTO
     missions (``auto_mission``), parameter binding (``param_binding``) and the telemetry model
     (``core_telemetry``) are its mixins, each working on the state it initialises (``_init_*``).
     """
@@ -135,7 +137,7 @@ class FlightCore(AlignmentMixin, SensorFusionMixin, ArmingMixin, GuidedMixin, Au
         self._ground_next_s = 0.0
         self._landed_since_s: float | None = None
         self._contact_s = 0.0
-        self._init_alignment()
+        self.alignment = Alignment()
         self._init_fusion()
         self._vision_available = False
         self._gcs_heartbeat_s: float | None = None
@@ -242,7 +244,8 @@ class FlightCore(AlignmentMixin, SensorFusionMixin, ArmingMixin, GuidedMixin, Au
             return self._motors.copy()
         self._gyro = gyro
         if not self.nav.aligned:
-            self._accumulate_alignment(accel, gyro, dt_s)
+            self.alignment.add_imu(self._now_s, accel, gyro)
+            self._try_align()
             return self._motors.copy()
         self.nav.predict(accel, gyro, dt_s)
         self._fuse_pending()
@@ -265,6 +268,36 @@ class FlightCore(AlignmentMixin, SensorFusionMixin, ArmingMixin, GuidedMixin, Au
         return self._motors.copy()
 
     # --------------------------------------------------------------------------- failsafes
+    def _try_align(self) -> None:
+        """Initialise the EKF once the samples at rest suffice; home and the EKF origin go there."""
+        gps_source = self.nav.position_source == PositionSource.GPS
+        r = self.alignment.result(self._now_s, self.cfg.align_time_s, self.cfg.gps_wait_s, gps_source)
+        if r is None:
+            return
+        if r.gps_xy_enu_m is not None:
+            xy, how = r.gps_xy_enu_m, "GPS"
+        else:
+            xy, how = self.cfg.start_enu_m, "the known take-off point"
+        pos = (float(xy[0]), float(xy[1]), self.cfg.ground_z_m)
+        try:
+            self.nav.initialise(r.accel_flu_m_s2, r.heading_rad, r.baro_alt_m,
+                                gyro_flu_rad_s=r.gyro_flu_rad_s, position_enu_m=pos)
+        except ValueError as exc:
+            logger.warning("EKF alignment failed (%s); retrying", exc)
+            self.alignment.reset()
+            return
+        self._origin = np.array(pos)
+        self._home = np.array(pos)
+        self._ground_xy = np.array(pos[:2])
+        self._ground_next_s = self._now_s
+        self.fc.reset(self.nav.state(), landed=True)
+        self._events.append(HomeChangedEvent())
+        self._announce(MavSeverity.INFO, "EKF3 IMU0 origin set")
+        self._announce(MavSeverity.INFO, f"EKF3 IMU0 is using {self._source_name()}")
+        self._bus_text(MavSeverity.INFO, f"EKF aligned at ({pos[0]:.1f}, {pos[1]:.1f}) m from {how}")
+        self._baro.clear()
+        self._compass.clear()
+
     def _landing(self) -> bool:
         if self._mode == CopterMode.LAND:
             return True

@@ -80,7 +80,7 @@ class SensorFusionMixin:
         if self.nav.aligned:
             self._baro.append(float(altitude_m))
         else:
-            self._align_baro.append(float(altitude_m))
+            self.alignment.add_baro(altitude_m)
 
     def on_compass(self, t_s: float, heading_rad: float) -> None:
         if not all_finite(heading_rad):
@@ -90,8 +90,7 @@ class SensorFusionMixin:
         if self.nav.aligned:
             self._compass.append(h)
         else:
-            self._align_hdg += (math.cos(h), math.sin(h))
-            self._align_hdg_n += 1
+            self.alignment.add_heading(h)
 
     def on_gps(self, reading: GpsReading) -> None:
         values = (reading.lat_deg, reading.lon_deg, reading.alt_m, *reading.velocity_enu_m_s)
@@ -104,7 +103,7 @@ class SensorFusionMixin:
         if self.nav.aligned:
             self._gps.append(reading)
         else:
-            self._align_gps.append(self.geo.to_enu(reading.lat_deg, reading.lon_deg))
+            self.alignment.add_gps(self.geo.to_enu(reading.lat_deg, reading.lon_deg))
 
     def on_power(self, t_s: float, voltage_v: float, current_a: float) -> None:
         """A power-module measurement (battery voltage and current), reported over MAVLink."""
