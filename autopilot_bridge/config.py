@@ -1,4 +1,5 @@
-"""Configuration of the autopilot's pure algorithms: navigation filter, controllers, mixer, guidance.
+"""Configuration of the autopilot: its node section (``AutopilotNodeConfig``, the scenario's
+``autopilot:``) and its pure algorithms (navigation filter, controllers, guidance).
 
 Every config is a frozen dataclass whose field names carry their unit; range checks raise
 ``scenenav.core.config.ConfigError`` through ``scenenav.core.config.check``. Where a value mirrors an ArduPilot
@@ -15,8 +16,10 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass, field
-from enum import IntEnum
+from enum import Enum, IntEnum
 
+from autopilot_bridge.airframe import STANDARD_GRAVITY_M_S2
+from autopilot_bridge.param_specs import PARAM_NAMES
 from scenenav.core.config import check
 
 
@@ -99,7 +102,7 @@ class EkfConfig:
     position_ok_max_std_m: float = 10.0       # position_ok() threshold (horizontal 1-sigma)
 
     position_source: PositionSource = PositionSource.GPS   # EK3_SRC1_POSXY
-    gravity_m_s2: float = 9.80665             # standard gravity (CGPM 1901)
+    gravity_m_s2: float = STANDARD_GRAVITY_M_S2
 
     def __post_init__(self) -> None:
         for name in ("gyro_noise_rad_s_per_rt_hz", "accel_noise_m_s2_per_rt_hz",
@@ -206,19 +209,6 @@ class ControlConfig:
 
 
 @dataclass(frozen=True)
-class MixerConfig:
-    """Quad-X mixer output range (normalised rotor-speed commands)."""
-
-    min_command: float = 0.0   # command floor while armed (MOT_SPIN_MIN-like, as a rotor-speed fraction)
-    max_command: float = 1.0   # command ceiling
-
-    def __post_init__(self) -> None:
-        check(0.0 <= self.min_command < 1.0, "min_command", self.min_command, "a fraction in [0, 1)")
-        check(self.min_command < self.max_command <= 1.0, "max_command", self.max_command,
-              "a fraction in (min_command, 1]")
-
-
-@dataclass(frozen=True)
 class GuidanceConfig:
     """Waypoint following, takeoff, RTL and LAND (WPNAV_*, RTL_*, LAND_*)."""
 
@@ -257,10 +247,123 @@ class AutopilotAlgorithmsConfig:
 
     ekf: EkfConfig = field(default_factory=EkfConfig)
     control: ControlConfig = field(default_factory=ControlConfig)
-    mixer: MixerConfig = field(default_factory=MixerConfig)
     guidance: GuidanceConfig = field(default_factory=GuidanceConfig)
     control_rate_hz: float = 100.0      # controller / IMU tick rate
 
     def __post_init__(self) -> None:
         check(_positive(self.control_rate_hz) and self.control_rate_hz <= 2000.0, "control_rate_hz",
               self.control_rate_hz, "a rate in (0, 2000] Hz")
+
+
+@dataclass(frozen=True)
+class FlightCoreConfig:
+    """Where the vehicle is and how the core treats its inputs (not ArduPilot parameters)."""
+
+    origin_lat_deg: float = 0.0           # geodetic position of the world origin (ENU 0, 0)
+    origin_lon_deg: float = 0.0
+    origin_alt_amsl_m: float = 0.0        # AMSL altitude of the ground plane (ENU z = 0)
+    start_enu_m: tuple[float, float] = (0.0, 0.0)   # known take-off point (home without GPS)
+    ground_z_m: float = 0.0               # ENU height of the ground under the take-off point
+    align_time_s: float = 1.0             # samples averaged at rest before the EKF is aligned
+    gps_wait_s: float = 5.0               # with GPS as source: wait this long for fixes to align
+    gps_velocity_std_m_s: float = 0.2     # GPS velocity accuracy (GpsSample carries none)
+    ground_position_std_m: float = 0.3    # on-ground pseudo position fix without a source
+    ground_fusion_period_s: float = 0.2
+    ext_nav_std_m: float = 0.5            # MAVLink external nav without a covariance
+    ext_nav_fresh_s: float = 1.0          # MAVLink external nav counts as a source this long
+    vision_max_age_s: float = 1.0         # older vision fixes are dropped
+
+    def __post_init__(self) -> None:
+        for name in ("align_time_s", "gps_wait_s", "gps_velocity_std_m_s", "ground_position_std_m",
+                     "ground_fusion_period_s", "ext_nav_std_m", "ext_nav_fresh_s",
+                     "vision_max_age_s"):
+            value = getattr(self, name)
+            if not (math.isfinite(value) and value > 0):
+                raise ValueError(f"FlightCoreConfig.{name} = {value!r}: expected > 0")
+
+
+
+# ------------------------------------------------------------------------------- node section
+
+
+class MissionEndMode(str, Enum):
+    """What an autopilot flight does after the last route waypoint."""
+
+    LAND = "land"    # land at the last waypoint
+    RTL = "rtl"      # return to the take-off point and land there
+
+
+UDP_OUT_OFF = ("none", "off", "0", "")
+
+
+def parse_udp_out(text: str) -> tuple[str, int] | None:
+    """``HOST:PORT`` -> (host, port); None for off (``UDP_OUT_OFF``). ValueError when malformed."""
+    if text.lower() in UDP_OUT_OFF:
+        return None
+    host, sep, port = text.rpartition(":")
+    if not (sep and host and port.isdigit() and 0 < int(port) <= 65535):
+        raise ValueError(f"not HOST:PORT: {text!r}")
+    return host, int(port)
+
+
+def _udp_out_ok(text: str) -> bool:
+    try:
+        parse_udp_out(text)
+    except ValueError:
+        return False
+    return True
+
+
+@dataclass(frozen=True)
+class AutopilotNodeConfig:
+    """The scenario's ``autopilot:`` section (the autopilot node)."""
+
+    mavlink_tcp_port: int = 5760       # MAVLink TCP server on 127.0.0.1 (0 = off)
+    mavlink_udp_out: str = "127.0.0.1:14550"   # MAVLink UDP output HOST:PORT, or none
+    auto_start: bool = True            # autopilot flights: arm and start AUTO once the EKF is aligned
+    mission_end: MissionEndMode = MissionEndMode.LAND   # autopilot flights: after the last waypoint
+    params_file: str = ""              # JSON {"NAME": value} of ArduPilot parameters set at start
+    vision_wait_s: float = 5.0         # lockstep: wall seconds to wait for the fix of an acked frame
+    estimate_rate_hz: float = 20.0     # autopilot/estimate rate (simulated time)
+    params: dict[str, float] = field(default_factory=dict)   # ArduPilot parameters {NAME: value}, after params_file
+
+    def __post_init__(self) -> None:
+        check(0 <= self.mavlink_tcp_port <= 65535, "mavlink_tcp_port", self.mavlink_tcp_port,
+              "a TCP port 1..65535, or 0 for off")
+        check(_udp_out_ok(self.mavlink_udp_out), "mavlink_udp_out", self.mavlink_udp_out,
+              "HOST:PORT (e.g. 127.0.0.1:14550), or none")
+        check(self.vision_wait_s >= 0, "vision_wait_s", self.vision_wait_s, ">= 0 s")
+        check(0 < self.estimate_rate_hz <= 1000, "estimate_rate_hz", self.estimate_rate_hz,
+              "0 to 1000 Hz")
+        unknown = sorted(set(self.params) - PARAM_NAMES)
+        check(not unknown, "params", unknown, "ArduCopter parameter names the autopilot knows "
+              "(docs/mavlink.md lists them)")
+
+    @property
+    def udp_target(self) -> tuple[str, int] | None:
+        """``mavlink_udp_out`` as (host, port), or None when off."""
+        return parse_udp_out(self.mavlink_udp_out)
+
+
+@dataclass(frozen=True)
+class RouteMission:
+    """A route the autopilot flies by itself as an AUTO mission once its EKF is aligned."""
+
+    route_enu_m: tuple[tuple[float, float], ...]
+    altitude_m: float                  # above home
+
+    def __post_init__(self) -> None:
+        check(len(self.route_enu_m) > 0, "route_enu_m", self.route_enu_m, "at least one waypoint")
+        check(_positive(self.altitude_m), "altitude_m", self.altitude_m, "> 0 m")
+
+
+@dataclass(frozen=True)
+class AutopilotSetup:
+    """Everything the autopilot node needs for one run. The app layer derives it from the scenario
+    (``scenenav.app.nodes.autopilot_setup``); the node never reads the scenario itself."""
+
+    node: AutopilotNodeConfig = field(default_factory=AutopilotNodeConfig)
+    core: FlightCoreConfig = field(default_factory=FlightCoreConfig)   # world origin, take-off point
+    position_source: PositionSource = PositionSource.GPS   # EXTNAV when the vehicle has no GPS
+    mission: RouteMission | None = None    # None: a ground station or the guidance node flies
+    mission_ends_run: bool = False         # AutopilotStatus.mission_complete reports the mission

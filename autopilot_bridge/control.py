@@ -47,11 +47,21 @@ from enum import Enum
 
 import numpy as np
 
+from autopilot_bridge.airframe import Airframe
 from autopilot_bridge.config import ControlConfig
-from autopilot_bridge.ekf import (NavState, quat_conjugate, quat_from_aviation_euler, quat_from_euler_zyx,
-                                  quat_from_rotation_vector, quat_multiply, quat_normalise, quat_rotate)
+from autopilot_bridge.ekf import NavState
 from autopilot_bridge.mixer import MixerLimits
-from sitl.vehicle import VehicleParams
+from scenenav.core.frames import wrap_pi
+from scenenav.core.rotations import (
+    heading_from_quat,
+    quat_conjugate,
+    quat_from_aviation_euler,
+    quat_from_euler_zyx,
+    quat_from_rotation_vector,
+    quat_multiply,
+    quat_normalise,
+    quat_rotate,
+)
 
 logger = logging.getLogger(__name__)
 
@@ -151,10 +161,6 @@ def limit_accel_xy(ax: float, ay: float, vx_target: float, vy_target: float,
     return along * ux - cross * uy, along * uy + cross * ux
 
 
-def _wrap_pi(angle: float) -> float:
-    return (angle + math.pi) % _TWO_PI - math.pi
-
-
 def _lpf_alpha(cutoff_hz: float, dt_s: float) -> float:
     rc = 1.0 / (_TWO_PI * cutoff_hz)
     return dt_s / (dt_s + rc)
@@ -163,14 +169,14 @@ def _lpf_alpha(cutoff_hz: float, dt_s: float) -> float:
 class FlightController:
     """ArduCopter-style cascaded controller. One instance per vehicle; call one ``update_*`` per tick."""
 
-    def __init__(self, cfg: ControlConfig | None = None, vehicle: VehicleParams | None = None) -> None:
+    def __init__(self, cfg: ControlConfig | None = None, airframe: Airframe | None = None) -> None:
         self._cfg = cfg if cfg is not None else ControlConfig()
-        self._veh = vehicle if vehicle is not None else VehicleParams()
-        c, v = self._cfg, self._veh
-        self._mass = v.mass_kg
+        self._airframe = airframe if airframe is not None else Airframe()
+        c, v = self._cfg, self._airframe
+        self._mass = v.thrust_mass_kg
         self._g = v.gravity_m_s2
         self._inertia = tuple(float(i) for i in v.inertia_kg_m2)
-        self._hover_thrust = v.mass_kg * v.gravity_m_s2
+        self._hover_thrust = self._mass * v.gravity_m_s2
         self._thrust_max = c.thrust_max_fraction * v.max_thrust_n
         self._thrust_min = c.thrust_min_fraction * v.max_thrust_n
         self._tan_lean = math.tan(c.max_lean_angle_rad)
@@ -306,7 +312,7 @@ class FlightController:
         """STABILIZE: pilot lean angles (aviation convention), yaw rate (clockwise positive) and collective
         thrust as a fraction of the vehicle's maximum thrust (hover is mass * g / max_thrust)."""
         frac = min(max(float(thrust_fraction), 0.0), 1.0)
-        thrust = frac * self._veh.max_thrust_n
+        thrust = frac * self._airframe.max_thrust_n
         if self._landed:
             if thrust > self._cfg.land_detect_thrust_fraction * self._hover_thrust:
                 self._leave_landed()
@@ -342,7 +348,7 @@ class FlightController:
                 self._leave_landed()
             else:
                 return self._idle_output(nav)
-        self._heading_target = _heading_of(q_t)
+        self._heading_target = heading_from_quat(q_t)
         out = self._attitude_stage(nav, gyro_flu_rad_s, q_t, thrust, dt_s, yaw_rate_ff=yaw_rate_ff_rad_s,
                                    accel=(0.0, 0.0, 0.0), velocity=(0.0, 0.0, 0.0), lean_limited=tilt > max_lean)
         return self._land_detect(nav, out, 0.0, dt_s)
@@ -437,7 +443,7 @@ class FlightController:
 
     def _collective_thrust(self, nav: NavState, az: float) -> float:
         q = nav.q_wxyz
-        w, x, y = float(q[0]), float(q[1]), float(q[2])
+        x, y = float(q[1]), float(q[2])
         cos_tilt = 1.0 - 2.0 * (x * x + y * y)          # R[2, 2]: body z . world z
         cos_tilt = max(cos_tilt, self._min_cos_tilt)
         thrust = self._mass * max(self._g + az, 0.0) / cos_tilt
@@ -467,7 +473,7 @@ class FlightController:
         q_red = quat_multiply(quat_from_rotation_vector(*rot_w), q)
         # Remaining error about the (target) body z axis.
         q_yaw = quat_multiply(quat_conjugate(q_red), q_t)
-        yaw_err = _wrap_pi(2.0 * math.atan2(q_yaw[3], q_yaw[0]))
+        yaw_err = wrap_pi(2.0 * math.atan2(q_yaw[3], q_yaw[0]))
         q_inv = quat_conjugate(q)
         tilt_b = quat_rotate(q_inv, rot_w)
         zt_b = quat_rotate(q_inv, z_tgt)
@@ -518,7 +524,7 @@ class FlightController:
 
     # ------------------------------------------------------------------ helpers
     def _slew_heading(self, heading_rad: float, dt_s: float) -> None:
-        err = _wrap_pi(heading_rad - self._heading_target)
+        err = wrap_pi(heading_rad - self._heading_target)
         step = self._rate_yaw_max * dt_s
         err = min(max(err, -step), step)
         self._heading_target = (self._heading_target + err) % _TWO_PI
@@ -528,7 +534,7 @@ class FlightController:
         rate = min(max(yaw_rate_rad_s, -self._rate_yaw_max), self._rate_yaw_max)
         target = self._heading_target + rate * dt_s
         # Keep the target within 30 deg of the actual heading (no wind-up if the yaw is saturated).
-        err = _wrap_pi(target - float(nav.heading_rad))
+        err = wrap_pi(target - float(nav.heading_rad))
         err = min(max(err, -PILOT_HEADING_LEASH_RAD), PILOT_HEADING_LEASH_RAD)
         self._heading_target = (float(nav.heading_rad) + err) % _TWO_PI
 
@@ -586,8 +592,3 @@ class FlightController:
         idle = self._idle_output(nav)
         return dataclasses.replace(idle, touchdown=True)
 
-
-def _heading_of(q) -> float:
-    w, x, y, z = q
-    yaw = math.atan2(2.0 * (w * z + x * y), 1.0 - 2.0 * (y * y + z * z))
-    return (0.5 * math.pi - yaw) % _TWO_PI

@@ -57,12 +57,20 @@ from dataclasses import dataclass
 import numpy as np
 
 from autopilot_bridge.config import EkfConfig, PositionSource
+from scenenav.core.frames import wrap_pi
+from scenenav.core.rotations import (
+    heading_from_quat,
+    quat_from_euler_zyx,
+    quat_from_rotation_vector,
+    quat_multiply,
+    quat_normalise,
+    quat_rotate,
+    quat_to_rotation_matrix,
+)
 
 logger = logging.getLogger(__name__)
 
-__all__ = ["NavFilter", "NavState", "FusionResult", "PositionSource", "quat_multiply", "quat_conjugate",
-           "quat_from_rotation_vector", "quat_to_rotation_matrix", "quat_rotate", "quat_from_euler_zyx",
-           "quat_from_aviation_euler", "heading_from_quat", "NUM_ERROR_STATES"]
+__all__ = ["NavFilter", "NavState", "FusionResult", "PositionSource", "NUM_ERROR_STATES"]
 
 NUM_ERROR_STATES = 15
 _POS = slice(0, 3)
@@ -77,12 +85,6 @@ _BARO_STATES = np.array([2, 5, 14])
 _COMPASS_STATES = np.array([8, 11])
 
 
-from scenenav.core.rotations import (  # noqa: F401 (used by the autopilot's modules)
-    quat_multiply, quat_conjugate, quat_normalise, quat_from_rotation_vector, quat_to_rotation_matrix, quat_rotate, quat_from_euler_zyx, quat_from_aviation_euler, aviation_euler_from_quat, heading_from_quat)
-
-
-def _wrap_pi(angle: float) -> float:
-    return (angle + math.pi) % _TWO_PI - math.pi
 
 
 # --------------------------------------------------------------------------------------------------
@@ -403,7 +405,7 @@ class NavFilter:
         """Compass heading (clockwise from north, rad) -> yaw."""
         self._require_aligned("fuse_compass")
         c = self._cfg
-        innov = np.array([_wrap_pi(float(heading_rad) - heading_from_quat(self._q))])
+        innov = np.array([wrap_pi(float(heading_rad) - heading_from_quat(self._q))])
         # Body x axis in the world (a, b, c); d(yaw) = dtheta_z - (a c dtheta_x + b c dtheta_y)/(a^2+b^2);
         # heading = pi/2 - yaw.
         a, b, cz = quat_rotate(self._q, (1.0, 0.0, 0.0))

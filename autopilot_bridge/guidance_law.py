@@ -65,7 +65,22 @@ class Waypoint:
     speed_m_s: float | None = None             # horizontal speed on the leg to this waypoint; None: wp_speed_m_s
 
 
-class WaypointTracker:
+class GuidanceLaw:
+    """What every guidance law has: the events of its last updates (``pop_events``) and whether it
+    is done (``complete``; False for laws that end only by a mode change or a touchdown)."""
+
+    _events: list[GuidanceEvent]
+
+    @property
+    def complete(self) -> bool:
+        return False
+
+    def pop_events(self) -> list[GuidanceEvent]:
+        events, self._events = self._events, []
+        return events
+
+
+class WaypointTracker(GuidanceLaw):
     """Follows a list of 3-D waypoints from ``start_enu_m``; ``update`` once per control tick."""
 
     def __init__(self, cfg: GuidanceConfig, waypoints: Sequence[Waypoint], start_enu_m, *,
@@ -94,10 +109,6 @@ class WaypointTracker:
     def current_index(self) -> int:
         """Index of the waypoint being flown to (the last one once complete)."""
         return self._index
-
-    def pop_events(self) -> list[GuidanceEvent]:
-        events, self._events = self._events, []
-        return events
 
     def handle_position_reset(self, delta_xy_m) -> None:
         """Shift the carrot with an EKF position reset (restarts the current leg from the shifted carrot)."""
@@ -220,7 +231,7 @@ def make_takeoff(cfg: GuidanceConfig, start_enu_m, climb_m: float) -> WaypointTr
                            climb_speed_m_s=cfg.takeoff_speed_m_s)
 
 
-class Lander:
+class Lander(GuidanceLaw):
     """LAND: hold x, y and descend at WPNAV_SPEED_DN (or LAND_SPEED_HIGH) down to LAND_ALT_LOW above the
     ground reference, then at LAND_SPEED. Touchdown is detected by the controller (``ControlOutput.touchdown``)."""
 
@@ -232,14 +243,6 @@ class Lander:
         self._heading = heading_rad
         self._vz = 0.0
         self._events: list[GuidanceEvent] = []
-
-    @property
-    def complete(self) -> bool:
-        return False
-
-    def pop_events(self) -> list[GuidanceEvent]:
-        events, self._events = self._events, []
-        return events
 
     def handle_position_reset(self, delta_xy_m) -> None:
         self._xy = (self._xy[0] + float(delta_xy_m[0]), self._xy[1] + float(delta_xy_m[1]))
@@ -266,7 +269,7 @@ class RtlPhase(Enum):
     LAND = "land"
 
 
-class ReturnToLaunch:
+class ReturnToLaunch(GuidanceLaw):
     """RTL: climb to max(current z, home z + RTL_ALT) where it is, fly home at that height, loiter
     RTL_LOIT_TIME, then LAND on home (descent speeds as ``Lander``)."""
 
@@ -285,14 +288,6 @@ class ReturnToLaunch:
     @property
     def phase(self) -> RtlPhase:
         return self._phase
-
-    @property
-    def complete(self) -> bool:
-        return False
-
-    def pop_events(self) -> list[GuidanceEvent]:
-        events, self._events = self._events, []
-        return events
 
     def handle_position_reset(self, delta_xy_m) -> None:
         self._tracker.handle_position_reset(delta_xy_m)

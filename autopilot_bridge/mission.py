@@ -349,11 +349,8 @@ class MissionManager:
                                sender: tuple[int, int], now_s: float) -> None:
         """Replace items start..end (end may be one past the last item, to append)."""
         mtype = int(getattr(msg, "mission_type", 0))
-        if mtype != MissionType.MISSION:
-            self._ack(link, sender, MissionResult.UNSUPPORTED, mtype)
-            return
-        if self._upload is not None and self._upload.sender != sender:
-            self._ack(link, sender, MissionResult.DENIED, mtype)
+        if self._refuse_request(link, sender, mtype,
+                                upload_busy=self._upload is not None and self._upload.sender != sender):
             return
         start, end = int(msg.start_index), int(msg.end_index)
         if not 0 <= start <= end <= self.count_with_home or end >= self.max_items:
@@ -389,8 +386,7 @@ class MissionManager:
         if sender != up.sender:
             self._ack(link, sender, MissionResult.DENIED, mtype)
             return
-        if mtype != MissionType.MISSION:
-            self._ack(link, sender, MissionResult.UNSUPPORTED, mtype)
+        if self._refuse_request(link, sender, mtype, upload_busy=False):
             return
         seq = int(msg.seq)
         if seq < up.next_seq:
@@ -468,11 +464,7 @@ class MissionManager:
             self._out.send(link, mavlink2.MAVLink_mission_count_message(
                 sender[0], sender[1], 0, mtype))
             return
-        if mtype != MissionType.MISSION:
-            self._ack(link, sender, MissionResult.UNSUPPORTED, mtype)
-            return
-        if self._upload is not None:
-            self._ack(link, sender, MissionResult.DENIED, mtype)
+        if self._refuse_request(link, sender, mtype, upload_busy=self._upload is not None):
             return
         self._out.send(link, mavlink2.MAVLink_mission_count_message(
             sender[0], sender[1], self.count_with_home, mtype))
@@ -480,11 +472,7 @@ class MissionManager:
     def _on_request(self, msg: mavlink2.MAVLink_message, link: object, sender: tuple[int, int],
                     is_int: bool) -> None:
         mtype = int(getattr(msg, "mission_type", 0))
-        if mtype != MissionType.MISSION:
-            self._ack(link, sender, MissionResult.UNSUPPORTED, mtype)
-            return
-        if self._upload is not None:
-            self._ack(link, sender, MissionResult.DENIED, mtype)
+        if self._refuse_request(link, sender, mtype, upload_busy=self._upload is not None):
             return
         seq = int(msg.seq)
         if seq >= self.count_with_home:
@@ -519,6 +507,18 @@ class MissionManager:
         self._items = ()
         logger.info("mission cleared")
         self._ack(link, sender, MissionResult.ACCEPTED, mtype)
+
+    def _refuse_request(self, link: object, sender: tuple[int, int], mtype: int, *,
+                        upload_busy: bool) -> bool:
+        """ACK UNSUPPORTED for a mission type other than MISSION, DENIED while another upload
+        runs (``upload_busy``); True when the request was refused."""
+        if mtype != MissionType.MISSION:
+            self._ack(link, sender, MissionResult.UNSUPPORTED, mtype)
+            return True
+        if upload_busy:
+            self._ack(link, sender, MissionResult.DENIED, mtype)
+            return True
+        return False
 
     def _ack(self, link: object, sender: tuple[int, int], result: MissionResult,
              mission_type: int) -> None:

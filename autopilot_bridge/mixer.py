@@ -1,4 +1,5 @@
-"""Quad-X mixer for the Iris layout of ``sitl/vehicle.py``: (collective thrust, body torques) -> 4 motor commands.
+"""Quad-X mixer on the autopilot's airframe model (``autopilot_bridge.airframe``): (collective thrust, body
+torques) -> 4 motor commands in ``scenenav.core.contracts.QuadXRotor`` order.
 
 Physics (body FLU, rotor i at (x_i, y_i), thrust T_i along body +z, spin direction d_i = +1 CCW / -1 CW):
 
@@ -15,10 +16,13 @@ more thrust on the clockwise rotors (rotor_2, rotor_3), whose reaction torque is
 The 4x4 allocation matrix is inverted exactly (the Iris arms are slightly asymmetric: front rotors at
 |y| = 0.22 m, back rotors at |y| = 0.20 m); with zero torques the four thrusts are equal.
 
-Commands are normalised rotor speeds: command = omega / max_rotor_speed, thrust = k * omega^2, hence
-command_i = sqrt(T_i / k) / omega_max.
+Commands are normalised rotor speeds (``MotorCommand``). The model's thrust curve (MOT_THST_EXPO e, the
+ArduPilot thrust curve of ``AP_MotorsMulticopter::thrust_to_actuator``) maps a rotor's thrust fraction
+f = T_i / (k w_max^2) to the linear command x = ((e - 1) + sqrt((1 - e)^2 + 4 e f)) / (2 e), and
+command_i = MOT_SPIN_MIN + (MOT_SPIN_MAX - MOT_SPIN_MIN) x. For e = 1 (the default, a rotor-speed
+command: thrust = k omega^2) that is command_i = sqrt(T_i / k) / w_max, computed in that form.
 
-Saturation priority (rotor thrust limits [k (min_command w_max)^2, k (max_command w_max)^2]):
+Saturation priority (rotor thrust limits [0, k w_max^2]):
 1. roll/pitch: if the roll/pitch thrust differences alone span more than the available range, they are
    scaled down together (keeping the torque direction); flag ``roll_pitch``.
 2. thrust: the common collective offset is moved (down, or up) just enough for roll/pitch to fit;
@@ -30,13 +34,11 @@ The limit flags are fed back to the controllers for anti-windup.
 from __future__ import annotations
 
 import logging
-import math
 from dataclasses import dataclass
 
 import numpy as np
 
-from autopilot_bridge.config import MixerConfig
-from sitl.vehicle import VehicleParams
+from autopilot_bridge.airframe import Airframe
 
 logger = logging.getLogger(__name__)
 
@@ -59,9 +61,9 @@ class MixerLimits:
 
 @dataclass(frozen=True)
 class MixerOutput:
-    """Motor commands (rotor-speed fractions, rotor order of sitl/vehicle.py) and what they achieve."""
+    """Motor commands (rotor-speed fractions, ``QuadXRotor`` order) and what they achieve."""
 
-    commands: np.ndarray            # (4,) in [min_command, max_command]
+    commands: np.ndarray            # (4,) in [MOT_SPIN_MIN, MOT_SPIN_MAX]
     rotor_thrusts_n: np.ndarray     # (4,) steady-state thrust of each rotor at its command
     thrust_n: float                 # collective thrust achieved
     torque_flu_n_m: np.ndarray      # (3,) body torque achieved
@@ -69,24 +71,21 @@ class MixerOutput:
 
 
 class QuadXMixer:
-    """Allocates collective thrust and body torques to the four Iris rotors."""
+    """Allocates collective thrust and body torques to the four rotors of the airframe model."""
 
-    def __init__(self, vehicle: VehicleParams | None = None, cfg: MixerConfig | None = None) -> None:
-        self._vehicle = vehicle if vehicle is not None else VehicleParams()
-        self._cfg = cfg if cfg is not None else MixerConfig()
-        v = self._vehicle
-        if len(v.rotor_positions_flu_m) != NUM_ROTORS or len(v.rotor_directions) != NUM_ROTORS:
-            raise ValueError("QuadXMixer needs exactly four rotors")
-        xs = np.array([p[0] for p in v.rotor_positions_flu_m], dtype=float)
-        ys = np.array([p[1] for p in v.rotor_positions_flu_m], dtype=float)
-        dirs = np.array([int(d) for d in v.rotor_directions], dtype=float)
+    def __init__(self, airframe: Airframe | None = None) -> None:
+        self._airframe = a = airframe if airframe is not None else Airframe()
+        positions = a.rotor_positions_flu_m
+        xs = np.array([p[0] for p in positions], dtype=float)
+        ys = np.array([p[1] for p in positions], dtype=float)
+        dirs = np.array([int(d) for d in a.rotor_spins], dtype=float)
         # Rows: collective thrust, roll torque, pitch torque, yaw torque; columns: rotor thrusts.
-        self._allocation = np.vstack([np.ones(NUM_ROTORS), ys, -xs, -dirs * v.moment_constant_m])
+        self._allocation = np.vstack([np.ones(NUM_ROTORS), ys, -xs, -dirs * a.moment_constant_m])
         self._inverse = np.linalg.inv(self._allocation)
-        self._k = v.motor_constant_n_per_rad2_s2
-        self._w_max = v.max_rotor_speed_rad_s
-        self._t_min = self._k * (self._cfg.min_command * self._w_max) ** 2
-        self._t_max = self._k * (self._cfg.max_command * self._w_max) ** 2
+        self._k = a.thrust_coefficient_n_per_rad2_s2
+        self._w_max = a.max_rotor_speed_rad_s
+        self._t_min = 0.0
+        self._t_max = self._k * self._w_max ** 2
 
     @property
     def allocation_matrix(self) -> np.ndarray:
@@ -99,12 +98,24 @@ class QuadXMixer:
 
     @property
     def hover_command(self) -> float:
-        """Command of each rotor when the four together carry the vehicle's weight."""
-        return self._vehicle.hover_rotor_speed_rad_s / self._w_max
+        """Command of each rotor when the four together carry the vehicle's weight (the model's)."""
+        a = self._airframe
+        return self.command_for_thrust(a.thrust_mass_kg * a.gravity_m_s2 / NUM_ROTORS)
 
     def command_for_thrust(self, rotor_thrust_n: float) -> float:
         """Normalised command that makes one rotor produce ``rotor_thrust_n`` in steady state."""
-        return math.sqrt(max(rotor_thrust_n, 0.0) / self._k) / self._w_max
+        return float(self._commands(np.array([max(rotor_thrust_n, 0.0)]))[0])
+
+    def _commands(self, thrusts: np.ndarray) -> np.ndarray:
+        """Rotor thrusts (N, within the limits) -> commands through the thrust curve."""
+        a = self._airframe
+        e = a.thrust_expo
+        if e == 1.0:
+            x = np.sqrt(thrusts / self._k) / self._w_max
+        else:
+            f = thrusts / self._t_max
+            x = f if e == 0.0 else ((e - 1.0) + np.sqrt((1.0 - e) ** 2 + 4.0 * e * f)) / (2.0 * e)
+        return a.spin_min + (a.spin_max - a.spin_min) * x
 
     def mix(self, thrust_n: float, torque_flu_n_m) -> MixerOutput:
         """Collective thrust (N, along body +z) and body torques (N m, FLU) -> motor commands."""
@@ -148,7 +159,7 @@ class QuadXMixer:
         yaw_limited = scale < 1.0 - 1e-9
         thrusts = np.clip(partial + scale * yaw, t_min, t_max)
 
-        commands = np.sqrt(thrusts / self._k) / self._w_max
+        commands = self._commands(thrusts)
         achieved = self._allocation @ thrusts
         limits = MixerLimits(roll_pitch=roll_pitch_limited, thrust_upper=thrust_upper,
                              thrust_lower=thrust_lower, yaw=yaw_limited)

@@ -70,6 +70,17 @@ POSITION_CONTROLLED_MODES: frozenset[CopterMode] = frozenset({
 })
 
 
+# Modes with a position controller in the flight core (failsafes treat them as position modes).
+POSITION_MODES: frozenset[CopterMode] = frozenset({CopterMode.GUIDED, CopterMode.AUTO,
+                                                   CopterMode.LOITER, CopterMode.RTL, CopterMode.LAND})
+# Modes that need a horizontal position estimate to be entered (ArduCopter requires_GPS()).
+NEEDS_POSITION: frozenset[CopterMode] = frozenset({CopterMode.GUIDED, CopterMode.AUTO,
+                                                   CopterMode.LOITER, CopterMode.RTL})
+# Modes a ground station may arm in (ArduCopter Mode::allows_arming for GCS arming).
+ARMABLE_MODES: frozenset[CopterMode] = frozenset({CopterMode.STABILIZE, CopterMode.ALT_HOLD,
+                                                  CopterMode.GUIDED, CopterMode.LOITER})
+
+
 def mode_from_number(number: int) -> CopterMode | None:
     """The CopterMode for a custom_mode number, or None when ArduCopter has no such mode."""
     try:

@@ -7,6 +7,7 @@ Inputs (``scenenav/<ns>/...``)
   ``sensors/baro``                   BaroSample    height (EKF)
   ``sensors/compass``                CompassSample heading (EKF)
   ``sensors/gps``                    GpsSample     GPS fixes (EKF, when EK3_SRC1_POSXY = 3)
+  ``sensors/power``                  PowerSample   battery voltage and current (BATTERY_STATUS, SYS_STATUS)
   ``perception/fix/*``               VisionFix     scene-matching fixes of the followed perception node
   liveliness ``nodes/perception/*``  which perception nodes are live (the newest one is followed)
   liveliness ``lockstep/member/camera/*``  which of them answer camera frames in lockstep
@@ -31,7 +32,9 @@ core only at a tick whose ``camera_seq_acked`` covers its frame, and before step
 worker waits (at most ``autopilot.vision_wait_s`` wall seconds) for the followed node's fix of that
 frame if that node is a lockstep camera member.
 
-The node never looks at ``truth/``. Malformed bus messages are counted and dropped by
+Configuration: an ``AutopilotSetup`` (``autopilot_bridge.config``) that the app layer derives from
+the scenario (``scenenav.app.nodes``); the node never reads the scenario. The node never looks at
+``truth/``. Malformed bus messages are counted and dropped by
 ``scenenav.core.bus``; NaN sensor values by the core (``autopilot_stats.json``).
 """
 
@@ -41,34 +44,50 @@ import dataclasses
 import json
 import logging
 import queue
-import signal
 import threading
 import time
 from collections import Counter, deque
 from dataclasses import dataclass
 from enum import Enum
 from pathlib import Path
-from types import SimpleNamespace
 from typing import Any
 
 import numpy as np
 import zenoh
 
-from autopilot_bridge.flight_core import (PARAM_SPECS, FlightCore, FlightCoreConfig, GpsReading,
-                                          ImuReading, MissionEnd, build_route_mission)
+from autopilot_bridge.config import AutopilotSetup, PositionSource
+from autopilot_bridge.flight_core import FlightCore
+from autopilot_bridge.fusion import GpsReading, ImuReading
 from autopilot_bridge.mavlink_server import MavlinkServer, MavlinkServerConfig
 from autopilot_bridge.modes import CopterMode
-from autopilot_bridge.params import ParameterStore
+from autopilot_bridge.param_specs import PARAM_SPECS
+from autopilot_bridge.params import ParameterStore, load_param_file
+from autopilot_bridge.route_mission import build_route_mission
 from autopilot_bridge.vehicle_interface import MissionState
 from scenenav.core.bus import Bus, BusConfig
-from scenenav.core.contracts import (AutopilotStatus, BaroSample, ClockMode, ClockTick, CompassSample,
-                                DecodeError, Event, GpsSample, ImuSample, LockstepAck, LockstepRole,
-                                MotorCommand, NavEstimate, NodeInfo, RunState, Severity, VisionFix,
-                                decode)
+from scenenav.core.contracts import (
+    AutopilotStatus,
+    BaroSample,
+    ClockMode,
+    ClockTick,
+    CompassSample,
+    DecodeError,
+    Event,
+    GpsSample,
+    ImuSample,
+    LockstepAck,
+    LockstepRole,
+    MotorCommand,
+    NavEstimate,
+    NodeInfo,
+    PowerSample,
+    RunState,
+    Severity,
+    VisionFix,
+    decode,
+)
 from scenenav.core.errors import UserError
 from scenenav.core.keys import Keys
-from scenenav.app.scenario import (UDP_OUT_OFF, FlightMode, ScenarioConfig, load_scenario,
-                               route_for)
 
 log = logging.getLogger(__name__)
 
@@ -88,6 +107,7 @@ class ItemKind(Enum):
     BARO = "baro"
     COMPASS = "compass"
     GPS = "gps"
+    POWER = "power"
     FIX = "fix"
     ACK = "ack"                    # lockstep acks (a camera member answered a frame)
     PERCEPTION = "perception"      # liveliness of nodes/perception/<id>
@@ -102,85 +122,27 @@ class _Item:
     alive: bool = False
 
 
-@dataclass(frozen=True)
-class WorldOrigin:
-    lat_deg: float
-    lon_deg: float
-    alt_amsl_m: float = 0.0
-
-
-def world_manifest(cfg: ScenarioConfig):
-    """The scenario world's manifest (no images loaded)."""
-    from worlds.default import world_folder
-    from worlds.world import MANIFEST_FILE, WorldManifest
-    path = world_folder(cfg.world) / MANIFEST_FILE
-    try:
-        text = path.read_text(encoding="utf-8")
-    except OSError as exc:
-        raise UserError(f"{path}: cannot read the world manifest ({exc.strerror or exc})") from None
-    return WorldManifest.from_json(text, str(path))
-
-
-def world_origin(cfg: ScenarioConfig) -> WorldOrigin:
-    """The scenario world's geodetic origin."""
-    m = world_manifest(cfg)
-    return WorldOrigin(m.origin_lat_deg, m.origin_lon_deg)
-
-
-def scenario_route(cfg: ScenarioConfig) -> tuple[tuple[float, float], ...]:
-    """The scenario's route (``flight.route_enu_m``, or the route fitted to the world)."""
-    if cfg.flight.route_enu_m:
-        return cfg.flight.route_enu_m
-    m = world_manifest(cfg)
-    shape = SimpleNamespace(width_px=m.width_px, height_px=m.height_px, m_per_px=m.m_per_px,
-                            manifest=m)
-    return route_for(cfg, shape)
-
-
-def _udp_target(value: str) -> tuple[str, int] | None:
-    if value.lower() in UDP_OUT_OFF:
-        return None
-    host, _, port = str(value).rpartition(":")
-    return host, int(port)
-
-
-def _load_params_file(path: str) -> dict[str, float]:
-    if not path:
-        return {}
-    p = Path(path)
-    try:
-        data = json.loads(p.read_text(encoding="utf-8"))
-    except OSError as exc:
-        raise UserError(f"{p}: cannot read the parameter file ({exc.strerror or exc})") from None
-    except json.JSONDecodeError as exc:
-        raise UserError(f"{p}: line {exc.lineno}: not valid JSON (expected "
-                        f"{{\"NAME\": value, ...}})") from None
-    if not isinstance(data, dict):
-        raise UserError(f"{p}: expected a JSON object {{\"NAME\": value, ...}}")
-    return data
-
-
 class AutopilotNode:
     """The autopilot's bus shell; see the module docstring."""
 
-    def __init__(self, scenario: ScenarioConfig, bus_cfg: BusConfig, origin: WorldOrigin,
+    def __init__(self, setup: AutopilotSetup, bus_cfg: BusConfig,
                  run_dir: Path | None = None) -> None:
-        self.cfg = scenario
-        self.acfg = scenario.autopilot
+        self.setup = setup
+        self.acfg = setup.node
         self.run_dir = run_dir
         self.keys = Keys(bus_cfg.namespace)
         self.stats: Counter[str] = Counter()
         defaults: dict[str, float] = {}
-        if not scenario.sim.gps.enabled:
-            defaults.update({"EK3_SRC1_POSXY": 6, "EK3_SRC1_VELXY": 0})
-        defaults.update(_load_params_file(self.acfg.params_file))
+        if setup.position_source == PositionSource.EXTNAV:
+            # no GPS: external navigation (scene matching) for position, no velocity source
+            defaults.update({"EK3_SRC1_POSXY": int(PositionSource.EXTNAV),
+                             "EK3_SRC1_VELXY": int(PositionSource.NONE)})
+        if self.acfg.params_file:
+            defaults.update(load_param_file(Path(self.acfg.params_file)))
         defaults.update(self.acfg.params)
         self.params = ParameterStore(PARAM_SPECS, path=run_dir / PARAMS_FILE if run_dir else None,
                                      defaults=defaults)
-        start = scenario.flight.start_enu_m
-        self.core = FlightCore(self.params, FlightCoreConfig(
-            origin_lat_deg=origin.lat_deg, origin_lon_deg=origin.lon_deg,
-            origin_alt_amsl_m=origin.alt_amsl_m, start_enu_m=(float(start[0]), float(start[1]))))
+        self.core = FlightCore(self.params, setup.core)
         self.server = self._open_server()
         # worker state
         self._q: queue.SimpleQueue[_Item] = queue.SimpleQueue()
@@ -207,10 +169,8 @@ class AutopilotNode:
         self._answered_seq: dict[str, int] = {}     # newest frame a node fixed, acked or gave up
         self._last_fix_t_s: dict[str, float] = {}
         self._swap_gap_from: tuple[str, float] | None = None
-        # scenario flight
-        # With a guidance node the mission comes over MAVLink from that node instead.
-        self._auto_start = (scenario.flight.mode == FlightMode.AUTOPILOT and self.acfg.auto_start
-                            and not scenario.guidance.enabled)
+        # the run's own mission (None: a ground station or the guidance node sends one over MAVLink)
+        self._auto_start = setup.mission is not None
         self._auto_started = False
         self._mission_loaded = False
         self._next_auto_try_us = 0
@@ -226,6 +186,7 @@ class AutopilotNode:
         self._subscribe_ordered(k.baro, BaroSample, ItemKind.BARO)
         self._subscribe_ordered(k.compass, CompassSample, ItemKind.COMPASS)
         self._subscribe_ordered(k.gps, GpsSample, ItemKind.GPS)
+        self._subscribe_ordered(k.power, PowerSample, ItemKind.POWER)
         self._subscribe_ordered(k.vision_fix_all, VisionFix, ItemKind.FIX)
         self._subscribe_ordered(k.lockstep_ack_all, LockstepAck, ItemKind.ACK)
         self.bus.watch_liveliness(f"{k.root}/nodes/perception/*",
@@ -247,7 +208,7 @@ class AutopilotNode:
     # ------------------------------------------------------------------ setup
     def _open_server(self) -> MavlinkServer:
         a = self.acfg
-        udp = _udp_target(a.mavlink_udp_out)
+        udp = a.udp_target
         tlog = str(self.run_dir / TLOG_FILE) if self.run_dir else ""
         cfg = MavlinkServerConfig(
             tcp_enabled=a.mavlink_tcp_port != 0, tcp_port=a.mavlink_tcp_port or 5760,
@@ -356,6 +317,9 @@ class AutopilotNode:
             core.on_gps(GpsReading(g.timestamp_us * 1e-6, g.lat_deg, g.lon_deg, g.alt_m,
                                    tuple(g.velocity_enu_m_s), g.eph_m, g.epv_m, g.fix_type,
                                    g.satellites))
+        elif kind == ItemKind.POWER:
+            p: PowerSample = item.msg
+            core.on_power(p.timestamp_us * 1e-6, p.voltage_v, p.current_a)
         elif kind == ItemKind.FIX:
             self._on_fix_item(item.node_id, item.msg)
         elif kind == ItemKind.ACK:
@@ -432,7 +396,7 @@ class AutopilotNode:
         self.bus.publish(k.lockstep_ack(NODE_ID), LockstepAck(
             tick.timestamp_us, NODE_ID, LockstepRole.TICK.value, tick.tick))
         self.stats["ticks"] += 1
-        self._scenario_flight(tick.timestamp_us)
+        self._fly_own_mission(tick.timestamp_us)
         self._publish_outputs(tick.timestamp_us)
         self._poll_server()
 
@@ -458,7 +422,7 @@ class AutopilotNode:
         st = core.status()
         # mission_complete on the bus means "the scenario's mission is done" (it ends the run);
         # an idle (ground-station) session reports it to the GCS over MAVLink only.
-        complete = st.mission_complete and self.cfg.flight.mode == FlightMode.AUTOPILOT
+        complete = st.mission_complete and self.setup.mission_ends_run
         snapshot = (st.armed, st.mode, st.landed, st.mission_seq, st.mission_count, complete,
                     st.gps_used)
         if snapshot != self._last_status or t_us >= self._next_status_us:
@@ -536,23 +500,23 @@ class AutopilotNode:
             self.core.on_vision_fix(t_s, fix.position_xy_enu_m, cov, fix.valid, fix.accepted, node)
             self.stats["fixes_delivered"] += 1
 
-    # ------------------------------------------------------------------ scenario flight
-    def _scenario_flight(self, t_us: int) -> None:
+    # ------------------------------------------------------------------ the run's own mission
+    def _fly_own_mission(self, t_us: int) -> None:
         if not self._auto_start or self._auto_started or not self.core.aligned:
             return
         core = self.core
+        mission = self.setup.mission
+        assert mission is not None
         if not self._mission_loaded:
-            f = self.cfg.flight
-            route = scenario_route(self.cfg)
-            items = build_route_mission(core.geo, route, f.altitude_m,
-                                        MissionEnd(self.acfg.mission_end.value))
+            route = mission.route_enu_m
+            items = build_route_mission(core.geo, route, mission.altitude_m, self.acfg.mission_end)
             core.mission_changed(items)
             loader = getattr(self.server.missions, "load_items", None)
             if callable(loader):
                 loader(items)
             self._mission_loaded = True
             self._event(Severity.INFO, f"scenario mission: {len(items)} items, "
-                                       f"{len(route)} waypoints at {f.altitude_m:.0f} m")
+                                       f"{len(route)} waypoints at {mission.altitude_m:.0f} m")
         if t_us < self._next_auto_try_us:
             return
         self._next_auto_try_us = t_us + AUTO_START_RETRY_US
@@ -591,21 +555,3 @@ class AutopilotNode:
         log.info("autopilot node stats: %s", stats)
         return stats
 
-
-def run_autopilot_node(run_dir: Path | None, bus_cfg: BusConfig, args) -> int:
-    """``scenenav node autopilot``: run until SIGINT/SIGTERM."""
-    cfg = load_scenario(run_dir / "scenario.yaml") if run_dir else ScenarioConfig()
-    origin = world_origin(cfg)
-    stop = threading.Event()
-
-    def handler(signum, _frame):
-        log.info("signal %d: stopping", signum)
-        stop.set()
-    signal.signal(signal.SIGINT, handler)
-    signal.signal(signal.SIGTERM, handler)
-    node = AutopilotNode(cfg, bus_cfg, origin, run_dir)
-    try:
-        stop.wait()
-    finally:
-        node.close()
-    return 0

@@ -191,6 +191,20 @@ DEFAULT_PARAM_SPECS: tuple[ParamSpec, ...] = (
 ParamObserver = Callable[[str, float], None]
 
 
+def load_param_file(path: Path) -> dict[str, object]:
+    """A JSON parameter file ``{"NAME": value, ...}`` (values checked when applied)."""
+    try:
+        data = json.loads(path.read_text(encoding="utf-8"))
+    except (OSError, UnicodeDecodeError) as exc:
+        raise UserError(f"{path}: cannot read parameter file: {exc}") from None
+    except json.JSONDecodeError as exc:
+        raise UserError(f"{path}: line {exc.lineno}: not valid JSON "
+                        f"(expected {{\"NAME\": value, ...}})") from None
+    if not isinstance(data, dict):
+        raise UserError(f"{path}: expected a JSON object {{\"NAME\": value, ...}}")
+    return data
+
+
 class ParameterStore:
     """Typed parameters in a fixed order (``param_index`` = position in ``specs``).
 
@@ -290,16 +304,7 @@ class ParameterStore:
         self._values[i] = new
 
     def _load(self, path: Path) -> None:
-        try:
-            data = json.loads(path.read_text(encoding="utf-8"))
-        except (OSError, UnicodeDecodeError) as exc:
-            raise UserError(f"{path}: cannot read parameter file: {exc}") from None
-        except json.JSONDecodeError as exc:
-            raise UserError(f"{path}: line {exc.lineno}: not valid JSON "
-                            f"(expected {{\"NAME\": value, ...}})") from None
-        if not isinstance(data, dict):
-            raise UserError(f"{path}: expected a JSON object {{\"NAME\": value, ...}}")
-        for name, value in data.items():
+        for name, value in load_param_file(path).items():
             self._apply_initial(str(name), value, str(path))
 
     def _save(self) -> None:

@@ -28,7 +28,7 @@ from enum import IntEnum, IntFlag
 from typing import NamedTuple, Protocol, runtime_checkable
 
 from autopilot_bridge.modes import CopterMode
-from scenenav.core.contracts import Severity
+from scenenav.core.contracts import GpsFixType, Severity
 
 # --------------------------------------------------------------------------- enums
 
@@ -60,20 +60,6 @@ class SystemStatus(IntEnum):
     EMERGENCY = 6
     POWEROFF = 7
     FLIGHT_TERMINATION = 8
-
-
-class GpsFixType(IntEnum):
-    """GPS_FIX_TYPE (GPS_RAW_INT.fix_type)."""
-
-    NO_GPS = 0
-    NO_FIX = 1
-    FIX_2D = 2
-    FIX_3D = 3
-    DGPS = 4
-    RTK_FLOAT = 5
-    RTK_FIXED = 6
-    STATIC = 7
-    PPP = 8
 
 
 class MissionState(IntEnum):

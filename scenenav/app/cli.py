@@ -41,8 +41,7 @@ def _node(args: argparse.Namespace) -> int:
         return nodes.run_perception(run_dir, bus, args.method, args.node_id, args.world,
                                     args.assistant_map, None if args.lockstep is None else args.lockstep == "on")
     if args.kind == "autopilot":
-        from autopilot_bridge.node import run_autopilot_node
-        return run_autopilot_node(run_dir, bus, args)
+        return nodes.run_autopilot(run_dir, bus)
     if args.kind == "guidance":
         if run_dir is None:
             raise UserError("node guidance: --run-dir is required (the run's scenario.yaml names the goals)")

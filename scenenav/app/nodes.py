@@ -14,9 +14,11 @@ import signal
 import threading
 from pathlib import Path
 
+from types import SimpleNamespace
+
 from scenenav.core.bus import BusConfig
 from scenenav.core.contracts import LockstepRole
-from scenenav.app.scenario import ScenarioConfig, load_scenario
+from scenenav.app.scenario import FlightMode, ScenarioConfig, load_scenario, route_for
 
 log = logging.getLogger(__name__)
 
@@ -146,4 +148,56 @@ def run_guidance(run_dir: Path, bus_cfg: BusConfig) -> int:
     finally:
         stats = node.close()
         (run_dir / "guidance_stats.json").write_text(json.dumps(stats, indent=2))
+    return 0
+
+
+def world_manifest(cfg: ScenarioConfig):
+    """The scenario world's manifest (no images loaded)."""
+    from scenenav.core.formats.world_manifest import read_manifest
+    from worlds.default import world_folder
+    return read_manifest(world_folder(cfg.world))
+
+
+def scenario_route(cfg: ScenarioConfig) -> tuple[tuple[float, float], ...]:
+    """The scenario's route (``flight.route_enu_m``, or the route fitted to the world)."""
+    if cfg.flight.route_enu_m:
+        return cfg.flight.route_enu_m
+    m = world_manifest(cfg)
+    shape = SimpleNamespace(width_px=m.width_px, height_px=m.height_px, m_per_px=m.m_per_px,
+                            manifest=m)
+    return route_for(cfg, shape)
+
+
+def autopilot_setup(cfg: ScenarioConfig, origin_lat_lon_deg: tuple[float, float] | None = None):
+    """The autopilot node's setup for a scenario: its section, the world's geodetic origin (read from
+    the world unless given), the take-off point, the position source (external navigation without
+    GPS) and, for an autopilot flight without a guidance node, the route it flies by itself."""
+    from autopilot_bridge.config import (AutopilotSetup, FlightCoreConfig, PositionSource,
+                                         RouteMission)
+    if origin_lat_lon_deg is None:
+        m = world_manifest(cfg)
+        origin_lat_lon_deg = (m.origin_lat_deg, m.origin_lon_deg)
+    start = cfg.flight.start_enu_m
+    core = FlightCoreConfig(origin_lat_deg=origin_lat_lon_deg[0], origin_lon_deg=origin_lat_lon_deg[1],
+                            start_enu_m=(float(start[0]), float(start[1])))
+    autopilot_flight = cfg.flight.mode == FlightMode.AUTOPILOT
+    mission = None
+    if autopilot_flight and cfg.autopilot.auto_start and not cfg.guidance.enabled:
+        # with a guidance node the mission comes over MAVLink from that node instead
+        mission = RouteMission(scenario_route(cfg), cfg.flight.altitude_m)
+    return AutopilotSetup(
+        node=cfg.autopilot, core=core,
+        position_source=PositionSource.GPS if cfg.sim.gps.enabled else PositionSource.EXTNAV,
+        mission=mission, mission_ends_run=autopilot_flight)
+
+
+def run_autopilot(run_dir: Path | None, bus_cfg: BusConfig) -> int:
+    from autopilot_bridge.node import AutopilotNode
+    cfg = load_scenario(run_dir / "scenario.yaml") if run_dir else ScenarioConfig()
+    node = AutopilotNode(autopilot_setup(cfg), bus_cfg, run_dir)
+    stop = _stop_event()
+    try:
+        stop.wait()
+    finally:
+        node.close()
     return 0

@@ -11,6 +11,7 @@ from dataclasses import dataclass, field
 from enum import Enum
 from pathlib import Path
 
+from autopilot_bridge.config import AutopilotNodeConfig
 from scenenav.core.camera_geometry import ground_footprint_m
 from scenenav.core.config import apply_overrides, check, load_config, load_yaml, to_dict
 from scenenav.core.contracts import ClockMode
@@ -78,50 +79,6 @@ class EvaluationConfig:
     def __post_init__(self) -> None:
         check(self.false_fix_threshold_m > 0, "false_fix_threshold_m",
               self.false_fix_threshold_m, "> 0 m")
-
-
-class MissionEndMode(str, Enum):
-    """What an autopilot flight does after the last route waypoint."""
-
-    LAND = "land"    # land at the last waypoint
-    RTL = "rtl"      # return to the take-off point and land there
-
-
-UDP_OUT_OFF = ("none", "off", "0", "")
-
-
-def _udp_out_ok(text: str) -> bool:
-    if text.lower() in UDP_OUT_OFF:
-        return True
-    host, sep, port = text.rpartition(":")
-    return bool(sep and host and port.isdigit() and 0 < int(port) <= 65535)
-
-
-@dataclass(frozen=True)
-class AutopilotNodeConfig:
-    mavlink_tcp_port: int = 5760       # MAVLink TCP server on 127.0.0.1 (0 = off)
-    mavlink_udp_out: str = "127.0.0.1:14550"   # MAVLink UDP output HOST:PORT, or none
-    auto_start: bool = True            # autopilot flights: arm and start AUTO once the EKF is aligned
-    mission_end: MissionEndMode = MissionEndMode.LAND   # autopilot flights: after the last waypoint
-    params_file: str = ""              # JSON {"NAME": value} of ArduPilot parameters set at start
-    vision_wait_s: float = 5.0         # lockstep: wall seconds to wait for the fix of an acked frame
-    estimate_rate_hz: float = 20.0     # autopilot/estimate rate (simulated time)
-    params: dict[str, float] = field(default_factory=dict)   # ArduPilot parameters {NAME: value}, after params_file
-
-    def __post_init__(self) -> None:
-        check(0 <= self.mavlink_tcp_port <= 65535, "mavlink_tcp_port", self.mavlink_tcp_port,
-              "a TCP port 1..65535, or 0 for off")
-        check(_udp_out_ok(self.mavlink_udp_out), "mavlink_udp_out", self.mavlink_udp_out,
-              "HOST:PORT (e.g. 127.0.0.1:14550), or none")
-        check(self.vision_wait_s >= 0, "vision_wait_s", self.vision_wait_s, ">= 0 s")
-        check(0 < self.estimate_rate_hz <= 1000, "estimate_rate_hz", self.estimate_rate_hz,
-              "0 to 1000 Hz")
-        if self.params:
-            from autopilot_bridge.flight_core import PARAM_SPECS
-            known = {spec.name for spec in PARAM_SPECS}
-            unknown = sorted(set(self.params) - known)
-            check(not unknown, "params", unknown, "ArduCopter parameter names the autopilot knows "
-                  "(docs/mavlink.md lists them)")
 
 
 @dataclass(frozen=True)

@@ -24,7 +24,7 @@ import pytest
 import yaml
 
 from scenenav.core.bus import Bus, BusConfig, free_port
-from scenenav.core.contracts import (BaroSample, ClockMode, ClockTick, CompassSample, ImuSample,
+from scenenav.core.contracts import (BaroSample, ClockMode, ClockTick, CompassSample, ImuSample, PowerSample,
                                 LockstepAck, MotorCommand, RunState)
 from scenenav.core.keys import Keys
 from support import REPO_ROOT
@@ -152,7 +152,8 @@ def test_gps_denied_flight_on_vision_fixes(tmp_path):
 # ------------------------------------------------------------------------------ garbage in
 def test_node_survives_garbage_and_nan(tmp_path):
     """In-process node against a test hub that plays the simulator, in lockstep."""
-    from autopilot_bridge.node import AutopilotNode, WorldOrigin
+    from autopilot_bridge.node import AutopilotNode
+    from scenenav.app.nodes import autopilot_setup
     from scenenav.app.scenario import load_scenario
 
     cfg = load_scenario(None, ("flight.mode=idle", "sim.gps.enabled=false",
@@ -168,7 +169,7 @@ def test_node_survives_garbage_and_nan(tmp_path):
     hub.subscribe(keys.motors, MotorCommand, lambda m, _k: motors.append(m))
     member = threading.Event()
     hub.watch_liveliness(keys.lockstep_member_all, lambda _k, alive: alive and member.set())
-    node = AutopilotNode(cfg, BusConfig("aptest", port), WorldOrigin(48.0, 11.0), run_dir=tmp_path)
+    node = AutopilotNode(autopilot_setup(cfg, (48.0, 11.0)), BusConfig("aptest", port), run_dir=tmp_path)
     try:
         assert member.wait(30), "the autopilot never declared its lockstep token"
         for payload in (b"\xff\x00garbage", b"{}", b'{"type": "ImuSample", "version": 99}'):
@@ -182,6 +183,8 @@ def test_node_survives_garbage_and_nan(tmp_path):
             if tick % 5 == 0:
                 hub.publish(keys.baro, BaroSample(t_us, math.nan if nan else 0.0, 101325.0))
                 hub.publish(keys.compass, CompassSample(t_us, math.nan if tick % 10 == 5 else 0.5))
+            if tick % 10 == 0:
+                hub.publish(keys.power, PowerSample(t_us, math.nan if nan else 12.4, 3.0))
             got.clear()
             hub.publish(keys.clock, ClockTick(t_us, tick, 10_000, -1, ClockMode.LOCKSTEP.value,
                                               RunState.RUNNING.value))
@@ -190,6 +193,9 @@ def test_node_survives_garbage_and_nan(tmp_path):
         assert acks == list(range(200))
         assert all(m.command == (0.0, 0.0, 0.0, 0.0) and not m.armed for m in motors)
         assert node.core.aligned
+        battery = node.core.battery.state(3300.0)
+        assert battery.voltage_v == 12.4 and battery.current_a == 3.0   # measured, not modelled
+        assert battery.consumed_mah == pytest.approx(3.0 * 1.9 / 3.6)
     finally:
         stats = node.close()
         hub.close()
@@ -202,7 +208,8 @@ def test_node_survives_garbage_and_nan(tmp_path):
 def test_node_follows_the_newest_perception_node_and_logs_the_gap(tmp_path):
     """Two perception nodes (tokens and fixes played by the test hub): the newest is followed;
     when it leaves, the other one again; each swap and the gap in fixes is an Event."""
-    from autopilot_bridge.node import AutopilotNode, WorldOrigin
+    from autopilot_bridge.node import AutopilotNode
+    from scenenav.app.nodes import autopilot_setup
     from scenenav.core.contracts import Event, VisionFix
     from scenenav.app.scenario import load_scenario
 
@@ -215,7 +222,7 @@ def test_node_follows_the_newest_perception_node_and_logs_the_gap(tmp_path):
     hub.subscribe(keys.events("autopilot"), Event, lambda m, _k: events.append(m.text))
     acked = threading.Event()
     hub.subscribe(keys.lockstep_ack("autopilot"), LockstepAck, lambda m, _k: acked.set())
-    node = AutopilotNode(cfg, BusConfig("apswap", port), WorldOrigin(48.0, 11.0), run_dir=tmp_path)
+    node = AutopilotNode(autopilot_setup(cfg, (48.0, 11.0)), BusConfig("apswap", port), run_dir=tmp_path)
 
     def fix(node_id: str, seq: int, t_us: int) -> VisionFix:
         nan4 = (math.nan,) * 4
@@ -267,7 +274,9 @@ class CoreFlight:
     def __init__(self, gps: bool = True, seed: int = 3, **params) -> None:
         from support.quad_model import QuadModel
 
-        from autopilot_bridge.flight_core import PARAM_SPECS, FlightCore, FlightCoreConfig
+        from autopilot_bridge.config import FlightCoreConfig
+        from autopilot_bridge.flight_core import FlightCore
+        from autopilot_bridge.param_specs import PARAM_SPECS
         from autopilot_bridge.params import ParameterStore
         from sitl.vehicle import VehicleParams
         self.rng = np.random.default_rng(seed)
@@ -286,8 +295,8 @@ class CoreFlight:
     def tick(self) -> None:
         from support.quad_model import ACCEL_BIAS, GYRO_BIAS, SUBSTEPS
 
-        from autopilot_bridge.ekf import heading_from_quat
-        from autopilot_bridge.flight_core import GpsReading, ImuReading
+        from scenenav.core.rotations import heading_from_quat
+        from autopilot_bridge.fusion import GpsReading, ImuReading
         f_sum, w_sum = np.zeros(3), np.zeros(3)
         for _ in range(SUBSTEPS):
             f, w = self.model.step(self.cmd, np.zeros(3))

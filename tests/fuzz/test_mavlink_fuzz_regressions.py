@@ -23,8 +23,10 @@ from support.nav import nav_state as _nav
 
 from autopilot_bridge.config import ControlConfig
 from autopilot_bridge.control import FlightController
-from autopilot_bridge.flight_core import PARAM_SPECS, FlightCore, FlightCoreConfig
-from autopilot_bridge.mavlink_server import local_position_target
+from autopilot_bridge.config import FlightCoreConfig
+from autopilot_bridge.flight_core import FlightCore
+from autopilot_bridge.param_specs import PARAM_SPECS
+from autopilot_bridge.setpoints import local_position_target
 from autopilot_bridge.params import ParameterStore
 from autopilot_bridge.vehicle_interface import MissionCommand, MissionItem, SpeedType
 

@@ -9,19 +9,12 @@ MISSION_ITEM_REACHED. ``SitlSession`` is shared with test_gcs_mavsdk.py and test
 
 from __future__ import annotations
 
-import csv
 import json
 import math
-import os
-import signal
-import subprocess
-import sys
-from pathlib import Path
 
 import numpy as np
 
-from support.lineproc import LineProcess, MavproxyProcess, wait_until
-from scenenav.core.bus import free_port
+from support.lineproc import MavproxyProcess, wait_until
 from support import REPO_ROOT
 
 REPO = REPO_ROOT

@@ -7,14 +7,11 @@
 
 from __future__ import annotations
 
-import json
 import math
 import os
 import signal
-import threading
-import time
 
-from support.sitl_session import SitlSession, final_position, wait_until
+from support.sitl_session import SitlSession, final_position
 
 from autopilot_bridge.failsafe import (FailsafeAction, FailsafeInputs, FailsafeKind,
                                        FailsafeMonitor, FailsafeSettings, VisionFailsafeState,

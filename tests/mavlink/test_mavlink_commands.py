@@ -24,8 +24,8 @@ from autopilot_bridge.mavlink_server import MavlinkServer
 from autopilot_bridge.modes import SUPPORTED_MODES, CopterMode, mode_from_name
 from autopilot_bridge.params import ParameterStore
 from autopilot_bridge.signing import SigningConfig, signing_key
+from scenenav.core.contracts import GpsFixType
 from autopilot_bridge.vehicle_interface import (
-    GpsFixType,
     LandedState,
     MavSeverity,
     MissionItemReachedEvent,

@@ -5,7 +5,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from autopilot_bridge.ekf import quat_from_rotation_vector, quat_multiply, quat_normalise, quat_to_rotation_matrix
+from scenenav.core.rotations import quat_from_rotation_vector, quat_multiply, quat_normalise, quat_to_rotation_matrix
 from sitl.vehicle import VehicleParams
 
 

@@ -31,10 +31,10 @@ STOP_TIMEOUT_S = 90.0
 
 
 def world_origin() -> tuple[float, float]:
-    from autopilot_bridge.node import world_origin as wo
+    from scenenav.app.nodes import world_manifest
     from scenenav.app.scenario import ScenarioConfig
-    o = wo(ScenarioConfig())
-    return o.lat_deg, o.lon_deg
+    m = world_manifest(ScenarioConfig())
+    return m.origin_lat_deg, m.origin_lon_deg
 
 
 def enu_to_latlon(x_m: float, y_m: float) -> tuple[float, float]:

@@ -36,14 +36,16 @@ from typing import TextIO
 
 import numpy as np
 
+from autopilot_bridge.airframe import Airframe
 from autopilot_bridge.config import ControlConfig, EkfConfig, GuidanceConfig
 from autopilot_bridge.control import FlightController, PositionTarget
-from autopilot_bridge.ekf import NavFilter, quat_from_rotation_vector, quat_multiply, quat_normalise
+from autopilot_bridge.ekf import NavFilter
 from autopilot_bridge.guidance_law import Waypoint, WaypointTracker
 from autopilot_bridge.mixer import QuadXMixer
 from scenenav.core.config import check
 from scenenav.core.errors import UserError
 from scenenav.core.geometry import distance_to_polyline_m
+from scenenav.core.rotations import quat_from_rotation_vector, quat_multiply, quat_normalise
 from sitl.config import SimConfig, WindConfig
 from sitl.dynamics import QuadrotorDynamics, heading_from_quat, rotation_rows
 from sitl.sensors import BaroModel, CompassModel, GpsModel, ImuModel
@@ -139,8 +141,8 @@ class BenchFlight:
         self._gravity = np.array([0.0, 0.0, -self.veh.gravity_m_s2])
         # autopilot
         self.nav = NavFilter(EkfConfig())
-        self.fc = FlightController(ControlConfig(), self.veh)
-        self.mixer = QuadXMixer(self.veh)
+        self.fc = FlightController(ControlConfig(), Airframe())    # the autopilot's own model
+        self.mixer = QuadXMixer(Airframe())
         self.commands = np.full(4, self.dyn.hover_command)
         self.ticks = 0
         self.ekf_cpu = _Timer()

@@ -19,8 +19,8 @@ import pytest
 
 from autopilot_bridge.config import GuidanceConfig, PositionSource
 from autopilot_bridge.control import FlightController, PositionTarget
-from autopilot_bridge.ekf import (NavFilter, heading_from_quat, quat_from_rotation_vector, quat_multiply,
-                                  quat_normalise, quat_to_rotation_matrix)
+from autopilot_bridge.ekf import NavFilter
+from scenenav.core.rotations import (heading_from_quat, quat_from_rotation_vector)
 from autopilot_bridge.guidance_law import Lander, Waypoint, WaypointTracker, make_takeoff
 from autopilot_bridge.mixer import QuadXMixer
 from sitl.vehicle import VehicleParams
@@ -40,8 +40,8 @@ class Flight:
         self.gust = np.zeros(3)
         self.gust_std = gust_std_m_s
         self.nav = NavFilter()
-        self.fc = FlightController(vehicle=self.par)
-        self.mixer = QuadXMixer(self.par)
+        self.fc = FlightController()
+        self.mixer = QuadXMixer()
         self.gcfg = GuidanceConfig()
         self.commands = np.zeros(4)
         self.tick_count = 0

@@ -12,26 +12,27 @@ import math
 import numpy as np
 import pytest
 
-from autopilot_bridge.config import ControlConfig, GuidanceConfig, MixerConfig, YawBehaviour
+from autopilot_bridge.airframe import Airframe
+from autopilot_bridge.config import ControlConfig, GuidanceConfig, YawBehaviour
 from autopilot_bridge.control import (FlightController, LandState, PositionTarget, VerticalMode, sqrt_controller,
                                       stopping_point)
-from autopilot_bridge.ekf import NavState, aviation_euler_from_quat, quat_from_aviation_euler, quat_to_rotation_matrix
+from autopilot_bridge.ekf import NavState
 from autopilot_bridge.guidance_law import (GuidanceEventKind, Lander, ReturnToLaunch, RtlPhase, Waypoint,
                                            WaypointTracker, make_takeoff)
 from autopilot_bridge.mixer import QuadXMixer
 from scenenav.core.config import ConfigError
-from sitl.vehicle import VehicleParams
+from scenenav.core.rotations import aviation_euler_from_quat, quat_from_aviation_euler, quat_to_rotation_matrix
 from support.nav import nav_state
 
-VEH = VehicleParams()
+VEH = Airframe()
 HOVER_THRUST = VEH.mass_kg * VEH.gravity_m_s2
 DT = 0.01
 
 
 def _torque_from_thrusts(thrusts: np.ndarray) -> np.ndarray:
-    """Independent r x F + reaction-torque sum over the rotors of sitl/vehicle.py."""
+    """Independent r x F + reaction-torque sum over the rotors of the airframe model."""
     total = np.zeros(3)
-    for (x, y), d, t in zip(VEH.rotor_positions_flu_m, VEH.rotor_directions, thrusts):
+    for (x, y), d, t in zip(VEH.rotor_positions_flu_m, VEH.rotor_spins, thrusts):
         total += np.cross([x, y, 0.0], [0.0, 0.0, t])
         total += np.array([0.0, 0.0, -int(d) * VEH.moment_constant_m * t])
     return total
@@ -71,7 +72,7 @@ def test_mixer_roll_pitch_yaw_signs():
     assert np.allclose(_torque_from_thrusts(out.rotor_thrusts_n), [0.0, 0.0, 0.1], atol=1e-9)
     assert out.thrust_n == pytest.approx(HOVER_THRUST)
     # Commands map to thrust through k (w_max c)^2.
-    t = VEH.motor_constant_n_per_rad2_s2 * (c * VEH.max_rotor_speed_rad_s) ** 2
+    t = VEH.thrust_coefficient_n_per_rad2_s2 * (c * VEH.max_rotor_speed_rad_s) ** 2
     assert np.allclose(t, out.rotor_thrusts_n)
 
 
@@ -102,7 +103,7 @@ def test_mixer_saturation_priority_roll_pitch_then_thrust_then_yaw():
 
 
 def test_mixer_min_command_floor():
-    mixer = QuadXMixer(cfg=MixerConfig(min_command=0.1))
+    mixer = QuadXMixer(Airframe(spin_min=0.1))
     out = mixer.mix(0.0, np.zeros(3))
     assert np.allclose(out.commands, 0.1)
 
@@ -259,7 +260,7 @@ def test_config_range_checks():
     with pytest.raises(ConfigError):
         GuidanceConfig(wp_speed_m_s=-1.0)
     with pytest.raises(ConfigError):
-        MixerConfig(min_command=1.5)
+        Airframe(spin_min=1.5)
 
 
 # ------------------------------------------------------------------------------------------ guidance

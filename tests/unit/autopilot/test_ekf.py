@@ -13,7 +13,8 @@ import numpy as np
 import pytest
 
 from autopilot_bridge.config import EkfConfig, PositionSource
-from autopilot_bridge.ekf import (NavFilter, heading_from_quat, quat_from_aviation_euler, quat_from_euler_zyx,
+from autopilot_bridge.ekf import NavFilter
+from scenenav.core.rotations import (heading_from_quat, quat_from_aviation_euler, quat_from_euler_zyx,
                                   quat_from_rotation_vector, quat_multiply, quat_to_rotation_matrix,
                                   aviation_euler_from_quat)
 

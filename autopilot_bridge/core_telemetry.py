@@ -1,0 +1,171 @@
+"""The telemetry model (part of ``FlightCore``): ``VehicleTelemetry`` (what the MAVLink server
+encodes) from the EKF estimate, the last GPS fix, the battery monitor, home, the mission and the
+health of the sensors; EKF_STATUS_REPORT flags and SYS_STATUS sensor bits.
+
+Frames: NED metres from the EKF origin, body FRD, latitude/longitude through ``scenenav.core.frames``
+around the world's geodetic origin, altitudes AMSL = ``origin_alt_amsl_m`` + ENU z.
+
+Pure module: no zenoh, no pymavlink.
+"""
+
+from __future__ import annotations
+
+import math
+from enum import IntFlag
+
+import numpy as np
+
+from autopilot_bridge.config import PositionSource
+from autopilot_bridge.flight_laws import LawKind
+from autopilot_bridge.geo_frame import enu_to_ned
+from autopilot_bridge.vehicle_interface import (
+    DEFAULT_SENSORS,
+    LandedState,
+    SensorFlag,
+    SystemStatus,
+    VehicleTelemetry,
+)
+from scenenav.core.contracts import GpsFixType
+from scenenav.core.frames import wrap_pi
+from scenenav.core.rotations import aviation_euler_from_quat
+
+
+class EkfStatusFlag(IntFlag):
+    """MAVLink EKF_STATUS_FLAGS (EKF_STATUS_REPORT.flags)."""
+
+    ATTITUDE = 1
+    VELOCITY_HORIZ = 2
+    VELOCITY_VERT = 4
+    POS_HORIZ_REL = 8
+    POS_HORIZ_ABS = 16
+    POS_VERT_ABS = 32
+    POS_VERT_AGL = 64
+    CONST_POS_MODE = 128
+    PRED_POS_HORIZ_REL = 256
+    PRED_POS_HORIZ_ABS = 512
+    UNINITIALIZED = 1024
+    GPS_GLITCH = 32768
+
+
+class TelemetryMixin:
+    """Part of ``FlightCore`` (``autopilot_bridge.flight_core``); works on its state."""
+
+    def telemetry(self) -> VehicleTelemetry:
+        if self._tel is None:
+            self._tel = self._build_telemetry()
+        return self._tel
+
+    def _build_telemetry(self) -> VehicleTelemetry:
+        aligned = self.nav.aligned
+        if aligned:
+            est = self.nav.state()
+            pos = np.asarray(est.position_enu_m, dtype=float)
+            vel = np.asarray(est.velocity_enu_m_s, dtype=float)
+            roll, pitch, heading = aviation_euler_from_quat(tuple(float(a) for a in est.q_wxyz))
+            w = self._gyro - np.asarray(est.gyro_bias, dtype=float)
+            std = np.asarray(est.position_std_m, dtype=float)
+            vstd = np.asarray(est.velocity_std_m_s, dtype=float)
+        else:
+            pos = np.array([*self.cfg.start_enu_m, self.cfg.ground_z_m], dtype=float)
+            vel = np.zeros(3)
+            roll = pitch = heading = 0.0
+            w = np.zeros(3)
+            std = np.full(3, math.inf)
+            vstd = np.full(3, math.inf)
+        lat, lon = self.geo.to_geodetic(float(pos[0]), float(pos[1]))
+        home = self._home if self._home is not None else pos
+        home_lat, home_lon = self.geo.to_geodetic(float(home[0]), float(home[1]))
+        origin = self._origin_enu() if self._origin is not None else pos
+        thrust = self._last_out.thrust_n if (self._last_out is not None and self._armed) else 0.0
+        g = self._last_gps
+        gps_fix = GpsFixType(min(max(g.fix_type, 0), GpsFixType.FIX_3D)) if g is not None \
+            else GpsFixType.NO_GPS
+        sensors = self._sensor_flags(aligned)
+        battery = self.battery.state(self.params.get("BATT_CAPACITY"))
+        ok = self.nav.config.position_ok_max_std_m
+        return VehicleTelemetry(
+            time_boot_ms=int(self._now_s * 1000.0), armed=self._armed, mode=self._mode,
+            landed_state=self._landed_state(), system_status=self._system_status(),
+            lat_deg=lat, lon_deg=lon, alt_amsl_m=self.geo.origin_alt_amsl_m + float(pos[2]),
+            relative_alt_m=float(pos[2] - home[2]),
+            position_ned_m=enu_to_ned(pos - origin), velocity_ned_m_s=enu_to_ned(vel),
+            attitude_rpy_rad=(roll, pitch, wrap_pi(heading)),
+            body_rates_rad_s=(float(w[0]), -float(w[1]), -float(w[2])),
+            heading_deg=math.degrees(heading) % 360.0,
+            groundspeed_m_s=float(math.hypot(vel[0], vel[1])),
+            airspeed_m_s=float(math.hypot(vel[0], vel[1])), climb_m_s=float(vel[2]),
+            throttle_pct=100.0 * thrust / self.airframe.max_thrust_n,
+            gps_fix_type=gps_fix, gps_satellites=g.satellites if g is not None else 0,
+            gps_hdop=g.eph_m if g is not None else math.nan,
+            gps_vdop=g.epv_m if g is not None else math.nan,
+            gps_lat_deg=g.lat_deg if g is not None else 0.0,
+            gps_lon_deg=g.lon_deg if g is not None else 0.0,
+            gps_alt_amsl_m=(self.geo.origin_alt_amsl_m + g.alt_m) if g is not None else 0.0,
+            gps_ground_speed_m_s=float(math.hypot(*g.velocity_enu_m_s[:2])) if g is not None else math.nan,
+            gps_course_deg=(math.degrees(math.atan2(g.velocity_enu_m_s[0], g.velocity_enu_m_s[1])) % 360.0)
+            if g is not None else math.nan,
+            battery_voltage_v=battery.voltage_v, battery_current_a=battery.current_a,
+            battery_remaining_pct=battery.remaining_pct,
+            home_set=self._home is not None, home_lat_deg=home_lat, home_lon_deg=home_lon,
+            home_alt_amsl_m=self.geo.origin_alt_amsl_m + float(home[2]),
+            home_position_ned_m=enu_to_ned(np.asarray(home) - origin),
+            mission_current_seq=self._mission_index + 1 if self._mission else 0,
+            mission_state=self._mission_state,
+            ekf_flags=int(self._ekf_flags(aligned)),
+            ekf_velocity_variance=float(max(vstd[0], vstd[1]) / self.nav.config.velocity_ok_max_std_m_s),
+            ekf_pos_horiz_variance=float(max(std[0], std[1]) / ok),
+            ekf_pos_vert_variance=float(std[2] / ok),
+            ekf_compass_variance=float(self.nav.attitude_std_rad()[2] / 0.2) if aligned else 1.0,
+            sensors_present=int(sensors[0]), sensors_enabled=int(sensors[1]),
+            sensors_health=int(sensors[2]))
+
+    def _landed_state(self) -> LandedState:
+        if not self.nav.aligned:
+            return LandedState.UNDEFINED
+        if self.fc.landed or not self._armed:
+            return LandedState.ON_GROUND
+        if self._law_kind() == LawKind.TAKEOFF and not self._law.complete:
+            return LandedState.TAKEOFF
+        if self._landing():
+            return LandedState.LANDING
+        return LandedState.IN_AIR
+
+    def _system_status(self) -> SystemStatus:
+        if not self.nav.aligned:
+            return SystemStatus.BOOT
+        if self.failsafe.any_active:
+            return SystemStatus.CRITICAL
+        return SystemStatus.ACTIVE if self._armed and not self.fc.landed else SystemStatus.STANDBY
+
+    def _ekf_flags(self, aligned: bool) -> EkfStatusFlag:
+        if not aligned:
+            return EkfStatusFlag.UNINITIALIZED
+        flags = EkfStatusFlag(0)
+        if self.nav.is_healthy():
+            flags |= EkfStatusFlag.ATTITUDE | EkfStatusFlag.POS_VERT_ABS | EkfStatusFlag.POS_VERT_AGL
+        if self.nav.velocity_ok():
+            flags |= EkfStatusFlag.VELOCITY_HORIZ | EkfStatusFlag.VELOCITY_VERT
+        if self._position_ok():
+            flags |= (EkfStatusFlag.POS_HORIZ_REL | EkfStatusFlag.POS_HORIZ_ABS
+                      | EkfStatusFlag.PRED_POS_HORIZ_REL | EkfStatusFlag.PRED_POS_HORIZ_ABS)
+        return flags
+
+    def _sensor_flags(self, aligned: bool) -> tuple[SensorFlag, SensorFlag, SensorFlag]:
+        present = SensorFlag(int(DEFAULT_SENSORS)) & ~SensorFlag.VISION_POSITION
+        if self._last_gps is not None:
+            present |= SensorFlag.GPS
+        if self.nav.position_source == PositionSource.EXTNAV:
+            present |= SensorFlag.VISION_POSITION
+        enabled = present
+        health = present
+        if not (aligned and self.nav.is_healthy()):
+            health &= ~SensorFlag.AHRS
+        if not self._gps_fix_fresh():
+            health &= ~SensorFlag.GPS
+        if self.nav.position_source == PositionSource.EXTNAV and not (
+                self._ext_nav_available() or (self._last_usable_vision_s is not None
+                                              and self._now_s - self._last_usable_vision_s < 2.0)):
+            health &= ~SensorFlag.VISION_POSITION
+        if not (aligned and not self._prearm_failures()):
+            health &= ~SensorFlag.PREARM_CHECK
+        return present, enabled, health

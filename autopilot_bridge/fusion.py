@@ -1,0 +1,216 @@
+"""Sensor inputs and their fusion into the navigation filter (part of ``FlightCore``).
+
+``on_baro`` / ``on_compass`` / ``on_gps`` / ``on_vision_fix`` (bus) and ``vision_position_estimate``
+/ ``odometry`` (MAVLink external navigation) check and buffer; ``_fuse_pending`` fuses the buffer
+after each EKF predict. Vision fixes are fused only when valid and accepted by the perception node,
+younger than ``vision_max_age_s`` and taken at least SN_VIS_MIN_ALT above home; on the ground without
+a position source the last landed position is fused as a pseudo-measurement (as ArduPilot's EKF does
+when it is not aiding). ``on_power`` feeds the battery monitor.
+
+Pure module: no zenoh, no pymavlink.
+"""
+
+from __future__ import annotations
+
+import logging
+import math
+from dataclasses import dataclass
+from typing import NamedTuple
+
+import numpy as np
+
+from autopilot_bridge.config import PositionSource
+from autopilot_bridge.geo_frame import ned_to_enu
+from autopilot_bridge.vehicle_interface import (
+    MavSeverity,
+    Odometry,
+)
+from scenenav.core.contracts import GpsFixType
+from scenenav.core.numeric import all_finite
+
+logger = logging.getLogger(__name__)
+
+_TWO_PI = 2.0 * math.pi
+
+
+class ImuReading(NamedTuple):
+    accel_flu_m_s2: tuple[float, float, float]
+    gyro_flu_rad_s: tuple[float, float, float]
+
+
+@dataclass(frozen=True)
+class GpsReading:
+    t_s: float
+    lat_deg: float
+    lon_deg: float
+    alt_m: float                                  # above the world's ground plane
+    velocity_enu_m_s: tuple[float, float, float]
+    eph_m: float
+    epv_m: float
+    fix_type: int
+    satellites: int
+
+
+@dataclass(frozen=True)
+class VisionReading:
+    t_s: float                                    # capture time
+    xy_enu_m: tuple[float, float]
+    cov_m2: np.ndarray                            # (2, 2)
+    source: str
+
+
+class SensorFusionMixin:
+    """Part of ``FlightCore`` (``autopilot_bridge.flight_core``); works on its state."""
+
+    def _init_fusion(self) -> None:
+        """Measurements buffered until the next step (fused after the predict) and their ages."""
+        self._baro: list[float] = []
+        self._compass: list[float] = []
+        self._gps: list[GpsReading] = []
+        self._vision: list[VisionReading] = []
+        self._last_gps: GpsReading | None = None
+        self._last_gps_fused_s: float | None = None
+        self._last_usable_vision_s: float | None = None
+        self._last_ext_nav_s: float | None = None
+
+    def on_baro(self, t_s: float, altitude_m: float) -> None:
+        if not all_finite(altitude_m):
+            self.stats["baro_nan"] += 1
+            return
+        if self.nav.aligned:
+            self._baro.append(float(altitude_m))
+        else:
+            self.alignment.add_baro(altitude_m)
+
+    def on_compass(self, t_s: float, heading_rad: float) -> None:
+        if not all_finite(heading_rad):
+            self.stats["compass_nan"] += 1
+            return
+        h = float(heading_rad) % _TWO_PI
+        if self.nav.aligned:
+            self._compass.append(h)
+        else:
+            self.alignment.add_heading(h)
+
+    def on_gps(self, reading: GpsReading) -> None:
+        values = (reading.lat_deg, reading.lon_deg, reading.alt_m, *reading.velocity_enu_m_s)
+        if not all_finite(*values) or abs(reading.lat_deg) > 90.0 or abs(reading.lon_deg) > 180.0:
+            self.stats["gps_nan"] += 1
+            return
+        self._last_gps = reading
+        if reading.fix_type < GpsFixType.FIX_3D:
+            return
+        if self.nav.aligned:
+            self._gps.append(reading)
+        else:
+            self.alignment.add_gps(self.geo.to_enu(reading.lat_deg, reading.lon_deg))
+
+    def on_power(self, t_s: float, voltage_v: float, current_a: float) -> None:
+        """A power-module measurement (battery voltage and current), reported over MAVLink."""
+        self.battery.on_sample(t_s, voltage_v, current_a)
+
+    def on_vision_fix(self, capture_t_s: float, xy_enu_m, cov_2x2_m2, valid: bool, accepted: bool,
+                      source: str = "") -> None:
+        """A scene-matching fix from the followed perception node; fused at the next step when
+        usable (valid, accepted, finite, recent, taken above SN_VIS_MIN_ALT)."""
+        self.stats["vision_fixes"] += 1
+        if not (valid and accepted):
+            self.stats["vision_not_accepted"] += 1
+            return
+        xy = tuple(float(v) for v in xy_enu_m)
+        if len(xy) != 2 or not all_finite(*xy, capture_t_s):
+            self.stats["vision_nan"] += 1
+            return
+        cov = np.asarray(cov_2x2_m2, dtype=float).reshape(2, 2)
+        if not np.all(np.isfinite(cov)) or cov[0, 0] <= 0.0 or cov[1, 1] <= 0.0:
+            cov = np.eye(2) * self.cfg.ext_nav_std_m ** 2
+        self._vision.append(VisionReading(float(capture_t_s), (xy[0], xy[1]), cov, source))
+
+    def _fuse_pending(self) -> None:
+        nav = self.nav
+        for alt in self._baro:
+            nav.fuse_baro(alt)
+        self._baro.clear()
+        for hdg in self._compass:
+            nav.fuse_compass(hdg)
+        self._compass.clear()
+        for g in self._gps:
+            x, y = self.geo.to_enu(g.lat_deg, g.lon_deg)
+            age = max(0.0, self._now_s - g.t_s)
+            r = nav.fuse_gps_position((x, y, g.alt_m), max(g.eph_m, 0.1), age_s=age)
+            nav.fuse_gps_velocity(g.velocity_enu_m_s, self.cfg.gps_velocity_std_m_s)
+            if r.accepted and nav.position_source == PositionSource.GPS:
+                self._last_gps_fused_s = self._now_s
+        self._gps.clear()
+        for v in self._vision:
+            self._fuse_vision(v)
+        self._vision.clear()
+        self._ground_fusion()
+
+    def _height_above_home(self) -> float:
+        home_z = self._home[2] if self._home is not None else self.cfg.ground_z_m
+        return float(self.nav.state().position_enu_m[2]) - float(home_z)
+
+    def _fuse_vision(self, v: VisionReading) -> None:
+        age = self._now_s - v.t_s
+        if age > self.cfg.vision_max_age_s or age < -0.5:
+            self.stats["vision_stale"] += 1
+            return
+        if v.source != "mavlink" and self._height_above_home() < self.params.get("SN_VIS_MIN_ALT"):
+            self.stats["vision_below_min_alt"] += 1
+            return
+        self._last_usable_vision_s = self._now_s
+        r = self.nav.fuse_vision_position(v.xy_enu_m, v.cov_m2, age_s=max(age, 0.0))
+        if self.nav.position_source != PositionSource.EXTNAV:
+            self.stats["vision_monitored"] += 1
+        elif r.accepted:
+            self.stats["vision_fused"] += 1
+        else:
+            self.stats["vision_rejected"] += 1
+
+    def _ground_fusion(self) -> None:
+        """On the ground without a usable external-nav fix: fuse the landed position."""
+        if self.nav.position_source != PositionSource.EXTNAV or not self.fc.landed:
+            return
+        if (self._last_usable_vision_s is not None
+                and self._now_s - self._last_usable_vision_s < 1.0):
+            return
+        if self._now_s < self._ground_next_s:
+            return
+        self._ground_next_s = self._now_s + self.cfg.ground_fusion_period_s
+        std = self.cfg.ground_position_std_m
+        self.nav.fuse_vision_position(self._ground_xy, np.eye(2) * std * std)
+        self.stats["ground_fusions"] += 1
+
+    def _handle_position_reset(self, delta_xy) -> None:
+        logger.warning("EKF position reset by (%.1f, %.1f) m", float(delta_xy[0]), float(delta_xy[1]))
+        self._bus_text(MavSeverity.WARNING, f"EKF position reset by ({float(delta_xy[0]):.1f}, "
+                                            f"{float(delta_xy[1]):.1f}) m")
+        for law in (self._law, self._vision_hold):
+            if law is not None:
+                law.handle_position_reset(delta_xy)
+
+    def vision_position_estimate(self, usec: int, x_ned_m: float, y_ned_m: float,
+                                 z_ned_m: float, roll_rad: float, pitch_rad: float,
+                                 yaw_rad: float, covariance: tuple[float, ...],
+                                 reset_counter: int) -> None:
+        self._ext_nav((x_ned_m, y_ned_m, z_ned_m), covariance)
+
+    def odometry(self, odom: Odometry) -> None:
+        self._ext_nav(odom.position_m, odom.pose_covariance)
+
+    def _ext_nav(self, pos_ned, cov21) -> None:
+        """MAVLink external navigation: NED metres from the EKF origin, 21-element covariance."""
+        if not self.nav.aligned:
+            return
+        enu = self._origin_enu() + ned_to_enu(pos_ned)
+        cov = None
+        if len(cov21) >= 7 and all_finite(cov21[0], cov21[1], cov21[6]) and cov21[0] > 0 and cov21[6] > 0:
+            # upper triangle of the 6x6 (x, y, z, roll, pitch, yaw): [0] xx, [1] xy, [6] yy (NED)
+            cov = np.array([[cov21[6], cov21[1]], [cov21[1], cov21[0]]])   # ENU: swap x/y
+        if cov is None:
+            cov = np.eye(2) * self.cfg.ext_nav_std_m ** 2
+        self._last_ext_nav_s = self._now_s
+        self.stats["ext_nav_mavlink"] += 1
+        self._vision.append(VisionReading(self._now_s, (float(enu[0]), float(enu[1])), cov,
+                                           "mavlink"))

@@ -1,0 +1,118 @@
+"""Parameter binding (part of ``FlightCore``): the ArduCopter parameters mapped onto the algorithms'
+configs (ANGLE_MAX, WPNAV_*, PILOT_*, LAND_*, RTL_*, WP_YAW_BEHAVIOR, EK3_SRC1_POSXY, the airframe
+model), applied again whenever the parameter store reports a change.
+
+Pure module: no zenoh, no pymavlink.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import logging
+
+from autopilot_bridge.airframe import AIRFRAME_PARAM_NAMES, Airframe
+from autopilot_bridge.config import ControlConfig, GuidanceConfig, PositionSource, YawBehaviour
+from autopilot_bridge.control import FlightController
+from autopilot_bridge.flight_laws import Tracker
+from autopilot_bridge.mixer import QuadXMixer
+from autopilot_bridge.vehicle_interface import (
+    MavSeverity,
+    SpeedType,
+)
+
+logger = logging.getLogger(__name__)
+
+
+class ParamBindingMixin:
+    """Part of ``FlightCore`` (``autopilot_bridge.flight_core``); works on its state."""
+
+    def param_changed(self, name: str, value: float) -> None:
+        # The store's observer (_on_param) has already applied it; nothing more to do here.
+        logger.debug("param_changed %s = %g", name, value)
+
+    def _on_param(self, name: str, value: float) -> None:
+        """Parameter observer (the store calls it after every change, from any caller)."""
+        try:
+            self._apply_param(name, value)
+        except (ValueError, ArithmeticError) as exc:
+            logger.warning("parameter %s = %g not applied: %s", name, value, exc)
+
+    def _apply_param(self, name: str, value: float) -> None:
+        self._tel = None
+        if name == "EK3_SRC1_POSXY":
+            self.nav.set_position_source(self._source_param())
+            self._announce(MavSeverity.INFO, f"EKF3 IMU0 is using {self._source_name()}")
+        if name in ("ANGLE_MAX", "PILOT_SPEED_UP", "PILOT_SPEED_DN", "WPNAV_SPEED_UP",
+                    "WPNAV_SPEED_DN", "LAND_SPEED", "LAND_SPEED_HIGH"):
+            self._rebuild_controller()
+        if name in AIRFRAME_PARAM_NAMES:
+            self.airframe = Airframe.from_params(self.params)
+            self.mixer = QuadXMixer(self.airframe)
+            self._rebuild_controller()
+        if name.startswith(("WPNAV_", "RTL_", "LAND_", "WP_YAW", "PILOT_")):
+            self._gcfg = self._guidance_config()
+            if isinstance(self._law, Tracker):
+                self._law.retune(self._gcfg)
+
+    def _rebuild_controller(self) -> None:
+        """A new controller for changed limits or a changed airframe model (integrators restart)."""
+        landed = self.fc.landed
+        self.fc = FlightController(self._control_config(), self.airframe)
+        if self.nav.aligned:
+            self.fc.reset(self.nav.state(), landed=landed)
+        else:
+            self.fc.set_landed(landed)
+
+    def _source_param(self) -> PositionSource:
+        try:
+            return PositionSource(self.params.get_int("EK3_SRC1_POSXY"))
+        except ValueError:
+            return PositionSource.NONE
+
+    def _source_name(self) -> str:
+        return {PositionSource.GPS: "GPS", PositionSource.EXTNAV: "external nav data"}.get(
+            self.nav.position_source, "no position source")
+
+    def _control_config(self) -> ControlConfig:
+        p = self.params
+        up = max(p.get("WPNAV_SPEED_UP"), p.get("PILOT_SPEED_UP")) / 100.0
+        dn_pilot = p.get("PILOT_SPEED_DN") or p.get("PILOT_SPEED_UP")
+        dn = max(p.get("WPNAV_SPEED_DN"), dn_pilot, p.get("LAND_SPEED"),
+                 p.get("LAND_SPEED_HIGH")) / 100.0
+        return dataclasses.replace(self._algo.control, max_lean_angle_deg=p.get("ANGLE_MAX") / 100.0,
+                                   max_climb_m_s=up, max_descent_m_s=dn)
+
+    def _guidance_config(self) -> GuidanceConfig:
+        p = self.params
+        yaw = YawBehaviour.NEVER_CHANGE if p.get_int("WP_YAW_BEHAVIOR") == 0 \
+            else YawBehaviour.FACE_NEXT_WAYPOINT
+        up = self._speed_up if self._speed_up is not None else p.get("WPNAV_SPEED_UP") / 100.0
+        dn = self._speed_dn if self._speed_dn is not None else p.get("WPNAV_SPEED_DN") / 100.0
+        return dataclasses.replace(
+            self._algo.guidance,
+            wp_speed_m_s=p.get("WPNAV_SPEED") / 100.0, wp_speed_up_m_s=up, wp_speed_down_m_s=dn,
+            wp_accel_m_s2=p.get("WPNAV_ACCEL") / 100.0, wp_radius_m=p.get("WPNAV_RADIUS") / 100.0,
+            yaw_behaviour=yaw, takeoff_speed_m_s=up, rtl_alt_m=p.get("RTL_ALT") / 100.0,
+            rtl_loiter_s=p.get("RTL_LOIT_TIME") / 1000.0, land_speed_m_s=p.get("LAND_SPEED") / 100.0,
+            land_speed_high_m_s=p.get("LAND_SPEED_HIGH") / 100.0)
+
+    def _apply_speed(self, kind: SpeedType, speed_m_s: float) -> None:
+        if kind in (SpeedType.AIRSPEED, SpeedType.GROUNDSPEED):
+            self._speed_xy = speed_m_s
+            if isinstance(self._law, Tracker):
+                self._law.set_speed(speed_m_s)
+        elif kind == SpeedType.CLIMB_SPEED:
+            self._speed_up = speed_m_s
+        else:
+            self._speed_dn = speed_m_s
+        self._gcfg = self._guidance_config()
+        if isinstance(self._law, Tracker):
+            self._law.retune(self._gcfg)
+        self._bus_text(MavSeverity.INFO, f"speed {kind.name.lower()} {speed_m_s:.1f} m/s")
+
+    def _speed_limit(self, kind: SpeedType, speed_m_s: float) -> float:
+        """A DO_CHANGE_SPEED speed capped at the range of the parameter it overrides (a mission item
+        may carry any finite value)."""
+        name = {SpeedType.CLIMB_SPEED: "WPNAV_SPEED_UP",
+                SpeedType.DESCENT_SPEED: "WPNAV_SPEED_DN"}.get(kind, "WPNAV_SPEED")
+        return min(speed_m_s, self.params.spec(name).max_value / 100.0)

@@ -1,0 +1,47 @@
+"""The airframe model comes from the parameters, also when they change in flight (PARAM_SET)."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from autopilot_bridge.airframe import Airframe
+from autopilot_bridge.flight_core import FlightCore
+from autopilot_bridge.mixer import QuadXMixer
+from autopilot_bridge.param_specs import PARAM_SPECS
+from autopilot_bridge.params import ParameterStore
+from scenenav.core.config import ConfigError
+
+
+def test_parameter_changes_rebuild_controller_and_mixer():
+    store = ParameterStore(PARAM_SPECS)
+    core = FlightCore(store)
+    g = core.airframe.gravity_m_s2
+    assert core.fc.hover_thrust_n == pytest.approx(1.5 * g)
+    assert store.set("SN_MASS_KG", 2.0).ok
+    assert core.airframe.mass_kg == 2.0 and core.fc.hover_thrust_n == pytest.approx(2.0 * g)
+    assert core.mixer.hover_command > QuadXMixer().hover_command
+    # MOT_THST_HOVER overrides the mass for the thrust scale (ArduPilot's hover throttle)
+    assert store.set("MOT_THST_HOVER", 0.5).ok
+    assert core.airframe.hover_thrust_fraction == pytest.approx(0.5)
+    assert core.fc.hover_thrust_n == pytest.approx(0.5 * core.airframe.max_thrust_n)
+    assert not store.set("SN_MASS_KG", -1.0).ok          # out of range: refused, model unchanged
+    assert core.airframe.mass_kg == 2.0
+
+
+def test_thrust_curve_and_output_range():
+    a = Airframe(thrust_expo=0.65, spin_min=0.15, spin_max=0.95)
+    m = QuadXMixer(a)
+    t_max = m.rotor_thrust_limits_n[1]
+    assert m.command_for_thrust(0.0) == pytest.approx(0.15)
+    assert m.command_for_thrust(t_max) == pytest.approx(0.95)
+    thrusts = np.linspace(0.0, t_max, 11)
+    commands = [m.command_for_thrust(t) for t in thrusts]
+    assert all(b > c for b, c in zip(commands[1:], commands))
+    # ArduPilot's curve: thrust fraction = (1 - e) x + e x^2 of the linear command x
+    x = (m.command_for_thrust(0.3 * t_max) - 0.15) / 0.8
+    assert (1 - 0.65) * x + 0.65 * x * x == pytest.approx(0.3)
+    lin = QuadXMixer(Airframe(thrust_expo=0.0))
+    assert lin.command_for_thrust(0.3 * t_max) == pytest.approx(0.3)
+    with pytest.raises(ConfigError):
+        Airframe(spin_min=0.5, spin_max=0.4)
