@@ -7,13 +7,13 @@ values are one-line errors naming the file and the key.
 from __future__ import annotations
 
 import dataclasses
-import math
 from dataclasses import dataclass, field
 from enum import Enum
 from pathlib import Path
 
+from scenenav.core.camera_geometry import ground_footprint_m
+from scenenav.core.clock import ClockConfig
 from scenenav.core.config import apply_overrides, check, load_config, load_yaml, to_dict
-from scenenav.core.contracts import ClockMode
 from scenenav.core.errors import UserError
 from sitl.config import SimConfig
 
@@ -22,22 +22,6 @@ class FlightMode(str, Enum):
     SCRIPTED = "scripted"     # kinematic path, no autopilot (logging runs, like the paper's flights)
     AUTOPILOT = "autopilot"   # the MAVLink autopilot flies the route as a mission
     IDLE = "idle"             # the vehicle waits on the ground for a ground station (scenenav sitl)
-
-
-@dataclass(frozen=True)
-class ClockConfig:
-    mode: ClockMode = ClockMode.LOCKSTEP
-    speed_factor: float = 1.0          # realtime mode: simulated seconds per wall second
-    tick_rate_hz: float = 100.0        # control tick (IMU, motor commands); physics sub-steps within
-    member_timeout_s: float = 30.0     # wall seconds to wait for one lockstep answer before going on
-    startup_timeout_s: float = 120.0   # wall seconds to wait for the expected nodes to appear
-
-    def __post_init__(self) -> None:
-        check(self.speed_factor > 0, "speed_factor", self.speed_factor, "a positive number")
-        check(10.0 <= self.tick_rate_hz <= 1000.0, "tick_rate_hz", self.tick_rate_hz,
-              "10 to 1000 Hz")
-        check(self.member_timeout_s > 0, "member_timeout_s", self.member_timeout_s, "> 0 s")
-        check(self.startup_timeout_s > 0, "startup_timeout_s", self.startup_timeout_s, "> 0 s")
 
 
 @dataclass(frozen=True)
@@ -209,7 +193,7 @@ def bowtie_route(world, altitude_m: float = 100.0, fov_deg: float = 60.0,
                  margin_m: float = 10.0) -> tuple[tuple[float, float], ...]:
     """A route for any world: SW -> SE -> NW -> NE -> SW, inset so the camera footprint stays on
     the map. The diagonals cross the centre; the legs cover the edge districts."""
-    half_fp = altitude_m * math.tan(math.radians(fov_deg / 2))
+    half_fp = ground_footprint_m(altitude_m, fov_deg) / 2.0
     hx = world.width_px * world.m_per_px / 2 - half_fp - margin_m
     hy = world.height_px * world.m_per_px / 2 - half_fp - margin_m
     if hx < 20 or hy < 20:

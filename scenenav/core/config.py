@@ -10,6 +10,7 @@ dataclass's ``__post_init__`` and raise ``ConfigError`` through ``check``.
 from __future__ import annotations
 
 import dataclasses
+import math
 import types
 import typing
 from pathlib import Path
@@ -30,6 +31,11 @@ def check(condition: bool, key: str, value: Any, expected: str) -> None:
     """Raise a one-line ConfigError when ``condition`` is false."""
     if not condition:
         raise ConfigError(f"{key} = {value!r}: expected {expected}")
+
+
+def is_finite_number(value: Any) -> bool:
+    """True for an int or float that is finite (the range checks' base test)."""
+    return isinstance(value, (int, float)) and math.isfinite(value)
 
 
 def _is_dataclass_type(tp: Any) -> bool:
