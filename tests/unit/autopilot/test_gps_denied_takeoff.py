@@ -26,8 +26,9 @@ from autopilot_bridge.ekf import quat_from_rotation_vector, quat_multiply, quat_
 from autopilot_bridge.flight_core import PARAM_SPECS, FlightCore, FlightCoreConfig, ImuReading
 from autopilot_bridge.modes import CopterMode
 from autopilot_bridge.params import ParameterStore
+from scenenav.core.rotations import heading_from_quat
 from sitl.config import SimConfig
-from sitl.dynamics import QuadrotorDynamics, heading_from_quat, rotation_rows
+from sitl.dynamics import QuadrotorDynamics, rotation_rows
 from sitl.sensors import BaroModel, CompassModel, ImuModel
 from sitl.vehicle import VehicleParams
 
