@@ -69,7 +69,7 @@ class SensorRate:
 
     @classmethod
     def of(cls, rate_hz: float, tick_rate_hz: float) -> SensorRate:
-        return cls(max(1, int(round(tick_rate_hz / rate_hz))))
+        return cls(max(1, round(tick_rate_hz / rate_hz)))
 
     def due(self, tick: int) -> bool:
         return tick % self.every_ticks == 0
@@ -132,9 +132,9 @@ class SimulatorCore:
         self.power_module = PowerModuleModel(sim.battery, streams["power"])
 
         self.tick_rate_hz = float(tick_rate_hz)
-        self.tick_us = int(round(1e6 / tick_rate_hz))
-        self.substeps = max(1, int(round(sim.physics_rate_hz / tick_rate_hz)))
-        self.camera_latency_ticks = int(round(sim.camera.latency_s * tick_rate_hz))
+        self.tick_us = round(1e6 / tick_rate_hz)
+        self.substeps = max(1, round(sim.physics_rate_hz / tick_rate_hz))
+        self.camera_latency_ticks = round(sim.camera.latency_s * tick_rate_hz)
         self.rate_baro = SensorRate.of(sim.baro.rate_hz, tick_rate_hz)
         self.rate_compass = SensorRate.of(sim.compass.rate_hz, tick_rate_hz)
         self.rate_gps = SensorRate.of(sim.gps.rate_hz, tick_rate_hz)

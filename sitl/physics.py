@@ -18,8 +18,8 @@ from dataclasses import dataclass
 import numpy as np
 import pybullet as p
 
-from sitl.config import SimConfig
 from scenenav.core.rotations import heading_from_quat, quat_from_yaw
+from sitl.config import SimConfig
 from sitl.dynamics import QuadrotorDynamics, rotation_rows
 from sitl.vehicle import VehicleParams
 from sitl.wind import WindModel

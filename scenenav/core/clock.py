@@ -26,8 +26,3 @@ class ClockConfig:
               "10 to 1000 Hz")
         check(self.member_timeout_s > 0, "member_timeout_s", self.member_timeout_s, "> 0 s")
         check(self.startup_timeout_s > 0, "startup_timeout_s", self.startup_timeout_s, "> 0 s")
-
-    @property
-    def tick_us(self) -> int:
-        """One control tick, whole microseconds (the bus timestamps' unit)."""
-        return int(round(1e6 / self.tick_rate_hz))

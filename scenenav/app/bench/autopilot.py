@@ -43,8 +43,8 @@ from autopilot_bridge.guidance_law import Waypoint, WaypointTracker
 from autopilot_bridge.mixer import QuadXMixer
 from scenenav.core.config import check
 from scenenav.core.errors import UserError
-from scenenav.core.geometry import distance_to_polyline_m
 from scenenav.core.frames import geodetic_to_enu
+from scenenav.core.geometry import distance_to_polyline_m
 from sitl.config import SimConfig, WindConfig
 from sitl.core import SimulatorCore
 

@@ -20,7 +20,13 @@ import numpy as np
 
 from scenenav.core.bus import Bus, BusConfig, free_port
 from scenenav.core.clock import ClockConfig
-from scenenav.core.contracts import (CameraFrame, ClockTick, LockstepAck, LockstepRole, MotorCommand)
+from scenenav.core.contracts import (
+    CameraFrame,
+    ClockTick,
+    LockstepAck,
+    LockstepRole,
+    MotorCommand,
+)
 from scenenav.core.errors import UserError
 from scenenav.core.keys import Keys
 

@@ -2,11 +2,18 @@
 
 from __future__ import annotations
 
+import itertools
+
 import numpy as np
 import pytest
 
 from scenenav.core.config import ConfigError
-from sitl.battery import BatteryModel, PowerModuleModel, PowerReading, cell_open_circuit_voltage_v
+from sitl.battery import (
+    BatteryModel,
+    PowerModuleModel,
+    PowerReading,
+    cell_open_circuit_voltage_v,
+)
 from sitl.config import BatteryConfig
 from sitl.vehicle import VehicleParams
 
@@ -19,7 +26,7 @@ def test_open_circuit_voltage_follows_the_lipo_curve():
     assert cell_open_circuit_voltage_v(0.0) == pytest.approx(2.977)        # clamped below the table
     socs = np.linspace(0.0, 1.0, 101)
     volts = [cell_open_circuit_voltage_v(s) for s in socs]
-    assert all(b >= a for a, b in zip(volts, volts[1:]))
+    assert all(b >= a for a, b in itertools.pairwise(volts))
 
 
 def test_current_from_rotor_speeds_and_charge_drawn():

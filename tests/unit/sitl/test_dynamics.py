@@ -13,7 +13,12 @@ import math
 import numpy as np
 import pytest
 
-from scenenav.core.rotations import heading_from_quat, quat_from_euler_zyx, quat_from_yaw, quat_to_rotation_matrix
+from scenenav.core.rotations import (
+    heading_from_quat,
+    quat_from_euler_zyx,
+    quat_from_yaw,
+    quat_to_rotation_matrix,
+)
 from sitl.config import SimConfig, WindConfig
 from sitl.dynamics import QuadrotorDynamics
 from sitl.physics import PhysicsWorld, hover_motor_command
