@@ -201,7 +201,8 @@ class SimulatorCore:
         truth = TruthPose(t_us, tuple(pos), tuple(vel), tuple(np.asarray(state.q_wxyz, dtype=float)),
                           tuple(np.asarray(state.angular_velocity_flu_rad_s, dtype=float)), heading)
         acc, gyr = self.imu.sample(self._accel_sum / self._n_sum, self._gyro_sum / self._n_sum, dt_tick_s)
-        imu = ImuSample(t_us, tick, dt_tick_s, tuple(map(float, acc)), tuple(map(float, gyr)))
+        imu = ImuSample(t_us, tick, dt_tick_s, (float(acc[0]), float(acc[1]), float(acc[2])),
+                        (float(gyr[0]), float(gyr[1]), float(gyr[2])))
         baro = compass = gps = power = None
         if self.rate_baro.due(tick):
             alt, pa = self.baro.sample(float(pos[2]))
@@ -210,7 +211,8 @@ class SimulatorCore:
             compass = CompassSample(t_us, float(self.compass.sample(heading)))
         if self.sim.gps.enabled and self.rate_gps.due(tick):
             g = self.gps.sample(pos, vel, self.origin_lat_deg, self.origin_lon_deg)
-            gps = GpsSample(t_us, g.lat_deg, g.lon_deg, g.alt_m, tuple(map(float, g.velocity_enu_m_s)),
+            v = g.velocity_enu_m_s
+            gps = GpsSample(t_us, g.lat_deg, g.lon_deg, g.alt_m, (float(v[0]), float(v[1]), float(v[2])),
                             g.eph_m, g.epv_m, int(g.fix_type), int(g.satellites))
         if self.rate_power.due(tick):
             reading = self.power_module.sample(self._power)

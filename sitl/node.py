@@ -31,6 +31,7 @@ import logging
 import math
 import threading
 import time
+from dataclasses import dataclass, field
 
 import numpy as np
 
@@ -56,6 +57,24 @@ from sitl.core import SimulatorCore, TickOutput
 log = logging.getLogger(__name__)
 
 NODE_ID = "sim"
+
+
+@dataclass
+class SimStats:
+    """What a run of the node did (written to ``<run>/sim_stats.json``); times are wall seconds."""
+
+    ticks: int = 0
+    camera_frames: int = 0
+    ack_timeouts: int = 0
+    time_physics_s: float = 0.0
+    time_render_s: float = 0.0
+    time_bus_wait_s: float = 0.0
+    time_publish_s: float = 0.0
+    sim_time_s: float = 0.0
+    wall_time_s: float = 0.0
+    real_time_factor: float = 0.0
+    end_reason: str = ""
+    dropped: dict[str, int] = field(default_factory=dict)
 
 
 class SimulatorNode:
@@ -89,9 +108,7 @@ class SimulatorNode:
         self._mission_done = threading.Event()
         self._landed_early = threading.Event()
         self._has_flown = False
-        self.stats = {"ticks": 0, "camera_frames": 0, "ack_timeouts": 0,
-                      "time_physics_s": 0.0, "time_render_s": 0.0, "time_bus_wait_s": 0.0,
-                      "time_publish_s": 0.0}
+        self.stats = SimStats()
 
         self.bus.subscribe(self.keys.motors, MotorCommand, self._on_motor)
         self.bus.subscribe(self.keys.lockstep_ack_all, LockstepAck, self._on_ack)
@@ -141,7 +158,7 @@ class SimulatorNode:
         self._stop.set()
 
     def event(self, severity: Severity, text: str, t_us: int | None = None) -> None:
-        ts = t_us if t_us is not None else self.stats["ticks"] * self.tick_us
+        ts = t_us if t_us is not None else self.stats.ticks * self.tick_us
         self.bus.publish(self.keys.events(NODE_ID), Event(ts, NODE_ID, int(severity), text))
         log.info("%s", text)
 
@@ -151,7 +168,7 @@ class SimulatorNode:
                     LockstepRole.CAMERA: self.cfg.expected_camera_members}
         return {role: n for role, n in expected.items() if n > 0}
 
-    def run(self) -> dict:
+    def run(self) -> SimStats:
         clock = self.cfg.clock
         core = self.core
         lockstep = clock.mode == ClockMode.LOCKSTEP
@@ -194,14 +211,14 @@ class SimulatorNode:
                 tr = time.perf_counter()
                 frame = core.camera_frame(out.camera_release, self.camera.result(camera_seq))
                 render_s = time.perf_counter() - tr
-                self.stats["time_render_s"] += render_s
+                self.stats.time_render_s += render_s
                 self.barrier.published(LockstepRole.CAMERA, camera_seq)
                 self.bus.publish(self.keys.camera, frame)
-                self.stats["camera_frames"] += 1
+                self.stats.camera_frames += 1
             self.barrier.published(LockstepRole.TICK, tick)
             self.bus.publish(self.keys.clock, ClockTick(
                 t_us, tick, self.tick_us, camera_acked, clock.mode.value, RunState.RUNNING.value))
-            self.stats["time_publish_s"] += time.perf_counter() - tp - render_s
+            self.stats.time_publish_s += time.perf_counter() - tp - render_s
 
             tw = time.perf_counter()
             late = self.barrier.wait(LockstepRole.TICK, tick, answer_timeout)
@@ -209,30 +226,33 @@ class SimulatorNode:
                 late += self.barrier.wait(LockstepRole.CAMERA, camera_seq, answer_timeout)
                 camera_acked = camera_seq
             if late and lockstep:
-                self.stats["ack_timeouts"] += 1
+                self.stats.ack_timeouts += 1
                 self.event(Severity.WARNING, f"t={t_s:.2f}s: no lockstep answer from {late} "
                                              f"within {answer_timeout:.1f} s", t_us)
-            self.stats["time_bus_wait_s"] += time.perf_counter() - tw
+            self.stats.time_bus_wait_s += time.perf_counter() - tw
 
             tphys = time.perf_counter()
             with self._motor_lock:
                 motor = self._motor.copy()
             core.advance(motor)
-            self.stats["time_physics_s"] += time.perf_counter() - tphys
-            self.stats["ticks"] = tick + 1
+            self.stats.time_physics_s += time.perf_counter() - tphys
+            self.stats.ticks = tick + 1
             if not lockstep:
                 ahead = (t_s + 1.0 / self.tick_rate_hz) / clock.speed_factor - (time.perf_counter() - wall0)
                 if ahead > 0:
                     time.sleep(ahead)
-        t_end_us = self.stats["ticks"] * self.tick_us
+        t_end_us = self.stats.ticks * self.tick_us
         self.bus.publish(self.keys.clock, ClockTick(
             t_end_us, tick, self.tick_us, camera_acked, clock.mode.value, RunState.FINISHED.value))
         wall = time.perf_counter() - wall0
-        self.stats.update(sim_time_s=t_end_us * 1e-6, wall_time_s=wall,
-                          real_time_factor=(t_end_us * 1e-6) / wall if wall > 0 else math.inf,
-                          end_reason=reason, dropped=dict(self.bus.dropped))
+        stats = self.stats
+        stats.sim_time_s = t_end_us * 1e-6
+        stats.wall_time_s = wall
+        stats.real_time_factor = (t_end_us * 1e-6) / wall if wall > 0 else math.inf
+        stats.end_reason = reason
+        stats.dropped = dict(self.bus.dropped)
         self.event(Severity.INFO, f"simulation finished: {reason} at t={t_end_us * 1e-6:.1f}s "
-                                  f"({self.stats['real_time_factor']:.1f}x real time)", t_end_us)
+                                  f"({stats.real_time_factor:.1f}x real time)", t_end_us)
         return self.stats
 
     def _publish_sensors(self, out: TickOutput) -> None:

@@ -7,6 +7,7 @@ cleanly on SIGINT/SIGTERM.
 
 from __future__ import annotations
 
+import dataclasses
 import json
 import logging
 import signal
@@ -71,7 +72,7 @@ def run_sim(run_dir: Path, bus_cfg: BusConfig, expect: tuple[str, ...]) -> int:
         stats = node.run()
     finally:
         node.close()
-    (run_dir / "sim_stats.json").write_text(json.dumps(stats, indent=2, default=str))
+    (run_dir / "sim_stats.json").write_text(json.dumps(dataclasses.asdict(stats), indent=2, default=str))
     return 0
 
 

@@ -46,7 +46,6 @@ from scenenav.core.errors import UserError
 from scenenav.core.frames import geodetic_to_enu
 from scenenav.core.geometry import distance_to_polyline_m
 from sitl.config import SimConfig, WindConfig
-from sitl.core import SimulatorCore
 
 log = logging.getLogger(__name__)
 
@@ -108,6 +107,7 @@ class BenchFlight:
     """The simulator core + autopilot algorithms, hovering at ``altitude_m`` at the start."""
 
     def __init__(self, cfg: AutopilotBenchConfig) -> None:
+        from sitl.core import SimulatorCore   # pybullet: imported only when the bench runs
         self.cfg = cfg
         wind = WindConfig((0.0, -cfg.wind_speed_m_s, 0.0), cfg.gust_std_m_s, cfg.gust_time_constant_s)
         sim = dataclasses.replace(SimConfig(), physics_rate_hz=cfg.physics_rate_hz, wind=wind)

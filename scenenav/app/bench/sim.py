@@ -92,18 +92,19 @@ def measure(width_px: int, height_px: int, seconds: float) -> dict:
         proc.terminate()
         proc.wait(10)
         node.close()
-    wall = stats["wall_time_s"]
-    share = {k: stats[f"time_{k}_s"] / wall for k in ("physics", "render", "publish", "bus_wait")}
+    wall = stats.wall_time_s
+    share = {"physics": stats.time_physics_s / wall, "render": stats.time_render_s / wall,
+             "publish": stats.time_publish_s / wall, "bus_wait": stats.time_bus_wait_s / wall}
     return {
         "world_px": f"{width_px}x{height_px}",
-        "sim_time_s": stats["sim_time_s"],
+        "sim_time_s": stats.sim_time_s,
         "wall_time_s": round(wall, 3),
-        "real_time_factor": round(stats["real_time_factor"], 2),
-        "camera_frames": stats["camera_frames"],
-        "ms_render_wait_per_frame": round(1000 * stats["time_render_s"] / max(1, stats["camera_frames"]), 2),
-        "us_per_physics_step": round(1e6 * stats["time_physics_s"] / max(1, stats["ticks"] * node.core.substeps), 1),
+        "real_time_factor": round(stats.real_time_factor, 2),
+        "camera_frames": stats.camera_frames,
+        "ms_render_wait_per_frame": round(1000 * stats.time_render_s / max(1, stats.camera_frames), 2),
+        "us_per_physics_step": round(1e6 * stats.time_physics_s / max(1, stats.ticks * node.core.substeps), 1),
         "share": {k: round(v, 3) for k, v in share.items()},
-        "ack_timeouts": stats["ack_timeouts"],
+        "ack_timeouts": stats.ack_timeouts,
     }
 
 
