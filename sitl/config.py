@@ -4,6 +4,8 @@ Every config is a frozen dataclass whose field names carry their unit; ``__post_
 each value through ``scenenav.core.config.check`` (which raises ``ConfigError``). Load them with
 ``scenenav.core.config.load_config(SimConfig, mapping, source)``. Vehicle constants are not here: they are
 ``sitl.vehicle.VehicleParams`` (PX4 Iris model). See docs/simulator.md for the models behind each value.
+``SimNodeConfig`` is the simulator node's whole configuration (SimConfig + clock + run settings), built
+by the app layer from the scenario (``scenenav.app.nodes.sim_node_config``).
 """
 
 from __future__ import annotations
