@@ -13,7 +13,7 @@ from pathlib import Path
 
 from scenenav.core.camera_geometry import ground_footprint_m
 from scenenav.core.config import apply_overrides, check, load_config, load_yaml, to_dict
-from scenenav.core.clock import ClockConfig  # noqa: I001 (this line replaces the ClockMode import: easy merge)
+from scenenav.core.clock import ClockConfig
 from scenenav.core.errors import UserError
 from sitl.config import SimConfig
 
