@@ -39,9 +39,11 @@ def load_world_for(cfg: ScenarioConfig):
     return load_world_spec(cfg.world) if is_generated_spec(cfg.world) else load_world(cfg.world)
 
 
-def sim_node_config(cfg: ScenarioConfig, world, expect: tuple[str, ...] = ()) -> SimNodeConfig:
-    """The simulator node's config from the scenario: the route resolved against ``world`` for
-    scripted flights, the lockstep members named in ``expect`` (``tick``, ``camera``; repeatable)."""
+def sim_node_config(cfg: ScenarioConfig, world, expect: tuple[str, ...] = ()):
+    """The simulator node's ``sitl.config.SimNodeConfig`` from the scenario: the route resolved
+    against ``world`` for scripted flights, the lockstep members named in ``expect`` (``tick``,
+    ``camera``; repeatable)."""
+    from sitl.config import ScriptedFlight, SimNodeConfig
     flight = cfg.flight
     scripted = None
     if flight.mode == FlightMode.SCRIPTED:
