@@ -14,10 +14,9 @@ import signal
 import threading
 from pathlib import Path
 
-from scenenav.app.scenario import FlightMode, ScenarioConfig, load_scenario, route_for
 from scenenav.core.bus import BusConfig
 from scenenav.core.contracts import LockstepRole
-from sitl.config import ScriptedFlight, SimNodeConfig
+from scenenav.app.scenario import FlightMode, ScenarioConfig, load_scenario, route_for
 
 log = logging.getLogger(__name__)
 
