@@ -7,11 +7,11 @@ values are one-line errors naming the file and the key.
 from __future__ import annotations
 
 import dataclasses
+import math
 from dataclasses import dataclass, field
 from enum import Enum
 from pathlib import Path
 
-from scenenav.core.camera_geometry import ground_footprint_m
 from scenenav.core.config import apply_overrides, check, load_config, load_yaml, to_dict
 from scenenav.core.clock import ClockConfig
 from scenenav.core.errors import UserError
@@ -193,7 +193,7 @@ def bowtie_route(world, altitude_m: float = 100.0, fov_deg: float = 60.0,
                  margin_m: float = 10.0) -> tuple[tuple[float, float], ...]:
     """A route for any world: SW -> SE -> NW -> NE -> SW, inset so the camera footprint stays on
     the map. The diagonals cross the centre; the legs cover the edge districts."""
-    half_fp = ground_footprint_m(altitude_m, fov_deg) / 2.0
+    half_fp = altitude_m * math.tan(math.radians(fov_deg / 2))
     hx = world.width_px * world.m_per_px / 2 - half_fp - margin_m
     hy = world.height_px * world.m_per_px / 2 - half_fp - margin_m
     if hx < 20 or hy < 20:
