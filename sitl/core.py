@@ -120,8 +120,8 @@ class SimulatorCore:
         self.params = params if params is not None else VehicleParams()
         self.origin_lat_deg = float(origin_lat_deg)
         self.origin_lon_deg = float(origin_lon_deg)
-        streams = dict(zip(RNG_STREAMS, (np.random.default_rng(s) for s in
-                                         np.random.SeedSequence(seed).spawn(len(RNG_STREAMS)))))
+        seeds = np.random.SeedSequence(seed).spawn(len(RNG_STREAMS))
+        streams = {name: np.random.default_rng(s) for name, s in zip(RNG_STREAMS, seeds, strict=True)}
         self.physics = PhysicsWorld(self.params, sim, streams["wind"])
         self.imu = ImuModel(sim.imu, streams["imu"])
         self.baro = BaroModel(sim.baro, streams["baro"])

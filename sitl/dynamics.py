@@ -132,7 +132,7 @@ class QuadrotorDynamics:
         fz = tx = ty = tz = 0.0
         w_sum = w_dir = lever_x = lever_y = 0.0
         for w, (rx, ry, _), d in zip(self.rotor_speeds_rad_s.tolist(), self._positions_list,
-                                     self._directions_list):
+                                     self._directions_list, strict=True):
             thrust = k_t * w * w
             fz += thrust
             tx += ry * thrust               # r x (0, 0, T) = (r_y T, -r_x T, 0)

@@ -26,6 +26,7 @@ from __future__ import annotations
 
 import argparse
 import dataclasses
+import itertools
 import json
 import logging
 import math
@@ -107,7 +108,7 @@ class BenchFlight:
     """The simulator core + autopilot algorithms, hovering at ``altitude_m`` at the start."""
 
     def __init__(self, cfg: AutopilotBenchConfig) -> None:
-        from sitl.core import SimulatorCore   # pybullet: imported only when the bench runs
+        from sitl.core import SimulatorCore  # pybullet: imported only when the bench runs
         self.cfg = cfg
         wind = WindConfig((0.0, -cfg.wind_speed_m_s, 0.0), cfg.gust_std_m_s, cfg.gust_time_constant_s)
         sim = dataclasses.replace(SimConfig(), physics_rate_hz=cfg.physics_rate_hz, wind=wind)
@@ -221,7 +222,7 @@ def _track(flight: BenchFlight, cfg: AutopilotBenchConfig) -> dict:
     pts = [(0.0, 0.0, cfg.altitude_m)] + route(cfg)                 # from the hold point
     gcfg = GuidanceConfig(wp_speed_m_s=cfg.cruise_speed_m_s)
     tracker = WaypointTracker(gcfg, [Waypoint(p) for p in pts[1:]], pts[0])
-    legs = [(np.array(a[:2]), np.array(b[:2])) for a, b in zip(pts, pts[1:])]
+    legs = [(np.array(a[:2]), np.array(b[:2])) for a, b in itertools.pairwise(pts)]
     downwind = np.array([0.0, -1.0])
     xtrack, along, downwind_cross, speeds = [], [], [], []
     limit_s = 4.0 * sum(float(np.linalg.norm(b - a)) for a, b in legs) / cfg.cruise_speed_m_s + 30.0
