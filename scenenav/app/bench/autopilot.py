@@ -114,6 +114,7 @@ class BenchFlight:
         sim = dataclasses.replace(SimConfig(), physics_rate_hz=cfg.physics_rate_hz, wind=wind)
         self.core = SimulatorCore(sim, cfg.control_rate_hz, cfg.seed, ORIGIN_LAT_DEG, ORIGIN_LON_DEG)
         self.veh = self.core.params
+        self.dyn = self.core.physics.dynamics      # the rotor model (hover command)
         self.dt = 1.0 / cfg.control_rate_hz
         self.gps_velocity_std_m_s = max(sim.gps.velocity_noise_std_m_s, 0.1)
         # truth: level hover, heading north (ENU yaw 90 deg), rotors at hover speed
@@ -123,7 +124,7 @@ class BenchFlight:
         self.nav = NavFilter(EkfConfig())
         self.fc = FlightController(ControlConfig(), self.veh)
         self.mixer = QuadXMixer(self.veh)
-        self.commands = np.full(4, self.core.physics.dynamics.hover_command)
+        self.commands = np.full(4, self.dyn.hover_command)
         self.ticks = 0
         self.ekf_cpu = _Timer()
         self.control_cpu = _Timer()
