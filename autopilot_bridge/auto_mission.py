@@ -204,7 +204,7 @@ class AutoMissionMixin:
                 break
             i += 1
         start = self._last_target_position(est) if not self.fc.landed else est.position_enu_m
-        wps = [Waypoint(p, speed_m_s=s) for p, s in zip(positions, speeds)]
+        wps = [Waypoint(p, speed_m_s=s) for p, s in zip(positions, speeds, strict=False)]
         self._law = Tracker(self._gcfg, wps, start)
         self._auto_group = group
         self._auto_group_speeds = speeds

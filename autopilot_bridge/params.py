@@ -261,7 +261,7 @@ class ParameterStore:
         return self._specs[index], self._values[index]
 
     def as_dict(self) -> dict[str, float]:
-        return {s.name: v for s, v in zip(self._specs, self._values)}
+        return {s.name: v for s, v in zip(self._specs, self._values, strict=False)}
 
     # ----------------------------------------------------------------- changes
     def add_observer(self, observer: ParamObserver) -> None:
@@ -310,7 +310,7 @@ class ParameterStore:
     def _save(self) -> None:
         if self._path is None:
             return
-        data = {s.name: (int(v) if s.is_integer else v) for s, v in zip(self._specs, self._values)}
+        data = {s.name: (int(v) if s.is_integer else v) for s, v in zip(self._specs, self._values, strict=False)}
         self._path.parent.mkdir(parents=True, exist_ok=True)
         fd, tmp = tempfile.mkstemp(prefix=self._path.name, dir=self._path.parent)
         try:

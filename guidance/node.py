@@ -40,15 +40,25 @@ from guidance.mavlink_client import AutopilotLink, MavlinkClientError, MissionWa
 from guidance.planner import PlannedRoute, join_legs, plan_through
 from guidance.smoothing import polyline_length
 from scenenav.core.bus import Bus, BusConfig
-from scenenav.core.contracts import (AutopilotStatus, ClockMode, ClockTick, Event, LockstepAck,
-                                LockstepRole, NavEstimate, NodeInfo, RunState, Severity)
+from scenenav.core.contracts import (
+    AutopilotStatus,
+    ClockMode,
+    ClockTick,
+    Event,
+    LockstepAck,
+    LockstepRole,
+    NavEstimate,
+    NodeInfo,
+    RunState,
+    Severity,
+)
 from scenenav.core.errors import UserError
 from scenenav.core.formats.assistant_map_file import read_probability_map
 from scenenav.core.formats.route_file import ROUTE_FORMAT_VERSION, round_or_none, write_route_json
 from scenenav.core.formats.world_manifest import WorldManifest
+from scenenav.core.frames import enu_to_geodetic
 from scenenav.core.geometry import distance_to_polyline_m
 from scenenav.core.keys import Keys
-from scenenav.core.frames import enu_to_geodetic
 
 log = logging.getLogger(__name__)
 
@@ -177,7 +187,7 @@ class GuidanceNode:
             "route_bad_fraction": [round(leg.route_bad_fraction, 4) for leg in self.legs],
             "waypoints": [{"x_m": round(float(x), 3), "y_m": round(float(y), 3),
                            "lat": float(a), "lon": float(o)}
-                          for (x, y), a, o in zip(self.route_xy, lat, lon)],
+                          for (x, y), a, o in zip(self.route_xy, lat, lon, strict=False)],
             "assistant_map": str(self.cfg.assistant_map),
             "planner": self.legs[0].planner_params(),
         }
@@ -188,7 +198,7 @@ class GuidanceNode:
         pts = self.route_xy[1:]
         lat, lon = enu_to_geodetic(pts[:, 0], pts[:, 1], self.world.origin_lat_deg,
                                    self.world.origin_lon_deg)
-        return [MissionWaypoint(float(a), float(o), self.cfg.altitude_m) for a, o in zip(lat, lon)]
+        return [MissionWaypoint(float(a), float(o), self.cfg.altitude_m) for a, o in zip(lat, lon, strict=False)]
 
     # ------------------------------------------------------------------ main loop
     def run(self) -> None:

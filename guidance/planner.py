@@ -27,10 +27,8 @@ from scipy.spatial import cKDTree
 
 from guidance import navigation_function as navfn
 from guidance.config import FallbackReason, PlannerConfig, PlannerMethod
-from guidance.potential_field import (DescentStatus, PlanningGrid, PotentialField, bad_pixel_mask,
-                                      build_grid, descend)
-from guidance.smoothing import (FieldChecker, densify, polyline_length, round_corners, shortcut,
-                                subdivide)
+from guidance.potential_field import DescentStatus, PlanningGrid, PotentialField, bad_pixel_mask, build_grid, descend
+from guidance.smoothing import FieldChecker, densify, polyline_length, round_corners, shortcut, subdivide
 from scenenav.core.errors import UserError
 from scenenav.core.formats.route_file import round_or_none
 from scenenav.core.frames import world_to_pixel

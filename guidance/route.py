@@ -17,8 +17,7 @@ import numpy as np
 
 from guidance.config import RouteEnd
 from guidance.planner import PlannedRoute
-from scenenav.core.formats.route_file import (ROUTE_FORMAT_VERSION, MavCmd, MavFrame, MissionItem,
-                                             round_or_none)
+from scenenav.core.formats.route_file import ROUTE_FORMAT_VERSION, MavCmd, MavFrame, MissionItem, round_or_none
 from scenenav.core.formats.world_manifest import WorldManifest
 from scenenav.core.frames import enu_to_geodetic
 
@@ -40,7 +39,7 @@ def route_to_dict(route: PlannedRoute, world: WorldManifest, home_alt_m: float =
     alt = route.cfg.altitude_m
     waypoints = [{"x_m": round(float(x), 3), "y_m": round(float(y), 3), "lat": round(float(la), 8),
                   "lon": round(float(lo), 8), "alt_m": alt}
-                 for (x, y), la, lo in zip(route.waypoints_xy_m, lat, lon)]
+                 for (x, y), la, lo in zip(route.waypoints_xy_m, lat, lon, strict=False)]
     return {
         "format_version": ROUTE_FORMAT_VERSION,
         "world": world.name,
@@ -67,7 +66,7 @@ def mission_items(route: PlannedRoute, world: WorldManifest, home_alt_m: float =
     alt = route.cfg.altitude_m
     items = [MissionItem(MavFrame.GLOBAL, MavCmd.NAV_WAYPOINT, lat[0], lon[0], home_alt_m),
              MissionItem(MavFrame.GLOBAL_RELATIVE_ALT, MavCmd.NAV_TAKEOFF, lat[0], lon[0], alt)]
-    for la, lo in zip(lat[1:], lon[1:]):
+    for la, lo in zip(lat[1:], lon[1:], strict=False):
         items.append(MissionItem(MavFrame.GLOBAL_RELATIVE_ALT, MavCmd.NAV_WAYPOINT, la, lo, alt))
     if end is RouteEnd.LAND:
         items.append(MissionItem(MavFrame.GLOBAL_RELATIVE_ALT, MavCmd.NAV_LAND, lat[-1], lon[-1], 0.0))

@@ -248,7 +248,7 @@ def subdivide(points: np.ndarray, spacing_m: float) -> np.ndarray:
     """Split every leg into equal pieces no longer than ``spacing_m`` (keeps every vertex)."""
     pts = dedupe(points)
     out = [pts[0]]
-    for a, b in zip(pts[:-1], pts[1:]):
+    for a, b in zip(pts[:-1], pts[1:], strict=False):
         n = max(1, int(math.ceil(float(np.hypot(*(b - a))) / spacing_m - 1e-9)))
         for k in range(1, n + 1):
             out.append(a + (b - a) * (k / n))

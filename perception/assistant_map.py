@@ -26,8 +26,7 @@ import numpy as np
 from perception.decision import P_BAD_THRESHOLD, split_classifier_output
 from perception.matchability import footprint_px
 from scenenav.core.errors import UserError
-from scenenav.core.formats.assistant_map_file import (AssistantMapFile, read_assistant_map_file,
-                                                     write_assistant_map_file)
+from scenenav.core.formats.assistant_map_file import AssistantMapFile, read_assistant_map_file, write_assistant_map_file
 
 log = logging.getLogger(__name__)
 
@@ -247,7 +246,7 @@ def build_assistant_map(reference_gray: np.ndarray, classify_batch: ClassifyBatc
         if n == 0:
             return
         p_bad, _ = split_classifier_output(classify_batch(batch[:n]), n)
-        for (r, c), pb in zip(where, p_bad):
+        for (r, c), pb in zip(where, p_bad, strict=False):
             cells[r, c] = 1.0 - pb
         done += n
         where.clear()

@@ -13,9 +13,8 @@ import math
 from dataclasses import dataclass, field
 from enum import Enum
 
-from scenenav.core.config import check
-
 from perception.decision import P_BAD_THRESHOLD, DecisionRule, FalseMatchMethod
+from scenenav.core.config import check
 
 
 class NccMethod(str, Enum):

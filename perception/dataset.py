@@ -63,14 +63,23 @@ import numpy as np
 from tqdm import tqdm
 
 from perception.cnn import Labelling, MatchClass
-from perception.matchability import MatchabilityConfig, footprint_px, matchability, validate_windowed
 from perception.dataset_config import EVAL_WORLD_SEEDS, DatasetConfig, check_config
 from perception.dataset_files import DATASET_VERSION, IMAGES_DIR, INDEX_COLUMNS, INDEX_FILE, MANIFEST_FILE
 from perception.dataset_images import augment_image, render_crop
-from perception.dataset_samples import (MATCHABLE_SHARE, BaseSample, CropSource, WorldData,
-                                        allocate_augmentation, assign_ids, generate_world_data,
-                                        random_positions, relabel_by_matchability, select_base_samples,
-                                        select_by_label)
+from perception.dataset_samples import (
+    MATCHABLE_SHARE,
+    BaseSample,
+    CropSource,
+    WorldData,
+    allocate_augmentation,
+    assign_ids,
+    generate_world_data,
+    random_positions,
+    relabel_by_matchability,
+    select_base_samples,
+    select_by_label,
+)
+from perception.matchability import MatchabilityConfig, footprint_px, matchability, validate_windowed
 from scenenav.core.errors import UserError
 
 log = logging.getLogger(__name__)
@@ -112,7 +121,7 @@ def build_dataset(out_dir: str | Path, cfg: DatasetConfig, progress: bool = Fals
             pos = np.array([[pool[i].u_px, pool[i].v_px] for i in idx])
             res = matchability(wd.ortho_gray, wd.ref_gray, pos, wd.m_per_px, mcfg,
                                np.random.default_rng([cfg.seed, wd.seed, 7002]))
-            for i, score in zip(idx, res.score):
+            for i, score in zip(idx, res.score, strict=False):
                 pool[i].matchability = float(score)
             bar.update(len(idx))
         bar.close()

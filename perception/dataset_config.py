@@ -8,7 +8,6 @@ from __future__ import annotations
 import logging
 from dataclasses import dataclass, field
 
-
 from perception.cnn import PAPER_INPUT_PX, Labelling, MatchClass
 from perception.matchability import MatchabilityConfig, footprint_px
 from scenenav.core.errors import UserError

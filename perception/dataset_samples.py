@@ -16,8 +16,8 @@ import numpy as np
 
 from perception.alignment import to_gray_float32
 from perception.cnn import MatchClass
-from scenenav.core.errors import UserError
 from perception.dataset_config import DatasetConfig
+from scenenav.core.errors import UserError
 
 log = logging.getLogger(__name__)
 
@@ -137,7 +137,7 @@ def _bad_candidates(wd: WorldData, crop_px: int, min_share: float) -> list[BaseS
     rows, cols = np.nonzero(ok)
     return [BaseSample(world_seed=wd.seed, source=CropSource.BAD_AREA, u_px=float(centres_u[c]) + 0.5,
                        v_px=float(centres_v[r]) + 0.5, label=MatchClass.BAD,
-                       cover=covers[dominant[r, c]].name.lower()) for r, c in zip(rows, cols)]
+                       cover=covers[dominant[r, c]].name.lower()) for r, c in zip(rows, cols, strict=False)]
 
 
 def _pick_bad(cands: list[BaseSample], quota: int, spacing: float, rng: np.random.Generator) -> list[BaseSample]:
@@ -173,7 +173,7 @@ def _pick_junctions(cands: list[BaseSample], quota: int, max_per: int, jitter: f
         return []
     order = [cands[i] for i in rng.permutation(len(cands))]
     picked: list[BaseSample] = []
-    for rep in range(max_per):
+    for _rep in range(max_per):
         for s in order:
             if len(picked) >= quota:
                 return picked
@@ -224,7 +224,7 @@ def random_positions(worlds: list[WorldData], n: int, crop_px: int, rng: np.rand
         us = rng.uniform(half, w - half, m)
         vs = rng.uniform(half, h - half, m)
         out += [BaseSample(world_seed=wd.seed, source=CropSource.RANDOM, u_px=float(u), v_px=float(v),
-                           label=MatchClass.BAD) for u, v in zip(us, vs)]
+                           label=MatchClass.BAD) for u, v in zip(us, vs, strict=False)]
     return out
 
 

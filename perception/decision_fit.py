@@ -144,5 +144,5 @@ def cross_validate(samples: list[FlightSamples], l2: float, target_recall: float
         per[src] = {"t=0.5": rejection_scores(y, p > 0.5, e),
                     "t=chosen": rejection_scores(y, p > thr, e)}
         per[src]["per_world"] = {s.world: rejection_scores(s.y, o[src] > thr, s.error_m)
-                                 for s, o in zip(samples, oof)}
+                                 for s, o in zip(samples, oof, strict=False)}
     return {"threshold": thr, "scores": per}

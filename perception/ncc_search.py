@@ -22,8 +22,7 @@ import numpy as np
 from perception.config import MatcherConfig, NccMethod
 from perception.fix_covariance import coarse_to_fine_covariance_m2, covariance_px, px_to_enu_cov
 from perception.match_metrics import MatchMetrics, SearchTimes
-from perception.peak_metrics import (exclusion_radius, peak_to_sidelobe_ratio, refine_peak,
-                                     second_peak_ratio)
+from perception.peak_metrics import exclusion_radius, peak_to_sidelobe_ratio, refine_peak, second_peak_ratio
 from scenenav.core.frames import pixel_to_world, world_to_pixel
 
 log = logging.getLogger(__name__)

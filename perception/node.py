@@ -34,8 +34,17 @@ import numpy as np
 from perception.config import ExpectedCamera, PerceptionConfig
 from perception.match_metrics import MatchMetrics
 from scenenav.core.bus import Bus, BusConfig
-from scenenav.core.contracts import (BaroSample, CameraFrame, CompassSample, Event, LockstepAck,
-                                LockstepRole, NodeInfo, Severity, VisionFix)
+from scenenav.core.contracts import (
+    BaroSample,
+    CameraFrame,
+    CompassSample,
+    Event,
+    LockstepAck,
+    LockstepRole,
+    NodeInfo,
+    Severity,
+    VisionFix,
+)
 from scenenav.core.keys import Keys
 
 if TYPE_CHECKING:

@@ -33,18 +33,32 @@ from typing import Callable
 import cv2
 import numpy as np
 
-from perception.alignment import (AlignedCapture, BadInput, TemplateTooLarge, align_capture,
-                                  finite_number, to_gray_float32)
+from perception.alignment import (
+    AlignedCapture,
+    BadInput,
+    TemplateTooLarge,
+    align_capture,
+    finite_number,
+    to_gray_float32,
+)
 from perception.assistant_map import AssistantMap
 from perception.config import PerceptionConfig, UnknownPolicy
-from perception.decision import (N_PAPER_CLASSES, VARIANCE_WINDOWS, CombinedDecisionModel,
-                                 Decision, DecisionRule, FalseMatchMethod,
-                                 TrackEvidence, combined_features, decide_from_p_bad,
-                                 split_classifier_output)
+from perception.decision import (
+    N_PAPER_CLASSES,
+    VARIANCE_WINDOWS,
+    CombinedDecisionModel,
+    Decision,
+    DecisionRule,
+    FalseMatchMethod,
+    TrackEvidence,
+    combined_features,
+    decide_from_p_bad,
+    split_classifier_output,
+)
 from perception.match_metrics import MatchMetrics, StageTimes
 from perception.ncc_search import MatchResult, SceneMatcher, SearchMode
-from perception.tracker import MatchTracker, TrackState
 from perception.statistical import StatisticalDetector
+from perception.tracker import MatchTracker, TrackState
 from scenenav.core.errors import UserError
 
 __all__ = ["BadInput", "FixResult", "PerceptionPipeline", "Reason"]

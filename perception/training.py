@@ -34,8 +34,20 @@ import torch
 from torch import nn
 from tqdm import tqdm
 
-from perception.cnn import (BAD_THRESHOLD, DEFAULT_INPUT_PX, NUM_CLASSES, PAPER_INPUT_PX, Labelling, MatchClass,
-                            MatchClassifier, SceneMatchNet, WeightsMeta, check_input_px, normalise, save_weights)
+from perception.cnn import (
+    BAD_THRESHOLD,
+    DEFAULT_INPUT_PX,
+    NUM_CLASSES,
+    PAPER_INPUT_PX,
+    Labelling,
+    MatchClass,
+    MatchClassifier,
+    SceneMatchNet,
+    WeightsMeta,
+    check_input_px,
+    normalise,
+    save_weights,
+)
 from perception.dataset_config import EVAL_WORLD_SEEDS, DatasetConfig
 from perception.dataset_files import LoadedDataset, load_dataset, read_manifest
 from perception.dataset_images import render_crop

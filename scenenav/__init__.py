@@ -1,0 +1,1 @@
+"""scenenav: the two layers, ``scenenav.core`` (bottom) and ``scenenav.app`` (top); see docs/architecture.md."""

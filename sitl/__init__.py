@@ -1,0 +1,1 @@
+"""The simulator: vehicle physics, wind, sensors, battery and camera (docs/simulator.md)."""

@@ -4,15 +4,18 @@ Every config is a frozen dataclass whose field names carry their unit; ``__post_
 each value through ``scenenav.core.config.check`` (which raises ``ConfigError``). Load them with
 ``scenenav.core.config.load_config(SimConfig, mapping, source)``. Vehicle constants are not here: they are
 ``sitl.vehicle.VehicleParams`` (PX4 Iris model). See docs/simulator.md for the models behind each value.
+``SimNodeConfig`` is the simulator node's whole configuration (SimConfig + clock + run settings), built
+by the app layer from the scenario (``scenenav.app.nodes.sim_node_config``).
 """
 
 from __future__ import annotations
 
-import math
 from dataclasses import dataclass, field
 from enum import Enum
 
+from scenenav.core.clock import ClockConfig
 from scenenav.core.config import check
+from scenenav.core.config import is_finite_number as _finite
 
 
 class CameraMount(str, Enum):
@@ -23,10 +26,6 @@ class CameraMount(str, Enum):
     GIMBAL = "gimbal"
     # Rigid to the body: optical axis along body -z, image top along body +x, image right along body -y.
     FIXED = "fixed"
-
-
-def _finite(value: float) -> bool:
-    return isinstance(value, (int, float)) and math.isfinite(value)
 
 
 def _non_negative(value: float) -> bool:
@@ -165,6 +164,38 @@ class CameraConfig:
 
 
 @dataclass(frozen=True)
+class BatteryConfig:
+    """LiPo pack and power module (sitl.battery; constants and their sources in docs/simulator.md).
+
+    Defaults: a 3S 3300 mAh pack (ArduPilot's default ``BATT_CAPACITY``), 0.01 ohm pack resistance
+    (ArduPilot SITL ``SIM_Frame`` default model ``refBatRes``), current = idle + max * mean rotor
+    speed fraction squared (about 21 A in an Iris hover; ArduPilot's default model: 22.7 A).
+    """
+
+    cells: int = 3                          # cells in series
+    capacity_mah: float = 3300.0            # rated capacity
+    initial_charge_fraction: float = 1.0    # state of charge at the start, 0..1
+    internal_resistance_ohm: float = 0.01   # whole pack: terminal voltage = OCV - I R
+    idle_current_a: float = 0.5             # avionics, rotors stopped
+    max_current_a: float = 40.0             # extra current with every rotor at its maximum speed
+    rate_hz: float = 10.0                   # PowerSample rate
+    voltage_noise_std_v: float = 0.0        # power-module voltage noise per sample
+    current_noise_std_a: float = 0.0        # power-module current noise per sample
+
+    def __post_init__(self) -> None:
+        check(isinstance(self.cells, int) and 1 <= self.cells <= 14, "cells", self.cells,
+              "an integer in [1, 14]")
+        check(_positive(self.capacity_mah), "capacity_mah", self.capacity_mah, "a number > 0")
+        check(_finite(self.initial_charge_fraction) and 0.0 <= self.initial_charge_fraction <= 1.0,
+              "initial_charge_fraction", self.initial_charge_fraction, "a number in [0, 1]")
+        for name in ("internal_resistance_ohm", "idle_current_a", "max_current_a",
+                     "voltage_noise_std_v", "current_noise_std_a"):
+            value = getattr(self, name)
+            check(_non_negative(value), name, value, "a number >= 0")
+        check(_positive(self.rate_hz), "rate_hz", self.rate_hz, "a number > 0")
+
+
+@dataclass(frozen=True)
 class SimConfig:
     physics_rate_hz: float = 400.0
     wind: WindConfig = field(default_factory=WindConfig)
@@ -173,7 +204,49 @@ class SimConfig:
     compass: CompassConfig = field(default_factory=CompassConfig)
     gps: GpsConfig = field(default_factory=GpsConfig)
     camera: CameraConfig = field(default_factory=CameraConfig)
+    battery: BatteryConfig = field(default_factory=BatteryConfig)
 
     def __post_init__(self) -> None:
         check(_finite(self.physics_rate_hz) and 50.0 <= self.physics_rate_hz <= 10000.0,
               "physics_rate_hz", self.physics_rate_hz, "a number in [50, 10000] Hz")
+
+
+@dataclass(frozen=True)
+class ScriptedFlight:
+    """A kinematic flight (no autopilot) along a resolved route (sitl.scripted.ScriptedTrajectory)."""
+
+    route_enu_m: tuple[tuple[float, float], ...]   # [x, y] waypoints, m (at least two)
+    altitude_m: float = 100.0
+    speed_m_s: float = 10.0
+    turn_radius_m: float = 30.0
+
+    def __post_init__(self) -> None:
+        check(len(self.route_enu_m) >= 2, "route_enu_m", self.route_enu_m,
+              "at least two [x, y] waypoints in metres")
+        check(_positive(self.altitude_m), "altitude_m", self.altitude_m, "a number > 0")
+        check(_positive(self.speed_m_s), "speed_m_s", self.speed_m_s, "a number > 0")
+        check(_non_negative(self.turn_radius_m), "turn_radius_m", self.turn_radius_m, "a number >= 0")
+
+
+@dataclass(frozen=True)
+class SimNodeConfig:
+    """Everything the simulator node needs, resolved by the app layer (scenenav.app.nodes.run_sim)."""
+
+    sim: SimConfig = field(default_factory=SimConfig)
+    clock: ClockConfig = field(default_factory=ClockConfig)
+    duration_s: float = 90.0               # simulated seconds at most
+    seed: int = 0
+    scripted: ScriptedFlight | None = None   # None: the vehicle flies on the motor commands
+    start_enu_m: tuple[float, float] = (0.0, 0.0)   # not scripted: start on the ground here
+    start_heading_deg: float = 0.0         # compass, clockwise from north
+    end_with_mission: bool = False         # stop once the autopilot reports its mission done and landed
+    expected_tick_members: int = 0         # lockstep members to wait for at the start
+    expected_camera_members: int = 0
+
+    def __post_init__(self) -> None:
+        check(_positive(self.duration_s), "duration_s", self.duration_s, "a number of seconds > 0")
+        check(isinstance(self.seed, int) and self.seed >= 0, "seed", self.seed,
+              "a non-negative integer")
+        check(self.expected_tick_members >= 0 and self.expected_camera_members >= 0,
+              "expected_tick_members", (self.expected_tick_members, self.expected_camera_members),
+              "counts >= 0")

@@ -1,6 +1,7 @@
 """Quadrotor rotor and airframe model (pure numpy; the pybullet shell is sitl.physics).
 
-Frames (scenenav/core/frames.py): world ENU, body FLU, ``q_wxyz`` rotates body vectors into the world.
+Frames (scenenav/core/frames.py): world ENU, body FLU, ``q_wxyz`` rotates body vectors into the world
+(quaternion and heading helpers: ``scenenav.core.rotations``).
 Rotor model after the ``gazebo_motor_model`` plugin that PX4's Iris model uses (constants in
 ``sitl.vehicle.VehicleParams``); for rotor i with speed w_i (rad/s, >= 0), spin direction d_i
 (+1 = counter-clockwise seen from above) and position r_i in the body frame:
@@ -44,58 +45,6 @@ def rotation_rows(q_wxyz) -> tuple[tuple[float, float, float], ...]:
     return ((1.0 - (yy + zz), xy - wz, xz + wy),
             (xy + wz, 1.0 - (xx + zz), yz - wx),
             (xz - wy, yz + wx, 1.0 - (xx + yy)))
-
-
-def quat_to_rotation_matrix(q_wxyz: np.ndarray) -> np.ndarray:
-    """Unit quaternion (w, x, y, z) -> 3x3 rotation matrix (body -> world). Normalises the input."""
-    return np.array(rotation_rows(q_wxyz))
-
-
-def quat_from_yaw(yaw_enu_rad: float) -> np.ndarray:
-    """Level attitude with body +x at ENU yaw ``yaw_enu_rad`` (counter-clockwise from east)."""
-    half = 0.5 * yaw_enu_rad
-    return np.array([math.cos(half), 0.0, 0.0, math.sin(half)])
-
-
-def quat_from_euler(roll_rad: float, pitch_rad: float, yaw_enu_rad: float) -> np.ndarray:
-    """Body FLU -> ENU quaternion from intrinsic z-y-x Euler angles (yaw, then pitch, then roll).
-
-    Positive roll is a right-handed rotation about body +x: it raises the left side (body +y) and
-    lowers the right side. Positive pitch is a right-handed rotation about body +y: it lowers the
-    nose (body +x tilts toward world -z).
-    """
-    cr, sr = math.cos(0.5 * roll_rad), math.sin(0.5 * roll_rad)
-    cp, sp = math.cos(0.5 * pitch_rad), math.sin(0.5 * pitch_rad)
-    cy, sy = math.cos(0.5 * yaw_enu_rad), math.sin(0.5 * yaw_enu_rad)
-    return np.array([
-        cr * cp * cy + sr * sp * sy,
-        sr * cp * cy - cr * sp * sy,
-        cr * sp * cy + sr * cp * sy,
-        cr * cp * sy - sr * sp * cy,
-    ])
-
-
-def quat_multiply(a_wxyz: np.ndarray, b_wxyz: np.ndarray) -> np.ndarray:
-    """Hamilton product a * b (apply b first, then a)."""
-    aw, ax, ay, az = a_wxyz
-    bw, bx, by, bz = b_wxyz
-    return np.array([
-        aw * bw - ax * bx - ay * by - az * bz,
-        aw * bx + ax * bw + ay * bz - az * by,
-        aw * by - ax * bz + ay * bw + az * bx,
-        aw * bz + ax * by - ay * bx + az * bw,
-    ])
-
-
-def yaw_from_quat(q_wxyz: np.ndarray) -> float:
-    """ENU yaw (rad, counter-clockwise from east) of the body +x axis projected on the ground."""
-    w, x, y, z = (float(c) for c in q_wxyz)
-    return math.atan2(2.0 * (w * z + x * y), 1.0 - 2.0 * (y * y + z * z))
-
-
-def heading_from_quat(q_wxyz: np.ndarray) -> float:
-    """Compass heading (rad, clockwise from north, [0, 2*pi)) of the body +x axis."""
-    return (math.pi / 2.0 - yaw_from_quat(q_wxyz)) % (2.0 * math.pi)
 
 
 class QuadrotorDynamics:
@@ -183,7 +132,7 @@ class QuadrotorDynamics:
         fz = tx = ty = tz = 0.0
         w_sum = w_dir = lever_x = lever_y = 0.0
         for w, (rx, ry, _), d in zip(self.rotor_speeds_rad_s.tolist(), self._positions_list,
-                                     self._directions_list):
+                                     self._directions_list, strict=True):
             thrust = k_t * w * w
             fz += thrust
             tx += ry * thrust               # r x (0, 0, T) = (r_y T, -r_x T, 0)

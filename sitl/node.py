@@ -9,9 +9,14 @@ Outputs
   ``clock``                       ClockTick      (every control tick, after that tick's sensors)
   ``sensors/imu``                 ImuSample      (every tick)
   ``sensors/baro``, ``sensors/compass``, ``sensors/gps``   at their configured rates (GPS only if enabled)
+  ``sensors/power``               PowerSample    (battery voltage and current, ``sim.battery.rate_hz``)
   ``sensors/camera``              CameraFrame    (camera rate)
   ``truth/pose``                  TruthPose      (every tick; evaluation and logs only)
   ``events/<id>``, ``info/<id>``  Event, NodeInfo
+
+A thin shell: the physics, sensors, battery and camera scheduling are ``sitl.core.SimulatorCore``;
+this node adds the bus, the lockstep/realtime clock, the camera render pipeline and the end of the run.
+Its configuration (``sitl.config.SimNodeConfig``) is resolved by the app layer (``scenenav node sim``).
 
 Lockstep (default): per tick the simulator publishes sensors and the clock, waits for every live
 ``tick`` member (the autopilot) and, on camera ticks, every ``camera`` member (perception), then
@@ -24,108 +29,76 @@ from __future__ import annotations
 
 import logging
 import math
-import signal
 import threading
 import time
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import numpy as np
 
 from scenenav.core.bus import Bus, BusConfig
-from scenenav.core.contracts import (AutopilotStatus, BaroSample, CameraFrame, ClockMode, ClockTick,
-                                CompassSample, Event, GpsSample, ImageEncoding, ImuSample,
-                                LockstepAck, LockstepRole, MotorCommand, NodeInfo, RunState,
-                                Severity, TruthPose)
+from scenenav.core.contracts import (
+    AutopilotStatus,
+    ClockMode,
+    ClockTick,
+    Event,
+    LockstepAck,
+    LockstepRole,
+    MotorCommand,
+    NodeInfo,
+    RunState,
+    Severity,
+)
+from scenenav.core.frames import heading_to_enu_yaw
 from scenenav.core.keys import Keys
 from scenenav.core.lockstep import LockstepBarrier
-from scenenav.app.scenario import FlightMode, ScenarioConfig, route_for
-from sitl.scripted import ScriptedTrajectory
-from scenenav.core.frames import enu_yaw_to_heading, heading_to_enu_yaw
+from sitl.config import SimNodeConfig
+from sitl.core import SimulatorCore, TickOutput
 
 log = logging.getLogger(__name__)
 
 NODE_ID = "sim"
 
 
-def yaw_quaternion(yaw_enu_rad: float) -> np.ndarray:
-    return np.array([math.cos(yaw_enu_rad / 2), 0.0, 0.0, math.sin(yaw_enu_rad / 2)])
-
-
-def quaternion_heading(q_wxyz) -> float:
-    """Compass heading of the body x axis projected on the ground."""
-    w, x, y, z = q_wxyz
-    yaw = math.atan2(2.0 * (w * z + x * y), 1.0 - 2.0 * (y * y + z * z))
-    return enu_yaw_to_heading(yaw)
-
-
-def _rot_t(q_wxyz, v: np.ndarray) -> np.ndarray:
-    """World vector -> body frame (inverse rotation of q)."""
-    w, x, y, z = q_wxyz
-    r = np.array([
-        [1 - 2 * (y * y + z * z), 2 * (x * y - w * z), 2 * (x * z + w * y)],
-        [2 * (x * y + w * z), 1 - 2 * (x * x + z * z), 2 * (y * z - w * x)],
-        [2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y)],
-    ])
-    return r.T @ v
-
-
 @dataclass
-class _Rates:
-    """Sub-sampling of a tick stream to a sensor rate (deterministic, integer tick periods)."""
+class SimStats:
+    """What a run of the node did (written to ``<run>/sim_stats.json``); times are wall seconds."""
 
-    every_ticks: int
-
-    @classmethod
-    def of(cls, rate_hz: float, tick_rate_hz: float) -> "_Rates":
-        return cls(max(1, int(round(tick_rate_hz / rate_hz))))
-
-    def due(self, tick: int) -> bool:
-        return tick % self.every_ticks == 0
+    ticks: int = 0
+    camera_frames: int = 0
+    ack_timeouts: int = 0
+    time_physics_s: float = 0.0
+    time_render_s: float = 0.0
+    time_bus_wait_s: float = 0.0
+    time_publish_s: float = 0.0
+    sim_time_s: float = 0.0
+    wall_time_s: float = 0.0
+    real_time_factor: float = 0.0
+    end_reason: str = ""
+    dropped: dict[str, int] = field(default_factory=dict)
 
 
 class SimulatorNode:
-    def __init__(self, scenario: ScenarioConfig, world, bus_cfg: BusConfig):
-        from sitl.physics import PhysicsWorld
-        from sitl.render_worker import CameraPipeline
-        from sitl.sensors import BaroModel, CameraEffects, CompassModel, GpsModel, ImuModel
-        from sitl.vehicle import VehicleParams
+    """The simulator on the bus. ``world`` gives the orthophoto, ``m_per_px`` and the geodetic origin
+    (``world.manifest.origin_lat_deg`` / ``origin_lon_deg``)."""
 
-        self.cfg = scenario
+    def __init__(self, cfg: SimNodeConfig, world, bus_cfg: BusConfig):
+        from sitl.render_worker import CameraPipeline
+
+        self.cfg = cfg
         self.world = world
         self.keys = Keys(bus_cfg.namespace)
-        sim = scenario.sim
-        root = np.random.SeedSequence(scenario.seed)
-        streams = [np.random.default_rng(s) for s in root.spawn(7)]
-        self.params = VehicleParams()
-        self.physics = PhysicsWorld(self.params, sim, streams[0])
-        self.camera = CameraPipeline(world.orthophoto, world.m_per_px, sim.camera)
-        self.camera_latency_ticks = int(round(sim.camera.latency_s * clock_rate_hz(scenario)))
-        self.imu = ImuModel(sim.imu, streams[1])
-        self.baro = BaroModel(sim.baro, streams[2])
-        self.compass = CompassModel(sim.compass, streams[3])
-        self.gps = GpsModel(sim.gps, streams[4])
-        self.effects = CameraEffects(sim.camera, streams[5])
-
-        clock = scenario.clock
-        self.tick_rate_hz = clock.tick_rate_hz
-        self.tick_us = int(round(1e6 / clock.tick_rate_hz))
-        self.substeps = max(1, int(round(sim.physics_rate_hz / clock.tick_rate_hz)))
-        self.rate_baro = _Rates.of(sim.baro.rate_hz, clock.tick_rate_hz)
-        self.rate_compass = _Rates.of(sim.compass.rate_hz, clock.tick_rate_hz)
-        self.rate_gps = _Rates.of(sim.gps.rate_hz, clock.tick_rate_hz)
-        self.rate_camera = _Rates.of(sim.camera.rate_hz, clock.tick_rate_hz)
-
-        flight = scenario.flight
-        self.trajectory = None
-        if flight.mode == FlightMode.SCRIPTED:
-            self.trajectory = ScriptedTrajectory(route_for(scenario, world), flight.altitude_m,
-                                                 flight.speed_m_s, flight.turn_radius_m)
-            st = self.trajectory.state(0.0)
-            self.physics.reset(st.position_enu_m, heading_to_enu_yaw(st.heading_rad))
+        m = world.manifest
+        self.core = SimulatorCore(cfg.sim, cfg.clock.tick_rate_hz, cfg.seed, m.origin_lat_deg,
+                                  m.origin_lon_deg)
+        self.camera = CameraPipeline(world.orthophoto, world.m_per_px, cfg.sim.camera)
+        if cfg.scripted is not None:
+            self.core.start_scripted(cfg.scripted)
         else:
-            sx, sy = flight.start_enu_m
-            self.physics.reset(np.array([sx, sy, 0.0]),
-                               heading_to_enu_yaw(math.radians(flight.start_heading_deg)))
+            sx, sy = cfg.start_enu_m
+            self.core.start_at(np.array([sx, sy, 0.0]),
+                               heading_to_enu_yaw(math.radians(cfg.start_heading_deg)))
+        self.tick_rate_hz = cfg.clock.tick_rate_hz
+        self.tick_us = self.core.tick_us
 
         self.bus = Bus(bus_cfg)
         self.barrier = LockstepBarrier()
@@ -135,9 +108,7 @@ class SimulatorNode:
         self._mission_done = threading.Event()
         self._landed_early = threading.Event()
         self._has_flown = False
-        self.stats = {"ticks": 0, "camera_frames": 0, "ack_timeouts": 0,
-                      "time_physics_s": 0.0, "time_render_s": 0.0, "time_bus_wait_s": 0.0,
-                      "time_publish_s": 0.0}
+        self.stats = SimStats()
 
         self.bus.subscribe(self.keys.motors, MotorCommand, self._on_motor)
         self.bus.subscribe(self.keys.lockstep_ack_all, LockstepAck, self._on_ack)
@@ -173,7 +144,7 @@ class SimulatorNode:
         self.event(Severity.INFO, f"lockstep member {'joined' if alive else 'left'}: {parts[-1]}")
 
     def _on_status(self, msg: AutopilotStatus, _key: str) -> None:
-        if self.cfg.flight.mode != FlightMode.AUTOPILOT:
+        if not self.cfg.end_with_mission:
             return   # ground-station sessions (idle) end only when the user stops them
         if msg.armed:
             self._has_flown = True
@@ -187,31 +158,27 @@ class SimulatorNode:
         self._stop.set()
 
     def event(self, severity: Severity, text: str, t_us: int | None = None) -> None:
-        ts = t_us if t_us is not None else self.stats["ticks"] * self.tick_us
+        ts = t_us if t_us is not None else self.stats.ticks * self.tick_us
         self.bus.publish(self.keys.events(NODE_ID), Event(ts, NODE_ID, int(severity), text))
         log.info("%s", text)
 
     # ------------------------------------------------------------------------------- loop
-    def run(self, expected: dict[LockstepRole, int] | None = None) -> dict:
+    def _expected_members(self) -> dict[LockstepRole, int]:
+        expected = {LockstepRole.TICK: self.cfg.expected_tick_members,
+                    LockstepRole.CAMERA: self.cfg.expected_camera_members}
+        return {role: n for role, n in expected.items() if n > 0}
+
+    def run(self) -> SimStats:
         clock = self.cfg.clock
+        core = self.core
         lockstep = clock.mode == ClockMode.LOCKSTEP
         self.bus.publish(self.keys.node_info(NODE_ID), NodeInfo(0, NODE_ID, "sim", clock.mode.value))
-        if expected:
-            if not self.barrier.wait_members(expected, clock.startup_timeout_s):
-                self.event(Severity.WARNING, f"not every expected node joined within "
-                                             f"{clock.startup_timeout_s:.0f} s: {self.barrier.members()}")
+        expected = self._expected_members()
+        if expected and not self.barrier.wait_members(expected, clock.startup_timeout_s):
+            self.event(Severity.WARNING, f"not every expected node joined within "
+                                         f"{clock.startup_timeout_s:.0f} s: {self.barrier.members()}")
         answer_timeout = clock.member_timeout_s if lockstep else 1.0 / clock.tick_rate_hz
-        duration_ticks = int(round(self.cfg.duration_s * self.tick_rate_hz))
-        dt_phys = 1.0 / self.cfg.sim.physics_rate_hz
-        state = self.physics.state()
-        accel_sum = np.zeros(3)
-        gyro_sum = np.zeros(3)
-        accel_sum[:] = state.specific_force_flu_m_s2
-        gyro_sum[:] = state.angular_velocity_flu_rad_s
-        n_sum = 1
-        camera_seq = -1
-        capture_seq = -1
-        pending: list[tuple[int, int, int]] = []   # (publish tick, frame seq, capture time us)
+        duration_ticks = round(self.cfg.duration_s * self.tick_rate_hz)
         camera_acked = -1
         wall0 = time.perf_counter()
         reason = "duration reached"
@@ -226,40 +193,32 @@ class SimulatorNode:
             if self._landed_early.is_set():
                 reason = "landed before completing the mission"
                 break
-            t_us = tick * self.tick_us
+            if core.route_complete:
+                reason = "scripted route complete"
+                break
+            t_us = core.time_us
             t_s = t_us * 1e-6
-            if self.trajectory is not None:
-                if t_s > self.trajectory.duration_s:
-                    reason = "scripted route complete"
-                    break
-                state, sf = self._scripted_state(t_s)
-                accel_sum[:] = sf
-                gyro_sum[:] = np.array([0.0, 0.0, -self.trajectory.state(t_s).yaw_rate_rad_s])
-                n_sum = 1
             tp = time.perf_counter()
-            self._publish_sensors(tick, t_us, state, accel_sum / n_sum, gyro_sum / n_sum)
-            if self.rate_camera.due(tick):
-                capture_seq += 1
-                self.camera.request(capture_seq, state.position_enu_m, state.q_wxyz)
-                pending.append((tick + self.camera_latency_ticks, capture_seq, t_us))
-            frame_out = bool(pending) and pending[0][0] == tick
+            out = core.sense()
+            self._publish_sensors(out)
+            if out.camera_request is not None:
+                req = out.camera_request
+                self.camera.request(req.seq, req.position_enu_m, req.q_wxyz)
+            frame_out = out.camera_release is not None
             render_s = 0.0
-            if frame_out:
-                _, camera_seq, t_capture_us = pending.pop(0)
+            if out.camera_release is not None:
+                camera_seq = out.camera_release.seq
                 tr = time.perf_counter()
-                image = self.effects.apply(self.camera.result(camera_seq))
+                frame = core.camera_frame(out.camera_release, self.camera.result(camera_seq))
                 render_s = time.perf_counter() - tr
-                self.stats["time_render_s"] += render_s
+                self.stats.time_render_s += render_s
                 self.barrier.published(LockstepRole.CAMERA, camera_seq)
-                cam = self.cfg.sim.camera
-                self.bus.publish(self.keys.camera, CameraFrame(
-                    t_capture_us, camera_seq, image.shape[1], image.shape[0],
-                    ImageEncoding.RGB8.value, cam.fov_deg, cam.mount.value, image))
-                self.stats["camera_frames"] += 1
+                self.bus.publish(self.keys.camera, frame)
+                self.stats.camera_frames += 1
             self.barrier.published(LockstepRole.TICK, tick)
             self.bus.publish(self.keys.clock, ClockTick(
                 t_us, tick, self.tick_us, camera_acked, clock.mode.value, RunState.RUNNING.value))
-            self.stats["time_publish_s"] += time.perf_counter() - tp - render_s
+            self.stats.time_publish_s += time.perf_counter() - tp - render_s
 
             tw = time.perf_counter()
             late = self.barrier.wait(LockstepRole.TICK, tick, answer_timeout)
@@ -267,86 +226,49 @@ class SimulatorNode:
                 late += self.barrier.wait(LockstepRole.CAMERA, camera_seq, answer_timeout)
                 camera_acked = camera_seq
             if late and lockstep:
-                self.stats["ack_timeouts"] += 1
+                self.stats.ack_timeouts += 1
                 self.event(Severity.WARNING, f"t={t_s:.2f}s: no lockstep answer from {late} "
                                              f"within {answer_timeout:.1f} s", t_us)
-            self.stats["time_bus_wait_s"] += time.perf_counter() - tw
+            self.stats.time_bus_wait_s += time.perf_counter() - tw
 
             tphys = time.perf_counter()
-            if self.trajectory is None:
-                with self._motor_lock:
-                    motor = self._motor.copy()
-                accel_sum[:] = 0.0
-                gyro_sum[:] = 0.0
-                for _ in range(self.substeps):
-                    state = self.physics.step(motor)
-                    accel_sum += state.specific_force_flu_m_s2
-                    gyro_sum += state.angular_velocity_flu_rad_s
-                n_sum = self.substeps
-            self.stats["time_physics_s"] += time.perf_counter() - tphys
-            self.stats["ticks"] = tick + 1
+            with self._motor_lock:
+                motor = self._motor.copy()
+            core.advance(motor)
+            self.stats.time_physics_s += time.perf_counter() - tphys
+            self.stats.ticks = tick + 1
             if not lockstep:
                 ahead = (t_s + 1.0 / self.tick_rate_hz) / clock.speed_factor - (time.perf_counter() - wall0)
                 if ahead > 0:
                     time.sleep(ahead)
-        del dt_phys
-        t_end_us = self.stats["ticks"] * self.tick_us
+        t_end_us = self.stats.ticks * self.tick_us
         self.bus.publish(self.keys.clock, ClockTick(
             t_end_us, tick, self.tick_us, camera_acked, clock.mode.value, RunState.FINISHED.value))
         wall = time.perf_counter() - wall0
-        self.stats.update(sim_time_s=t_end_us * 1e-6, wall_time_s=wall,
-                          real_time_factor=(t_end_us * 1e-6) / wall if wall > 0 else math.inf,
-                          end_reason=reason, dropped=dict(self.bus.dropped))
+        stats = self.stats
+        stats.sim_time_s = t_end_us * 1e-6
+        stats.wall_time_s = wall
+        stats.real_time_factor = (t_end_us * 1e-6) / wall if wall > 0 else math.inf
+        stats.end_reason = reason
+        stats.dropped = dict(self.bus.dropped)
         self.event(Severity.INFO, f"simulation finished: {reason} at t={t_end_us * 1e-6:.1f}s "
-                                  f"({self.stats['real_time_factor']:.1f}x real time)", t_end_us)
+                                  f"({stats.real_time_factor:.1f}x real time)", t_end_us)
         return self.stats
 
-    def _scripted_state(self, t_s: float):
-        ks = self.trajectory.state(t_s)
-        q = yaw_quaternion(heading_to_enu_yaw(ks.heading_rad))
-        st = self.physics.set_pose(ks.position_enu_m, q, ks.velocity_enu_m_s)
-        g = np.array([0.0, 0.0, -self.params.gravity_m_s2])
-        sf = _rot_t(q, ks.acceleration_enu_m_s2 - g)
-        return st, sf
-
-    def _publish_sensors(self, tick: int, t_us: int, state, accel_mean, gyro_mean) -> None:
+    def _publish_sensors(self, out: TickOutput) -> None:
         keys = self.keys
-        pos = np.asarray(state.position_enu_m, dtype=float)
-        heading = quaternion_heading(state.q_wxyz)
-        self.bus.publish(keys.truth_pose, TruthPose(
-            t_us, tuple(pos), tuple(np.asarray(state.velocity_enu_m_s, dtype=float)),
-            tuple(np.asarray(state.q_wxyz, dtype=float)),
-            tuple(np.asarray(state.angular_velocity_flu_rad_s, dtype=float)), heading))
-        acc, gyr = self.imu.sample(accel_mean, gyro_mean, 1.0 / self.tick_rate_hz)
-        self.bus.publish(keys.imu, ImuSample(t_us, tick, 1.0 / self.tick_rate_hz,
-                                             tuple(map(float, acc)), tuple(map(float, gyr))))
-        if self.rate_baro.due(tick):
-            alt, pa = self.baro.sample(float(pos[2]))
-            self.bus.publish(keys.baro, BaroSample(t_us, float(alt), float(pa)))
-        if self.rate_compass.due(tick):
-            self.bus.publish(keys.compass, CompassSample(t_us, float(self.compass.sample(heading))))
-        if self.cfg.sim.gps.enabled and self.rate_gps.due(tick):
-            m = self.world.manifest
-            g = self.gps.sample(pos, np.asarray(state.velocity_enu_m_s, dtype=float),
-                                m.origin_lat_deg, m.origin_lon_deg)
-            self.bus.publish(keys.gps, GpsSample(
-                t_us, g.lat_deg, g.lon_deg, g.alt_m, tuple(map(float, g.velocity_enu_m_s)),
-                g.eph_m, g.epv_m, int(g.fix_type), int(g.satellites)))
+        self.bus.publish(keys.truth_pose, out.truth)
+        self.bus.publish(keys.imu, out.imu)
+        if out.baro is not None:
+            self.bus.publish(keys.baro, out.baro)
+        if out.compass is not None:
+            self.bus.publish(keys.compass, out.compass)
+        if out.gps is not None:
+            self.bus.publish(keys.gps, out.gps)
+        if out.power is not None:
+            self.bus.publish(keys.power, out.power)
 
     def close(self) -> None:
         self.bus.close()
         self.camera.close()
-        self.physics.close()
-
-
-def clock_rate_hz(scenario: ScenarioConfig) -> float:
-    return scenario.clock.tick_rate_hz
-
-
-def install_stop_handlers(stop) -> None:
-    """SIGINT/SIGTERM end the loop cleanly (the run folder stays readable)."""
-    def handler(signum, _frame):
-        log.info("signal %d: stopping", signum)
-        stop()
-    signal.signal(signal.SIGINT, handler)
-    signal.signal(signal.SIGTERM, handler)
+        self.core.close()

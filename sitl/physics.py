@@ -18,9 +18,9 @@ from dataclasses import dataclass
 import numpy as np
 import pybullet as p
 
+from scenenav.core.rotations import heading_from_quat, quat_from_yaw
 from sitl.config import SimConfig
-from sitl.dynamics import (QuadrotorDynamics, heading_from_quat, quat_from_yaw, quat_to_rotation_matrix,
-                           rotation_rows)
+from sitl.dynamics import QuadrotorDynamics, rotation_rows
 from sitl.vehicle import VehicleParams
 from sitl.wind import WindModel
 
@@ -112,12 +112,12 @@ class PhysicsWorld:
         self.dynamics.reset()
         if rotor_speeds_rad_s is not None:
             self.dynamics.set_rotor_speeds(rotor_speeds_rad_s)
-        q = quat_from_yaw(yaw_enu_rad)
+        q = np.array(quat_from_yaw(yaw_enu_rad))
         self._steps = 0
         self._place(pos, q, np.zeros(3), np.zeros(3))
         # At rest on the ground the accelerometer reads the ground reaction; in the air, the thrust.
         if pos[2] == 0.0:
-            f_body = quat_to_rotation_matrix(q).T @ -self._gravity_world
+            f_body = np.array(rotation_rows(q)).T @ -self._gravity_world
         else:
             f_body = self.dynamics.wrench_body(np.zeros(3))[0] / self.params.mass_kg
         self._state = self._make_state(f_body, np.zeros(3))
@@ -134,7 +134,7 @@ class PhysicsWorld:
         q = np.asarray(q_wxyz, dtype=float).reshape(4)
         q = q / np.linalg.norm(q)
         vel = np.asarray(velocity_enu_m_s, dtype=float).reshape(3)
-        rot = quat_to_rotation_matrix(q)
+        rot = np.array(rotation_rows(q))
         omega_b = (np.zeros(3) if angular_velocity_flu_rad_s is None
                    else np.asarray(angular_velocity_flu_rad_s, dtype=float).reshape(3))
         accel = (np.zeros(3) if acceleration_enu_m_s2 is None

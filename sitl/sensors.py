@@ -10,12 +10,12 @@ from __future__ import annotations
 import logging
 import math
 from dataclasses import dataclass
-from enum import IntEnum
 
 import numpy as np
 
-from sitl.config import BaroConfig, CameraConfig, CompassConfig, GpsConfig, ImuConfig
+from scenenav.core.contracts import GpsFixType
 from scenenav.core.frames import enu_to_geodetic
+from sitl.config import BaroConfig, CameraConfig, CompassConfig, GpsConfig, ImuConfig
 
 logger = logging.getLogger(__name__)
 
@@ -109,17 +109,10 @@ class CompassModel:
         return 0.0 if wrapped >= 2.0 * math.pi else wrapped
 
 
-class GpsFixType(IntEnum):
-    """Fix types, numbered as MAVLink GPS_FIX_TYPE."""
-
-    NO_GPS = 0
-    NO_FIX = 1
-    FIX_2D = 2
-    FIX_3D = 3
-
-
 @dataclass(frozen=True, eq=False)   # numpy fields: compare fields explicitly, not with ==
-class GpsSample:
+class GpsFix:
+    """One receiver fix (the node publishes it as ``scenenav.core.contracts.GpsSample``)."""
+
     lat_deg: float
     lon_deg: float
     alt_m: float                    # altitude of the fix (origin altitude + ENU z + error), m
@@ -151,20 +144,20 @@ class GpsModel:
         self.epv_m = math.hypot(cfg.vertical_noise_std_m, cfg.drift_std_m)
 
     def sample(self, position_enu_m: np.ndarray, velocity_enu_m_s: np.ndarray, origin_lat_deg: float,
-               origin_lon_deg: float, origin_alt_m: float = 0.0) -> GpsSample:
+               origin_lon_deg: float, origin_alt_m: float = 0.0) -> GpsFix:
         """Fix for a true ENU position (m) and velocity (m/s) around the world origin (map centre)."""
         if not self.cfg.enabled:
             nan = float("nan")
-            return GpsSample(nan, nan, nan, np.full(3, nan), nan, nan, GpsFixType.NO_FIX, 0)
+            return GpsFix(nan, nan, nan, np.full(3, nan), nan, nan, GpsFixType.NO_FIX, 0)
         if self.cfg.drift_std_m > 0.0:
             self._drift = self._drift_a * self._drift + self._drift_b * self._rng.standard_normal(3)
         noise = self._rng.standard_normal(6)
         pos = np.asarray(position_enu_m, dtype=float) + self._drift + self._sigma * noise[:3]
         vel = np.asarray(velocity_enu_m_s, dtype=float) + self.cfg.velocity_noise_std_m_s * noise[3:]
         lat, lon = enu_to_geodetic(pos[0], pos[1], origin_lat_deg, origin_lon_deg)
-        return GpsSample(lat_deg=float(lat), lon_deg=float(lon), alt_m=float(origin_alt_m + pos[2]),
-                         velocity_enu_m_s=vel, eph_m=self.eph_m, epv_m=self.epv_m,
-                         fix_type=GpsFixType.FIX_3D, satellites=self.cfg.satellites)
+        return GpsFix(lat_deg=float(lat), lon_deg=float(lon), alt_m=float(origin_alt_m + pos[2]),
+                      velocity_enu_m_s=vel, eph_m=self.eph_m, epv_m=self.epv_m,
+                      fix_type=GpsFixType.FIX_3D, satellites=self.cfg.satellites)
 
 
 def gaussian_kernel(sigma_px: float) -> np.ndarray:

@@ -8,7 +8,6 @@ Test kinds live in their own folders: ``unit/<package>``, ``bus`` (real Zenoh pe
 from __future__ import annotations
 
 import pytest
-
 from support.fake_vehicle import free_port
 
 

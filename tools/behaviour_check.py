@@ -64,13 +64,13 @@ def _cli_module(python: str) -> str:
                           env=dict(os.environ)).stdout.strip()
 
 
-def record(out_dir: Path, scenarios: list[str], python: str) -> int:
+def record(out_dir: Path, scenarios: list[str], python: str, overrides: list[str]) -> int:
     out_dir.mkdir(parents=True, exist_ok=True)
     result: dict[str, dict[str, str]] = {}
     for name in scenarios:
         run_dir = out_dir / name
         cmd = [python, "-m", _cli_module(python), "run", str(ROOT / "scenarios" / f"{name}.yaml"),
-               "--out", str(run_dir), "--quiet"]
+               "--out", str(run_dir), "--quiet"] + [a for kv in overrides for a in ("--set", kv)]
         print(f"flying {name} ...", file=sys.stderr, flush=True)
         proc = subprocess.run(cmd, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True,
                               env=dict(os.environ), check=False)
@@ -102,12 +102,15 @@ def main() -> int:
     r.add_argument("out", type=Path)
     r.add_argument("--scenario", action="append", help=f"scenario name (default: {', '.join(DETERMINISTIC)})")
     r.add_argument("--python", default=sys.executable, help="interpreter with scenenav installed")
+    r.add_argument("--set", action="append", default=[], metavar="KEY=VALUE",
+                   help="scenario override for every flight, e.g. autopilot.mavlink_tcp_port=57000 when "
+                        "another run holds 5760 (ports are not in the digests)")
     c = sub.add_parser("compare", help="compare two recordings")
     c.add_argument("a", type=Path)
     c.add_argument("b", type=Path)
     args = p.parse_args()
     if args.cmd == "record":
-        return record(args.out, args.scenario or list(DETERMINISTIC), args.python)
+        return record(args.out, args.scenario or list(DETERMINISTIC), args.python, args.set)
     return compare(args.a, args.b)
 
 

@@ -27,8 +27,8 @@ def _run(args: argparse.Namespace) -> int:
 
 
 def _node(args: argparse.Namespace) -> int:
-    from scenenav.core.bus import BusConfig
     from scenenav.app import nodes
+    from scenenav.core.bus import BusConfig
     run_dir = Path(args.run_dir) if getattr(args, "run_dir", None) else None
     if args.kind == "sim":
         bus = BusConfig(args.namespace, args.hub_port, listen_hub=True)

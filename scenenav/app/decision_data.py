@@ -17,10 +17,14 @@ from pathlib import Path
 
 import numpy as np
 
-from perception.decision import (COMBINED_FEATURES, VARIANCE_WINDOWS, CombinedDecisionModel,
-                                 TrackEvidence, combined_features)
-from perception.decision_fit import (SOURCES, FlightSamples, cross_validate, make_model, pool_samples,
-                                     rejection_scores)
+from perception.decision import (
+    COMBINED_FEATURES,
+    VARIANCE_WINDOWS,
+    CombinedDecisionModel,
+    TrackEvidence,
+    combined_features,
+)
+from perception.decision_fit import SOURCES, FlightSamples, cross_validate, make_model, pool_samples, rejection_scores
 from perception.statistical import StatisticalDetector
 from scenenav.core.errors import UserError
 
@@ -52,7 +56,7 @@ def flight_samples(run_dir: str | Path, threshold_m: float = 5.0) -> FlightSampl
     m_per_px = amap.m_per_px
     p_online = fx["p_bad"][idx_fx]
     du, dv = diag["drone_u_px"][idx_d], diag["drone_v_px"][idx_d]
-    p_map = np.array([1.0 - amap.lookup(u, v) for u, v in zip(du, dv)])
+    p_map = np.array([1.0 - amap.lookup(u, v) for u, v in zip(du, dv, strict=False)])
     p_map = np.where(np.isfinite(p_map), p_map, p_online)
     innov = diag["innovation_px"][idx_d] * m_per_px
     # TrackEvidence replayed exactly as the pipeline feeds it: every valid match, in order.
@@ -70,13 +74,13 @@ def flight_samples(run_dir: str | Path, threshold_m: float = 5.0) -> FlightSampl
     for w in VARIANCE_WINDOWS:
         det = StatisticalDetector(w)
         variances.append(np.array([det.update(x, y, t)[1] for x, y, t in zip(
-            fx["x_m"][idx_fx], fx["y_m"][idx_fx], fx["t_s"][idx_fx])]))
+            fx["x_m"][idx_fx], fx["y_m"][idx_fx], fx["t_s"][idx_fx], strict=False)]))
     features, p_bads = {}, {}
     for src, p_bad in (("cnn", p_online), ("assistant-map", p_map)):
         features[src] = np.array([combined_features(pb, pk, ps, sp, inn, int(rn), di, da, v30, v10, re)
                              for pb, pk, ps, sp, inn, rn, di, da, v30, v10, re
                              in zip(p_bad, peak, psr, spr, innov, run, dr_innov, dr_age, *variances,
-                                    reach)])
+                                    reach, strict=False)])
         p_bads[src] = p_bad
     return FlightSamples(world=run_dir.name, y=fx["is_false"][idx_fx].astype(bool),
                          error_m=fx["error_m"][idx_fx], t_s=fx["t_s"][idx_fx], features=features,
@@ -186,7 +190,7 @@ def fit_decision(flight_dirs: list[Path], out: str | Path, cnn_weights: str, l2:
                                           np.concatenate([s.error_m for s in samples]))
                     for src in SOURCES}
     meta["training_fit"] = train_scores
-    meta["coefficients_raw"] = {f: float(w) for f, w in zip(COMBINED_FEATURES, model._w)}
+    meta["coefficients_raw"] = {f: float(w) for f, w in zip(COMBINED_FEATURES, model._w, strict=False)}
     meta["intercept_raw"] = float(model._b)
     meta["wall_time_s"] = round(time.perf_counter() - t0, 2)
     model.save(out)

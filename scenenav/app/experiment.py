@@ -190,6 +190,7 @@ def plot_figures(out_dir: Path, rows: list[dict], threshold_m: float) -> None:
     import matplotlib
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
+
     from perception.statistical import StatisticalDetector
     from scenenav.app.evaluation import fix_table
     fig, axes = plt.subplots(2, 4, figsize=(18, 8))
@@ -218,7 +219,7 @@ def plot_figures(out_dir: Path, rows: list[dict], threshold_m: float) -> None:
     stat = next(r for r in rows if r["method"] == "statistical")
     fx = fix_table(Path(stat["run_dir"]), threshold_m)
     det = StatisticalDetector()
-    var = [det.update(x, y, t)[1] for x, y, t in zip(fx["x_m"], fx["y_m"], fx["t_s"])]
+    var = [det.update(x, y, t)[1] for x, y, t in zip(fx["x_m"], fx["y_m"], fx["t_s"], strict=False)]
     fig, ax = plt.subplots(figsize=(10, 4))
     ax.plot(fx["t_s"], var, "b-", lw=1, label="variance (m²)")
     ax.axhline(det.threshold, color="r", ls="--", label=f"threshold {det.threshold}")

@@ -19,10 +19,10 @@ from pathlib import Path
 
 import yaml
 
+from scenenav.app.scenario import FlightMode, ScenarioConfig, load_scenario, scenario_to_dict
 from scenenav.core.bus import free_port
 from scenenav.core.contracts import ClockMode
 from scenenav.core.errors import UserError
-from scenenav.app.scenario import FlightMode, ScenarioConfig, load_scenario, scenario_to_dict
 
 log = logging.getLogger(__name__)
 

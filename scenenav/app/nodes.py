@@ -13,12 +13,11 @@ import logging
 import signal
 import threading
 from pathlib import Path
-
 from types import SimpleNamespace
 
+from scenenav.app.scenario import FlightMode, ScenarioConfig, load_scenario, route_for
 from scenenav.core.bus import BusConfig
 from scenenav.core.contracts import LockstepRole
-from scenenav.app.scenario import FlightMode, ScenarioConfig, load_scenario, route_for
 
 log = logging.getLogger(__name__)
 
@@ -40,16 +39,31 @@ def load_world_for(cfg: ScenarioConfig):
     return load_world_spec(cfg.world) if is_generated_spec(cfg.world) else load_world(cfg.world)
 
 
+def sim_node_config(cfg: ScenarioConfig, world, expect: tuple[str, ...] = ()):
+    """The simulator node's ``sitl.config.SimNodeConfig`` from the scenario: the route resolved
+    against ``world`` for scripted flights, the lockstep members named in ``expect`` (``tick``,
+    ``camera``; repeatable)."""
+    from sitl.config import ScriptedFlight, SimNodeConfig
+    flight = cfg.flight
+    scripted = None
+    if flight.mode == FlightMode.SCRIPTED:
+        scripted = ScriptedFlight(route_for(cfg, world), flight.altitude_m, flight.speed_m_s,
+                                  flight.turn_radius_m)
+    return SimNodeConfig(
+        sim=cfg.sim, clock=cfg.clock, duration_s=cfg.duration_s, seed=cfg.seed, scripted=scripted,
+        start_enu_m=flight.start_enu_m, start_heading_deg=flight.start_heading_deg,
+        end_with_mission=flight.mode == FlightMode.AUTOPILOT,
+        expected_tick_members=sum(1 for item in expect if item == LockstepRole.TICK.value),
+        expected_camera_members=sum(1 for item in expect if item == LockstepRole.CAMERA.value))
+
+
 def run_sim(run_dir: Path, bus_cfg: BusConfig, expect: tuple[str, ...]) -> int:
     from sitl.node import SimulatorNode
     cfg = load_scenario(run_dir / "scenario.yaml")
-    node = SimulatorNode(cfg, load_world_for(cfg), bus_cfg)
+    world = load_world_for(cfg)
+    node = SimulatorNode(sim_node_config(cfg, world, expect), world, bus_cfg)
     stop = _stop_event()
     threading.Thread(target=lambda: (stop.wait(), node.stop()), daemon=True).start()
-    expected: dict[LockstepRole, int] = {}
-    for item in expect:
-        if item in ("tick", "camera"):
-            expected[LockstepRole(item)] = expected.get(LockstepRole(item), 0) + 1
     if "recorder" in expect:
         node_ready = threading.Event()
         node.bus.watch_liveliness(node.keys.node_alive("recorder", "recorder"),
@@ -57,10 +71,10 @@ def run_sim(run_dir: Path, bus_cfg: BusConfig, expect: tuple[str, ...]) -> int:
         if not node_ready.wait(cfg.clock.startup_timeout_s):
             log.warning("recorder did not come up; running without it")
     try:
-        stats = node.run(expected)
+        stats = node.run()
     finally:
         node.close()
-    (run_dir / "sim_stats.json").write_text(json.dumps(stats, indent=2, default=str))
+    (run_dir / "sim_stats.json").write_text(json.dumps(dataclasses.asdict(stats), indent=2, default=str))
     return 0
 
 
@@ -172,8 +186,7 @@ def autopilot_setup(cfg: ScenarioConfig, origin_lat_lon_deg: tuple[float, float]
     """The autopilot node's setup for a scenario: its section, the world's geodetic origin (read from
     the world unless given), the take-off point, the position source (external navigation without
     GPS) and, for an autopilot flight without a guidance node, the route it flies by itself."""
-    from autopilot_bridge.config import (AutopilotSetup, FlightCoreConfig, PositionSource,
-                                         RouteMission)
+    from autopilot_bridge.config import AutopilotSetup, FlightCoreConfig, PositionSource, RouteMission
     if origin_lat_lon_deg is None:
         m = world_manifest(cfg)
         origin_lat_lon_deg = (m.origin_lat_deg, m.origin_lon_deg)

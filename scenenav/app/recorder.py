@@ -24,11 +24,21 @@ from typing import Any
 
 from mcap.writer import CompressionType, Writer
 
-from scenenav.core.bus import Bus, BusConfig
-from scenenav.core.contracts import (AutopilotStatus, CameraFrame, DecodeError, Event, NavEstimate,
-                                TruthPose, VisionFix, decode, message_type, schema_of)
-from scenenav.core.keys import Keys, type_for_key
 from scenenav.app.scenario import RecorderConfig
+from scenenav.core.bus import Bus, BusConfig
+from scenenav.core.contracts import (
+    AutopilotStatus,
+    CameraFrame,
+    DecodeError,
+    Event,
+    NavEstimate,
+    TruthPose,
+    VisionFix,
+    decode,
+    message_type,
+    schema_of,
+)
+from scenenav.core.keys import Keys, type_for_key
 
 log = logging.getLogger(__name__)
 

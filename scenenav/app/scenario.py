@@ -12,12 +12,12 @@ from enum import Enum
 from pathlib import Path
 
 from autopilot_bridge.config import AutopilotNodeConfig
-from scenenav.core.camera_geometry import ground_footprint_m
-from scenenav.core.config import apply_overrides, check, load_config, load_yaml, to_dict
-from scenenav.core.contracts import ClockMode
-from scenenav.core.errors import UserError
 from guidance.config import GuidanceNodeConfig
 from perception.config import PerceptionNodeConfig
+from scenenav.core.camera_geometry import ground_footprint_m
+from scenenav.core.clock import ClockConfig
+from scenenav.core.config import apply_overrides, check, load_config, load_yaml, to_dict
+from scenenav.core.errors import UserError
 from sitl.config import SimConfig
 
 
@@ -25,22 +25,6 @@ class FlightMode(str, Enum):
     SCRIPTED = "scripted"     # kinematic path, no autopilot (logging runs, like the paper's flights)
     AUTOPILOT = "autopilot"   # the MAVLink autopilot flies the route as a mission
     IDLE = "idle"             # the vehicle waits on the ground for a ground station (scenenav sitl)
-
-
-@dataclass(frozen=True)
-class ClockConfig:
-    mode: ClockMode = ClockMode.LOCKSTEP
-    speed_factor: float = 1.0          # realtime mode: simulated seconds per wall second
-    tick_rate_hz: float = 100.0        # control tick (IMU, motor commands); physics sub-steps within
-    member_timeout_s: float = 30.0     # wall seconds to wait for one lockstep answer before going on
-    startup_timeout_s: float = 120.0   # wall seconds to wait for the expected nodes to appear
-
-    def __post_init__(self) -> None:
-        check(self.speed_factor > 0, "speed_factor", self.speed_factor, "a positive number")
-        check(10.0 <= self.tick_rate_hz <= 1000.0, "tick_rate_hz", self.tick_rate_hz,
-              "10 to 1000 Hz")
-        check(self.member_timeout_s > 0, "member_timeout_s", self.member_timeout_s, "> 0 s")
-        check(self.startup_timeout_s > 0, "startup_timeout_s", self.startup_timeout_s, "> 0 s")
 
 
 @dataclass(frozen=True)

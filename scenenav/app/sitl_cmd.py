@@ -19,11 +19,10 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, Callable
 
-
-from scenenav.core.config import apply_overrides, load_config, load_yaml
-from scenenav.core.errors import UserError
 from scenenav.app.launcher import Launch, prepare_run, resolve_world
 from scenenav.app.scenario import ScenarioConfig
+from scenenav.core.config import apply_overrides, load_config, load_yaml
+from scenenav.core.errors import UserError
 
 log = logging.getLogger(__name__)
 

@@ -10,6 +10,7 @@ dataclass's ``__post_init__`` and raise ``ConfigError`` through ``check``.
 from __future__ import annotations
 
 import dataclasses
+import math
 import types
 import typing
 from pathlib import Path
@@ -33,6 +34,11 @@ def check(condition: bool, key: str, value: Any, expected: str) -> None:
     """Raise a one-line ConfigError when ``condition`` is false."""
     if not condition:
         raise ConfigError(f"{key} = {value!r}: expected {expected}")
+
+
+def is_finite_number(value: Any) -> bool:
+    """True for an int or float that is finite (the range checks' base test)."""
+    return isinstance(value, (int, float)) and math.isfinite(value)
 
 
 def _is_dataclass_type(tp: Any) -> bool:
@@ -72,7 +78,7 @@ def _convert(tp: Any, value: Any, key: str, source: str) -> Any:
             return tuple(_convert(args[0], v, f"{key}[{i}]", source) for i, v in enumerate(value))
         if len(args) != len(value):
             raise ConfigError(f"{source}: {key} = {value!r}: expected a list of {len(args)} values")
-        return tuple(_convert(a, v, f"{key}[{i}]", source) for i, (a, v) in enumerate(zip(args, value)))
+        return tuple(_convert(a, v, f"{key}[{i}]", source) for i, (a, v) in enumerate(zip(args, value, strict=False)))
     if isinstance(tp, type) and issubclass(tp, bool):
         if isinstance(value, bool):
             return value

@@ -367,7 +367,7 @@ def _dec_value(tp: Any, value: Any, name: str) -> Any:
         args = typing.get_args(tp)
         if not isinstance(value, list) or len(value) != len(args):
             raise DecodeError(f"field {name!r}: expected a list of {len(args)} values, got {value!r}")
-        return tuple(_dec_value(a, v, name) for a, v in zip(args, value))
+        return tuple(_dec_value(a, v, name) for a, v in zip(args, value, strict=False))
     raise DecodeError(f"field {name!r}: unsupported type {tp}")
 
 
@@ -424,7 +424,7 @@ def _from_json_obj(cls: type[Any], obj: Any) -> Any:
         raise DecodeError(f"{cls.__name__}: unsupported version {obj.get('version')!r} "
                           f"(this node speaks version {cls.VERSION})")
     kwargs: dict[str, Any] = {}
-    for (name, tp), (_, kind) in zip(_schema(cls), _enc_spec(cls)):
+    for (name, tp), (_, kind) in zip(_schema(cls), _enc_spec(cls), strict=False):
         try:
             value = obj[name]
         except KeyError:

@@ -17,9 +17,9 @@ from guidance.config import GuidanceRunConfig, PlannerConfig, RouteEnd
 from guidance.node import GuidanceNode
 from scenenav.core.bus import Bus, BusConfig, free_port
 from scenenav.core.contracts import ClockMode, ClockTick, NavEstimate, RunState
-from scenenav.core.keys import Keys
 from scenenav.core.formats.world_manifest import WorldManifest
 from scenenav.core.frames import pixel_to_world
+from scenenav.core.keys import Keys
 
 M_PER_PX = 2.0
 SIZE_PX = 300

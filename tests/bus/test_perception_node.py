@@ -11,8 +11,7 @@ import pytest
 
 from scenenav.core.bus import Bus, BusConfig, free_port
 from scenenav.core.camera_geometry import ground_footprint_m
-from scenenav.core.contracts import (BaroSample, CameraFrame, CompassSample, LockstepAck, VisionFix,
-                                encode)
+from scenenav.core.contracts import BaroSample, CameraFrame, CompassSample, LockstepAck, VisionFix, encode
 from scenenav.core.keys import Keys
 
 

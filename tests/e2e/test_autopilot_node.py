@@ -22,12 +22,21 @@ from pathlib import Path
 import numpy as np
 import pytest
 import yaml
+from support import REPO_ROOT
 
 from scenenav.core.bus import Bus, BusConfig, free_port
-from scenenav.core.contracts import (BaroSample, ClockMode, ClockTick, CompassSample, ImuSample, PowerSample,
-                                LockstepAck, MotorCommand, RunState)
+from scenenav.core.contracts import (
+    BaroSample,
+    ClockMode,
+    ClockTick,
+    CompassSample,
+    ImuSample,
+    LockstepAck,
+    MotorCommand,
+    PowerSample,
+    RunState,
+)
 from scenenav.core.keys import Keys
-from support import REPO_ROOT
 
 REPO = REPO_ROOT
 RUN_TIMEOUT_S = 300.0
@@ -210,8 +219,8 @@ def test_node_follows_the_newest_perception_node_and_logs_the_gap(tmp_path):
     when it leaves, the other one again; each swap and the gap in fixes is an Event."""
     from autopilot_bridge.node import AutopilotNode
     from scenenav.app.nodes import autopilot_setup
-    from scenenav.core.contracts import Event, VisionFix
     from scenenav.app.scenario import load_scenario
+    from scenenav.core.contracts import Event, VisionFix
 
     cfg = load_scenario(None, ("flight.mode=idle", "sim.gps.enabled=false",
                                "autopilot.mavlink_tcp_port=0", "autopilot.mavlink_udp_out=none"))
@@ -295,8 +304,8 @@ class CoreFlight:
     def tick(self) -> None:
         from support.quad_model import ACCEL_BIAS, GYRO_BIAS, SUBSTEPS
 
-        from scenenav.core.rotations import heading_from_quat
         from autopilot_bridge.fusion import GpsReading, ImuReading
+        from scenenav.core.rotations import heading_from_quat
         f_sum, w_sum = np.zeros(3), np.zeros(3)
         for _ in range(SUBSTEPS):
             f, w = self.model.step(self.cmd, np.zeros(3))
@@ -356,8 +365,7 @@ def test_core_prearm_checks_and_modes():
 
 def test_core_guided_velocity_live_wpnav_speed_and_source_switch():
     from autopilot_bridge.modes import CopterMode
-    from autopilot_bridge.vehicle_interface import (AltFrame, LocalPositionTarget, MavFrame,
-                                                    SetpointKind, setpoint_kind)
+    from autopilot_bridge.vehicle_interface import AltFrame, LocalPositionTarget, MavFrame, SetpointKind, setpoint_kind
     f = CoreFlight(gps=True, SN_VIS_MIN_ALT=0)
     c = f.core
     f.run(1.5)
@@ -401,7 +409,7 @@ def test_core_takes_mavlink_external_nav():
     f.run(1.5)
     origin = c.home_enu_m
     nan21 = (math.nan,) + (0.0,) * 20
-    for i in range(20):
+    for _ in range(20):
         c.vision_position_estimate(0, 1.0, 2.0, 0.0, 0.0, 0.0, 0.0, nan21, 0)   # NED from origin
         c.odometry(Odometry(0, 20, 21, (1.0, 2.0, 0.0), (1.0, 0.0, 0.0, 0.0), (0.0,) * 3,
                             (0.0,) * 3, nan21, nan21, 0, 0, 100))

@@ -12,10 +12,10 @@ from pathlib import Path
 import numpy as np
 import pytest
 import yaml
+from support import REPO_ROOT
 
 from guidance.node import cross_track_m
 from scenenav.app.evaluation import fix_table, read_csv
-from support import REPO_ROOT
 
 ROOT = REPO_ROOT
 SCENARIO = ROOT / "scenarios" / "guided_route.yaml"

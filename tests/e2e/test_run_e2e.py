@@ -83,7 +83,7 @@ def test_lockstep_runs_are_deterministic(two_runs):
     assert (a / "truth.csv").read_text() == (b / "truth.csv").read_text()
     fa, fb = rows(a / "fixes.csv"), rows(b / "fixes.csv")
     assert len(fa) == len(fb) and len(fa) > 0
-    for ra, rb in zip(fa, fb):   # wall-clock timings differ; everything else must not
+    for ra, rb in zip(fa, fb, strict=False):   # wall-clock timings differ; everything else must not
         assert {k: v for k, v in ra.items() if not k.startswith("time_")} == \
                {k: v for k, v in rb.items() if not k.startswith("time_")}
 

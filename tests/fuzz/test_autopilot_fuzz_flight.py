@@ -25,9 +25,7 @@ import time
 
 import numpy as np
 from support.mavlink_fuzzgen import FLIGHT_EXCLUDED_TYPES, M, build_inputs
-from support.sitl_session import Gcs, write_params
-from support.sitl_session import (SitlSession, enu_to_latlon, final_position, wait_until,
-                               world_origin)
+from support.sitl_session import Gcs, SitlSession, enu_to_latlon, final_position, wait_until, world_origin, write_params
 
 from scenenav.core.geometry import distance_to_polyline_m
 

@@ -17,17 +17,16 @@ from __future__ import annotations
 import math
 
 import numpy as np
-from support.fake_vehicle import command_ack, gcs_connection, running_server
 from pymavlink.dialects.v20 import ardupilotmega as mavlink2
+from support.fake_vehicle import command_ack, gcs_connection, running_server
 from support.nav import nav_state as _nav
 
-from autopilot_bridge.config import ControlConfig
+from autopilot_bridge.config import ControlConfig, FlightCoreConfig
 from autopilot_bridge.control import FlightController
-from autopilot_bridge.config import FlightCoreConfig
 from autopilot_bridge.flight_core import FlightCore
 from autopilot_bridge.param_specs import PARAM_SPECS
-from autopilot_bridge.setpoints import local_position_target
 from autopilot_bridge.params import ParameterStore
+from autopilot_bridge.setpoints import local_position_target
 from autopilot_bridge.vehicle_interface import MissionCommand, MissionItem, SpeedType
 
 M = mavlink2

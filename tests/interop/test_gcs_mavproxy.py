@@ -13,12 +13,23 @@ import json
 import math
 
 import numpy as np
-
-from support.lineproc import MavproxyProcess, wait_until
 from support import REPO_ROOT
+from support.lineproc import MavproxyProcess, wait_until
 
 REPO = REPO_ROOT
-from support.sitl_session import (STOP_TIMEOUT_S, SitlSession, TIMEOUT_S, _is_scenenav, enu_to_latlon, final_position, monitor_connection, read_columns, relative_alt_m, world_origin, wpl_file)  # noqa: F401
+from support.sitl_session import (  # noqa: F401
+    STOP_TIMEOUT_S,
+    TIMEOUT_S,
+    SitlSession,
+    _is_scenenav,
+    enu_to_latlon,
+    final_position,
+    monitor_connection,
+    read_columns,
+    relative_alt_m,
+    world_origin,
+    wpl_file,
+)
 
 
 def test_mavproxy_guided_takeoff_mission_and_rtl(tmp_path):
@@ -34,7 +45,7 @@ def test_mavproxy_guided_takeoff_mission_and_rtl(tmp_path):
         mp.expect("parameters")
         for name, value in (("RTL_LOIT_TIME", 1000), ("LAND_SPEED", 100), ("DISARM_DELAY", 30)):
             mp.send(f"param set {name} {value}")
-            assert wait_until(lambda: sitl.param(name) == value, 30), f"{name} not set"
+            assert wait_until(lambda name=name, value=value: sitl.param(name) == value, 30), f"{name} not set"
         monitor = monitor_connection(sitl.port)
         mark = mp.send("mode GUIDED")
         mp.expect("GUIDED>", mark)

@@ -13,10 +13,15 @@ import signal
 
 from support.sitl_session import SitlSession, final_position
 
-from autopilot_bridge.failsafe import (FailsafeAction, FailsafeInputs, FailsafeKind,
-                                       FailsafeMonitor, FailsafeSettings, VisionFailsafeState,
-                                       gcs_action_of)
-
+from autopilot_bridge.failsafe import (
+    FailsafeAction,
+    FailsafeInputs,
+    FailsafeKind,
+    FailsafeMonitor,
+    FailsafeSettings,
+    VisionFailsafeState,
+    gcs_action_of,
+)
 
 
 # ------------------------------------------------------------------------------ pure
@@ -91,7 +96,16 @@ def test_vision_failsafe_off_with_gps_landing_or_zero_timeout():
 
 
 # ------------------------------------------------------------------------------ end to end
-from support.sitl_session import (Gcs, arm_in_guided_and_take_off, statustext, write_params, COPTER_RTL, COPTER_LAND, COPTER_GUIDED, MAV_MODE_FLAG_SAFETY_ARMED)  # noqa: F401
+from support.sitl_session import (  # noqa: F401
+    COPTER_GUIDED,
+    COPTER_LAND,
+    COPTER_RTL,
+    MAV_MODE_FLAG_SAFETY_ARMED,
+    Gcs,
+    arm_in_guided_and_take_off,
+    statustext,
+    write_params,
+)
 
 
 def test_gcs_heartbeat_loss_triggers_rtl(tmp_path):

@@ -7,6 +7,7 @@ import socket
 import time
 
 import pytest
+from pymavlink.dialects.v20 import ardupilotmega as mavlink2
 from support.fake_vehicle import (
     FakeVehicle,
     command_ack,
@@ -16,7 +17,6 @@ from support.fake_vehicle import (
     server_config,
     wait_for,
 )
-from pymavlink.dialects.v20 import ardupilotmega as mavlink2
 
 from autopilot_bridge import telemetry
 from autopilot_bridge.commands import MavResult
@@ -24,7 +24,6 @@ from autopilot_bridge.mavlink_server import MavlinkServer
 from autopilot_bridge.modes import SUPPORTED_MODES, CopterMode, mode_from_name
 from autopilot_bridge.params import ParameterStore
 from autopilot_bridge.signing import SigningConfig, signing_key
-from scenenav.core.contracts import GpsFixType
 from autopilot_bridge.vehicle_interface import (
     LandedState,
     MavSeverity,
@@ -39,6 +38,7 @@ from autopilot_bridge.vehicle_interface import (
     Vehicle,
     VehicleTelemetry,
 )
+from scenenav.core.contracts import GpsFixType
 
 M = mavlink2
 CUSTOM = M.MAV_MODE_FLAG_CUSTOM_MODE_ENABLED

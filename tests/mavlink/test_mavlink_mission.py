@@ -6,6 +6,7 @@ import math
 import time
 
 import pytest
+from pymavlink.dialects.v20 import ardupilotmega as mavlink2
 from support.fake_vehicle import (
     HOME,
     FakeVehicle,
@@ -14,7 +15,6 @@ from support.fake_vehicle import (
     server_config,
     wait_for,
 )
-from pymavlink.dialects.v20 import ardupilotmega as mavlink2
 
 from autopilot_bridge.mavlink_server import MavlinkServer
 from autopilot_bridge.mission import MissionResult, MissionType, decode_item
@@ -92,7 +92,7 @@ def test_upload_download_clear_over_tcp():
             assert len(got) == 5
             home = got[0]
             assert home.x == int(round(HOME[0] * 1e7)) and home.frame == M.MAV_FRAME_GLOBAL
-            for a, b in zip(sent[1:], got[1:]):
+            for a, b in zip(sent[1:], got[1:], strict=False):
                 assert (a.seq, a.frame, a.command, a.x, a.y) == \
                     (b.seq, b.frame, b.command, b.x, b.y)
                 assert a.z == pytest.approx(b.z)

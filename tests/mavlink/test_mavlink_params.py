@@ -6,12 +6,12 @@ import json
 import math
 
 import pytest
-from support.fake_vehicle import gcs_connection, running_server, wait_for
 from pymavlink.dialects.v20 import ardupilotmega as mavlink2
+from support import REPO_ROOT
+from support.fake_vehicle import gcs_connection, running_server, wait_for
 
 from autopilot_bridge.params import DEFAULT_PARAM_SPECS, ParameterStore, ParamType
 from scenenav.core.errors import UserError
-from support import REPO_ROOT
 
 REQUIRED = ("WPNAV_SPEED", "WPNAV_SPEED_UP", "WPNAV_SPEED_DN", "WPNAV_ACCEL", "WPNAV_RADIUS",
             "RTL_ALT", "LAND_SPEED", "PILOT_SPEED_UP", "ANGLE_MAX", "FS_GCS_ENABLE",

@@ -17,9 +17,9 @@ from autopilot_bridge.flight_core import FlightCore
 from autopilot_bridge.fusion import ImuReading
 from autopilot_bridge.param_specs import PARAM_SPECS
 from autopilot_bridge.params import ParameterStore
-from scenenav.core.rotations import quat_from_rotation_vector, quat_multiply, quat_normalise
+from scenenav.core.rotations import heading_from_quat, quat_from_rotation_vector, quat_multiply, quat_normalise
 from sitl.config import SimConfig
-from sitl.dynamics import QuadrotorDynamics, heading_from_quat, rotation_rows
+from sitl.dynamics import QuadrotorDynamics, rotation_rows
 from sitl.sensors import BaroModel, CompassModel, ImuModel
 from sitl.vehicle import VehicleParams
 

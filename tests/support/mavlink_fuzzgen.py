@@ -64,7 +64,7 @@ def random_message(rng: np.random.Generator, classes: list) -> mavlink2.MAVLink_
     """One message of a random class in ``classes`` with random field values."""
     cls = classes[int(rng.integers(len(classes)))]
     values = []
-    for name, ftype in zip(cls.fieldnames, cls.fieldtypes):
+    for name, ftype in zip(cls.fieldnames, cls.fieldtypes, strict=False):
         length = cls.array_lengths[cls.ordered_fieldnames.index(name)]
         if ftype == "char":
             n = int(rng.integers(0, max(length, 1) + 1))

@@ -2,12 +2,10 @@
 
 from __future__ import annotations
 
-
 import numpy as np
 
 from scenenav.core.rotations import quat_from_rotation_vector, quat_multiply, quat_normalise, quat_to_rotation_matrix
 from sitl.vehicle import VehicleParams
-
 
 PHYSICS_HZ = 400
 CONTROL_HZ = 100

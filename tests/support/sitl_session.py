@@ -139,8 +139,9 @@ class Gcs:
     """pymavlink ground station (system 255 = SYSID_MYGCS) with a heartbeat thread."""
 
     def __init__(self, port: int) -> None:
-        from support.fake_vehicle import gcs_connection
         from pymavlink.dialects.v20 import ardupilotmega as mavlink2
+
+        from support.fake_vehicle import gcs_connection
         self.m = mavlink2
         self.conn = gcs_connection(port, source_system=255)
         self._lock = threading.Lock()

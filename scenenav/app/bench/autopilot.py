@@ -1,14 +1,13 @@
 """``scenenav bench autopilot``: cost and accuracy of the autopilot's algorithms, in-process.
 
 The pure algorithm modules (``ekf.NavFilter``, ``control.FlightController``, ``mixer.QuadXMixer``,
-``guidance_law.WaypointTracker``) fly the simulator's pure models, without the bus or pybullet:
-``sitl.dynamics.QuadrotorDynamics`` (motor lag, rotor thrust and drag, rolling moments, body drag on
-the air-relative velocity), ``sitl.wind.WindModel`` (mean wind + Gauss-Markov gusts) and the sensor
-models of ``sitl.sensors`` with the simulator's default noise (``sitl.config.SimConfig``), wired as the
-simulator node and the flight core wire them: physics at 400 Hz, the autopilot at 100 Hz on
-tick-averaged IMU samples, baro and compass at 20 Hz, GPS at 5 Hz; the EKF predicts, then fuses what
-arrived, then guidance, controller and mixer run on the estimate. The rigid body is integrated here
-(semi-implicit Euler, as pybullet steps it; no ground: the flight starts hovering at altitude).
+``guidance_law.WaypointTracker``) fly the simulator's core (``sitl.core.SimulatorCore``: the pybullet
+rigid body with the rotor/drag model of ``sitl.dynamics``, mean wind + Gauss-Markov gusts, the sensor
+models with the simulator's default noise), without the bus: the same physics sub-steps, sensor
+rates and tick-averaged IMU samples as a flight of the stack (physics at 400 Hz, the autopilot at
+100 Hz, baro and compass at 20 Hz, GPS at 5 Hz). Per control tick the core's samples go to the EKF
+(predict, then fuse what arrived), guidance, controller and mixer run on the estimate, and the
+mixer's commands drive the core's next tick. The flight starts hovering at altitude.
 
 Figures (truth is used only for them):
 
@@ -26,6 +25,8 @@ Figures (truth is used only for them):
 from __future__ import annotations
 
 import argparse
+import dataclasses
+import itertools
 import json
 import logging
 import math
@@ -44,14 +45,9 @@ from autopilot_bridge.guidance_law import Waypoint, WaypointTracker
 from autopilot_bridge.mixer import QuadXMixer
 from scenenav.core.config import check
 from scenenav.core.errors import UserError
-from scenenav.core.geometry import distance_to_polyline_m
-from scenenav.core.rotations import quat_from_rotation_vector, quat_multiply, quat_normalise
-from sitl.config import SimConfig, WindConfig
-from sitl.dynamics import QuadrotorDynamics, heading_from_quat, rotation_rows
-from sitl.sensors import BaroModel, CompassModel, GpsModel, ImuModel
-from sitl.vehicle import VehicleParams
-from sitl.wind import WindModel
 from scenenav.core.frames import geodetic_to_enu
+from scenenav.core.geometry import distance_to_polyline_m
+from sitl.config import SimConfig, WindConfig
 
 log = logging.getLogger(__name__)
 
@@ -110,35 +106,21 @@ class _Timer:
 
 
 class BenchFlight:
-    """Pure models + autopilot algorithms, hovering at ``altitude_m`` at the start."""
+    """The simulator core + autopilot algorithms, hovering at ``altitude_m`` at the start."""
 
     def __init__(self, cfg: AutopilotBenchConfig) -> None:
+        from sitl.core import SimulatorCore  # pybullet: imported only when the bench runs
         self.cfg = cfg
-        sim = SimConfig()
-        streams = np.random.default_rng(cfg.seed).spawn(6)
-        self.veh = VehicleParams()
-        self.dyn = QuadrotorDynamics(self.veh)
         wind = WindConfig((0.0, -cfg.wind_speed_m_s, 0.0), cfg.gust_std_m_s, cfg.gust_time_constant_s)
-        self.wind = WindModel(wind, streams[0])
-        self.imu = ImuModel(sim.imu, streams[1])
-        self.baro = BaroModel(sim.baro, streams[2])
-        self.compass = CompassModel(sim.compass, streams[3])
-        self.gps = GpsModel(sim.gps, streams[4])
-        self.substeps = int(round(cfg.physics_rate_hz / cfg.control_rate_hz))
-        self.dt_phys = 1.0 / cfg.physics_rate_hz
+        sim = dataclasses.replace(SimConfig(), physics_rate_hz=cfg.physics_rate_hz, wind=wind)
+        self.core = SimulatorCore(sim, cfg.control_rate_hz, cfg.seed, ORIGIN_LAT_DEG, ORIGIN_LON_DEG)
+        self.veh = self.core.params
+        self.dyn = self.core.physics.dynamics      # the rotor model (hover command)
         self.dt = 1.0 / cfg.control_rate_hz
-        self.every_baro = max(1, int(round(cfg.control_rate_hz / sim.baro.rate_hz)))
-        self.every_compass = max(1, int(round(cfg.control_rate_hz / sim.compass.rate_hz)))
-        self.every_gps = max(1, int(round(cfg.control_rate_hz / sim.gps.rate_hz)))
         self.gps_velocity_std_m_s = max(sim.gps.velocity_noise_std_m_s, 0.1)
         # truth: level hover, heading north (ENU yaw 90 deg), rotors at hover speed
-        self.p = np.array([0.0, 0.0, cfg.altitude_m])
-        self.v = np.zeros(3)
-        self.q = quat_from_rotation_vector(0.0, 0.0, 0.5 * math.pi)
-        self.w = np.zeros(3)
-        self.dyn.set_rotor_speeds(np.full(4, self.veh.hover_rotor_speed_rad_s))
-        self._inertia = np.array(self.veh.inertia_kg_m2)
-        self._gravity = np.array([0.0, 0.0, -self.veh.gravity_m_s2])
+        self.core.start_at(np.array([0.0, 0.0, cfg.altitude_m]), 0.5 * math.pi,
+                           np.full(4, self.veh.hover_rotor_speed_rad_s))
         # autopilot
         self.nav = NavFilter(EkfConfig())
         self.fc = FlightController(ControlConfig(), Airframe())    # the autopilot's own model
@@ -148,74 +130,60 @@ class BenchFlight:
         self.ekf_cpu = _Timer()
         self.control_cpu = _Timer()
         self.model_cpu = _Timer()
-        accel, gyro = self._imu_tick()
-        self.nav.initialise(accel, float(self.compass.sample(heading_from_quat(np.array(self.q)))),
-                            self.baro.sample(float(self.p[2]))[0], gyro_flu_rad_s=gyro,
+        first = self.core.sense()          # tick 0: every sensor is due
+        assert first.compass is not None and first.baro is not None
+        self.nav.initialise(np.array(first.imu.accel_flu_m_s2), first.compass.heading_rad,
+                            first.baro.altitude_m, gyro_flu_rad_s=np.array(first.imu.gyro_flu_rad_s),
                             position_enu_m=self.p.copy(), at_rest=False)   # starts hovering
         self.fc.reset(self.nav.state(), landed=False)
+        self.core.advance(self.commands)
 
     @property
     def t_s(self) -> float:
         return self.ticks * self.dt
 
-    # ------------------------------------------------------------------ models
-    def _physics_step(self) -> tuple[np.ndarray, np.ndarray]:
-        """One physics step; returns the true specific force (body FLU) and body rate."""
-        dt = self.dt_phys
-        self.dyn.step_motors(self.commands, dt)
-        wind = self.wind.velocity_enu_m_s(dt)
-        rot = np.array(rotation_rows(self.q))
-        force_b, torque_b = self.dyn.wrench_body(rot.T @ (self.v - wind))
-        specific_b = force_b / self.veh.mass_kg
-        accel = rot @ specific_b + self._gravity
-        w = self.w
-        self.w = w + (torque_b - np.cross(w, self._inertia * w)) / self._inertia * dt
-        self.v = self.v + accel * dt
-        self.p = self.p + self.v * dt
-        self.q = quat_normalise(quat_multiply(self.q, quat_from_rotation_vector(*(self.w * dt))))
-        return specific_b, self.w
+    @property
+    def p(self) -> np.ndarray:
+        """True position (ENU, m) after the last tick."""
+        return np.asarray(self.core.state().position_enu_m, dtype=float)
 
-    def _imu_tick(self) -> tuple[np.ndarray, np.ndarray]:
-        f_sum = np.zeros(3)
-        w_sum = np.zeros(3)
-        for _ in range(self.substeps):
-            f, w = self._physics_step()
-            f_sum += f
-            w_sum += w
-        return self.imu.sample(f_sum / self.substeps, w_sum / self.substeps, self.dt)
+    @property
+    def v(self) -> np.ndarray:
+        """True velocity (ENU, m/s) after the last tick."""
+        return np.asarray(self.core.state().velocity_enu_m_s, dtype=float)
 
     # ------------------------------------------------------------------ one control tick
     def tick(self, law) -> PositionTarget:
         with self.model_cpu:
-            accel, gyro = self._imu_tick()
-            self.ticks += 1
-            k = self.ticks
-            baro = self.baro.sample(float(self.p[2]))[0] if k % self.every_baro == 0 else None
-            hdg = (self.compass.sample(heading_from_quat(np.array(self.q)))
-                   if k % self.every_compass == 0 else None)
-            fix = None
-            if k % self.every_gps == 0:
-                g = self.gps.sample(self.p, self.v, ORIGIN_LAT_DEG, ORIGIN_LON_DEG)
-                x, y = geodetic_to_enu(g.lat_deg, g.lon_deg, ORIGIN_LAT_DEG, ORIGIN_LON_DEG)
-                fix = ((float(x), float(y), g.alt_m), g.eph_m, g.velocity_enu_m_s)
+            out = self.core.sense()
+        accel = np.array(out.imu.accel_flu_m_s2)
+        gyro = np.array(out.imu.gyro_flu_rad_s)
         with self.ekf_cpu:
             nav = self.nav
             nav.predict(accel, gyro, self.dt)
-            if baro is not None:
-                nav.fuse_baro(baro)
-            if hdg is not None:
-                nav.fuse_compass(hdg)
-            if fix is not None:
-                nav.fuse_gps_position(fix[0], fix[1])
-                nav.fuse_gps_velocity(fix[2], self.gps_velocity_std_m_s)
+            if out.baro is not None:
+                nav.fuse_baro(out.baro.altitude_m)
+            if out.compass is not None:
+                nav.fuse_compass(out.compass.heading_rad)
+            if out.gps is not None:
+                g = out.gps
+                x, y = geodetic_to_enu(g.lat_deg, g.lon_deg, ORIGIN_LAT_DEG, ORIGIN_LON_DEG)
+                nav.fuse_gps_position((float(x), float(y), g.alt_m), g.eph_m)
+                nav.fuse_gps_velocity(np.array(g.velocity_enu_m_s), self.gps_velocity_std_m_s)
             est = nav.state()
         with self.control_cpu:
             target = law.update(est, self.dt)
-            out = self.fc.update_position(est, gyro, target, self.dt)
-            mix = self.mixer.mix(out.thrust_n, out.torque_flu_n_m)
+            out_ctl = self.fc.update_position(est, gyro, target, self.dt)
+            mix = self.mixer.mix(out_ctl.thrust_n, out_ctl.torque_flu_n_m)
             self.fc.set_mixer_limits(mix.limits)
             self.commands = np.asarray(mix.commands, dtype=float)
+        with self.model_cpu:
+            self.core.advance(self.commands)
+        self.ticks += 1
         return target
+
+    def close(self) -> None:
+        self.core.close()
 
 
 # ------------------------------------------------------------------ the runs
@@ -256,7 +224,7 @@ def _track(flight: BenchFlight, cfg: AutopilotBenchConfig) -> dict:
     pts = [(0.0, 0.0, cfg.altitude_m)] + route(cfg)                 # from the hold point
     gcfg = GuidanceConfig(wp_speed_m_s=cfg.cruise_speed_m_s)
     tracker = WaypointTracker(gcfg, [Waypoint(p) for p in pts[1:]], pts[0])
-    legs = [(np.array(a[:2]), np.array(b[:2])) for a, b in zip(pts, pts[1:])]
+    legs = [(np.array(a[:2]), np.array(b[:2])) for a, b in itertools.pairwise(pts)]
     downwind = np.array([0.0, -1.0])
     xtrack, along, downwind_cross, speeds = [], [], [], []
     limit_s = 4.0 * sum(float(np.linalg.norm(b - a)) for a, b in legs) / cfg.cruise_speed_m_s + 30.0
@@ -296,6 +264,18 @@ def run_bench(cfg: AutopilotBenchConfig | None = None, json_out: bool = False,
     cfg = cfg if cfg is not None else AutopilotBenchConfig()
     out = out or sys.stdout
     flight = BenchFlight(cfg)
+    try:
+        report = _fly(flight, cfg)
+    finally:
+        flight.close()
+    if json_out:
+        out.write(json.dumps(report) + "\n")
+    else:
+        out.write(_table(report))
+    return report
+
+
+def _fly(flight: BenchFlight, cfg: AutopilotBenchConfig) -> dict:
     report: dict = {"bench": "autopilot", "seed": cfg.seed, "wind_m_s": cfg.wind_speed_m_s,
                     "gust_std_m_s": cfg.gust_std_m_s, "cruise_speed_m_s": cfg.cruise_speed_m_s,
                     "leg_m": cfg.leg_m, "hold_s": cfg.hold_s}
@@ -306,12 +286,7 @@ def run_bench(cfg: AutopilotBenchConfig | None = None, json_out: bool = False,
                   ekf_ms_per_sim_s=1e3 * flight.ekf_cpu.total_s / sim_s,
                   controller_ms_per_sim_s=1e3 * flight.control_cpu.total_s / sim_s,
                   models_ms_per_sim_s=1e3 * flight.model_cpu.total_s / sim_s)
-    report = {k: (round(v, 4) if isinstance(v, float) else v) for k, v in report.items()}
-    if json_out:
-        out.write(json.dumps(report) + "\n")
-    else:
-        out.write(_table(report))
-    return report
+    return {k: (round(v, 4) if isinstance(v, float) else v) for k, v in report.items()}
 
 
 def _table(r: dict) -> str:

@@ -97,6 +97,7 @@ def _run_method(world, frames, method: str, classifier, amap) -> dict:
 def run_perception_bench(n_frames: int = 60, sizes_px: tuple[int, ...] = (1000, 4000, 8000),
                          stride_px: int = 5) -> dict:
     import torch
+
     from perception.assistant_map import AssistantMap, build_assistant_map
     from perception.cnn import MatchClassifier
     from worlds.default import load_default_world

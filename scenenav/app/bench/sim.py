@@ -19,10 +19,16 @@ from types import SimpleNamespace
 import numpy as np
 
 from scenenav.core.bus import Bus, BusConfig, free_port
-from scenenav.core.contracts import (CameraFrame, ClockTick, LockstepAck, LockstepRole, MotorCommand)
+from scenenav.core.clock import ClockConfig
+from scenenav.core.contracts import (
+    CameraFrame,
+    ClockTick,
+    LockstepAck,
+    LockstepRole,
+    MotorCommand,
+)
 from scenenav.core.errors import UserError
 from scenenav.core.keys import Keys
-from scenenav.app.scenario import ClockConfig, FlightConfig, FlightMode, PerceptionNodeConfig, ScenarioConfig
 
 log = logging.getLogger(__name__)
 
@@ -66,38 +72,39 @@ def responder(namespace: str, hub_port: int, hover: float) -> None:
 
 
 def measure(width_px: int, height_px: int, seconds: float) -> dict:
+    from sitl.config import SimNodeConfig
     from sitl.node import SimulatorNode
     from sitl.physics import hover_motor_command
     from sitl.vehicle import VehicleParams
     world = synthetic_world(width_px, height_px)
     ns = f"bench-{width_px}x{height_px}-{int(time.time() * 1000) % 10**8}"
     port = free_port()
-    cfg = ScenarioConfig(name="bench", duration_s=seconds, clock=ClockConfig(),
-                         flight=FlightConfig(mode=FlightMode.IDLE),
-                         perception=PerceptionNodeConfig(enabled=False))
+    cfg = SimNodeConfig(duration_s=seconds, clock=ClockConfig(), expected_tick_members=1,
+                        expected_camera_members=1)
     hover = float(np.mean(hover_motor_command(VehicleParams())))
     node = SimulatorNode(cfg, world, BusConfig(ns, port, listen_hub=True))
-    node.physics.reset(np.array([0.0, 0.0, 100.0]), 0.0)
+    node.core.start_at(np.array([0.0, 0.0, 100.0]), 0.0)
     proc = subprocess.Popen([sys.executable, "-m", "scenenav.app.bench.sim", ns, str(port), repr(hover)],
                             stdin=subprocess.DEVNULL)
     try:
-        stats = node.run({LockstepRole.TICK: 1, LockstepRole.CAMERA: 1})
+        stats = node.run()
     finally:
         proc.terminate()
         proc.wait(10)
         node.close()
-    wall = stats["wall_time_s"]
-    share = {k: stats[f"time_{k}_s"] / wall for k in ("physics", "render", "publish", "bus_wait")}
+    wall = stats.wall_time_s
+    share = {"physics": stats.time_physics_s / wall, "render": stats.time_render_s / wall,
+             "publish": stats.time_publish_s / wall, "bus_wait": stats.time_bus_wait_s / wall}
     return {
         "world_px": f"{width_px}x{height_px}",
-        "sim_time_s": stats["sim_time_s"],
+        "sim_time_s": stats.sim_time_s,
         "wall_time_s": round(wall, 3),
-        "real_time_factor": round(stats["real_time_factor"], 2),
-        "camera_frames": stats["camera_frames"],
-        "ms_render_wait_per_frame": round(1000 * stats["time_render_s"] / max(1, stats["camera_frames"]), 2),
-        "us_per_physics_step": round(1e6 * stats["time_physics_s"] / max(1, stats["ticks"] * node.substeps), 1),
+        "real_time_factor": round(stats.real_time_factor, 2),
+        "camera_frames": stats.camera_frames,
+        "ms_render_wait_per_frame": round(1000 * stats.time_render_s / max(1, stats.camera_frames), 2),
+        "us_per_physics_step": round(1e6 * stats.time_physics_s / max(1, stats.ticks * node.core.substeps), 1),
         "share": {k: round(v, 3) for k, v in share.items()},
-        "ack_timeouts": stats["ack_timeouts"],
+        "ack_timeouts": stats.ack_timeouts,
     }
 
 

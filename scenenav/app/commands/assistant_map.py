@@ -32,6 +32,7 @@ def _render(args: argparse.Namespace) -> int:
 
 def _info(args: argparse.Namespace) -> int:
     import numpy as np
+
     from perception.assistant_map import AssistantMap
     amap = AssistantMap.load(args.map)
     p = amap.probability

@@ -77,8 +77,9 @@ def _dataset(args: argparse.Namespace) -> int:
 
 
 def _train(args: argparse.Namespace) -> int:
-    from perception.training import TrainConfig, format_confusion, train
     import numpy as np
+
+    from perception.training import TrainConfig, format_confusion, train
     cfg = TrainConfig(epochs=args.epochs, seed=args.seed, input_px=args.input_px, batch_size=args.batch_size,
                       num_threads=args.threads, split=args.split)
     res = train(args.data, args.out, cfg, progress=not args.quiet, command=_command_line())

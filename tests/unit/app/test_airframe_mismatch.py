@@ -5,8 +5,9 @@ difference, and the take-off climbs behind the matched one."""
 
 from __future__ import annotations
 
-from autopilot_bridge.modes import CopterMode
 from support.ground_flight import GroundFlight
+
+from autopilot_bridge.modes import CopterMode
 
 TAKEOFF_ALT_M = 10.0
 FLIGHT_S = 8.0

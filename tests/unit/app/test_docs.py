@@ -1,11 +1,11 @@
 """docs/interfaces.md must name every message, field and key of the contracts."""
 
 import dataclasses
-from pathlib import Path
+
+from support import REPO_ROOT
 
 from scenenav.core import contracts
 from scenenav.core.keys import Keys, key_types
-from support import REPO_ROOT
 
 DOC = (REPO_ROOT / "docs" / "interfaces.md").read_text()
 

@@ -10,13 +10,13 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from support import REPO_ROOT
 
 from scenenav.app.bench.plan import run_bench
 from scenenav.app.commands.plan import main, parse_xy
 from scenenav.core.errors import UserError
 from scenenav.core.formats.world_manifest import WorldManifest
 from scenenav.core.frames import enu_to_geodetic, pixel_to_world
-from support import REPO_ROOT
 
 W, H, M_PER_PX = 200, 160, 2.0          # 400 m x 320 m
 LAT0, LON0 = 47.3977, 8.5456

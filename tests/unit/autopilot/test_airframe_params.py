@@ -37,7 +37,7 @@ def test_thrust_curve_and_output_range():
     assert m.command_for_thrust(t_max) == pytest.approx(0.95)
     thrusts = np.linspace(0.0, t_max, 11)
     commands = [m.command_for_thrust(t) for t in thrusts]
-    assert all(b > c for b, c in zip(commands[1:], commands))
+    assert all(b > c for b, c in zip(commands[1:], commands, strict=False))
     # ArduPilot's curve: thrust fraction = (1 - e) x + e x^2 of the linear command x
     x = (m.command_for_thrust(0.3 * t_max) - 0.15) / 0.8
     assert (1 - 0.65) * x + 0.65 * x * x == pytest.approx(0.3)

@@ -16,16 +16,26 @@ import math
 
 import numpy as np
 import pytest
+from support.quad_model import (  # noqa: F401
+    ACCEL_BIAS,
+    ACCEL_NOISE,
+    CONTROL_HZ,
+    DT,
+    DT_PHYS,
+    GYRO_BIAS,
+    GYRO_NOISE,
+    PHYSICS_HZ,
+    SUBSTEPS,
+    QuadModel,
+)
 
 from autopilot_bridge.config import GuidanceConfig, PositionSource
 from autopilot_bridge.control import FlightController, PositionTarget
 from autopilot_bridge.ekf import NavFilter
-from scenenav.core.rotations import (heading_from_quat, quat_from_rotation_vector)
 from autopilot_bridge.guidance_law import Lander, Waypoint, WaypointTracker, make_takeoff
 from autopilot_bridge.mixer import QuadXMixer
+from scenenav.core.rotations import heading_from_quat, quat_from_rotation_vector
 from sitl.vehicle import VehicleParams
-
-from support.quad_model import (ACCEL_BIAS, ACCEL_NOISE, CONTROL_HZ, DT, DT_PHYS, GYRO_BIAS, GYRO_NOISE, PHYSICS_HZ, QuadModel, SUBSTEPS)  # noqa: F401
 
 
 class Flight:
@@ -223,7 +233,7 @@ def test_gps_to_vision_switch_in_flight():
     # Continuity: the estimate error (estimate - truth) changes by a few decimetres per tick at most
     # (ordinary vision-fix corrections); a reset would show up as a metre-scale step.
     errors = [e[3][:2] - e[1][:2] for e in f.log[i0:]]
-    steps = [float(np.linalg.norm(b - a)) for a, b in zip(errors, errors[1:])]
+    steps = [float(np.linalg.norm(b - a)) for a, b in zip(errors, errors[1:], strict=False)]
     assert max(steps) < 1.0
     i1 = len(f.log)
     for _ in range(15 * CONTROL_HZ):

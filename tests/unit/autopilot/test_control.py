@@ -11,18 +11,31 @@ import math
 
 import numpy as np
 import pytest
+from support.nav import nav_state
 
 from autopilot_bridge.airframe import Airframe
 from autopilot_bridge.config import ControlConfig, GuidanceConfig, YawBehaviour
-from autopilot_bridge.control import (FlightController, LandState, PositionTarget, VerticalMode, sqrt_controller,
-                                      stopping_point)
+from autopilot_bridge.control import (
+    FlightController,
+    LandState,
+    PositionTarget,
+    VerticalMode,
+    sqrt_controller,
+    stopping_point,
+)
 from autopilot_bridge.ekf import NavState
-from autopilot_bridge.guidance_law import (GuidanceEventKind, Lander, ReturnToLaunch, RtlPhase, Waypoint,
-                                           WaypointTracker, make_takeoff)
+from autopilot_bridge.guidance_law import (
+    GuidanceEventKind,
+    Lander,
+    ReturnToLaunch,
+    RtlPhase,
+    Waypoint,
+    WaypointTracker,
+    make_takeoff,
+)
 from autopilot_bridge.mixer import QuadXMixer
 from scenenav.core.config import ConfigError
 from scenenav.core.rotations import aviation_euler_from_quat, quat_from_aviation_euler, quat_to_rotation_matrix
-from support.nav import nav_state
 
 VEH = Airframe()
 HOVER_THRUST = VEH.mass_kg * VEH.gravity_m_s2
@@ -32,7 +45,7 @@ DT = 0.01
 def _torque_from_thrusts(thrusts: np.ndarray) -> np.ndarray:
     """Independent r x F + reaction-torque sum over the rotors of the airframe model."""
     total = np.zeros(3)
-    for (x, y), d, t in zip(VEH.rotor_positions_flu_m, VEH.rotor_spins, thrusts):
+    for (x, y), d, t in zip(VEH.rotor_positions_flu_m, VEH.rotor_spins, thrusts, strict=False):
         total += np.cross([x, y, 0.0], [0.0, 0.0, t])
         total += np.array([0.0, 0.0, -int(d) * VEH.moment_constant_m * t])
     return total

@@ -14,9 +14,15 @@ import pytest
 
 from autopilot_bridge.config import EkfConfig, PositionSource
 from autopilot_bridge.ekf import NavFilter
-from scenenav.core.rotations import (heading_from_quat, quat_from_aviation_euler, quat_from_euler_zyx,
-                                  quat_from_rotation_vector, quat_multiply, quat_to_rotation_matrix,
-                                  aviation_euler_from_quat)
+from scenenav.core.rotations import (
+    aviation_euler_from_quat,
+    heading_from_quat,
+    quat_from_aviation_euler,
+    quat_from_euler_zyx,
+    quat_from_rotation_vector,
+    quat_multiply,
+    quat_to_rotation_matrix,
+)
 
 G = 9.80665
 DT = 0.01
@@ -175,7 +181,7 @@ def test_constant_velocity_with_gps_small_error_and_consistent_covariance():
     assert np.linalg.norm(cruise[-1][2].velocity_enu_m_s - cruise[-1][1]) < 0.2
     # NEES of the horizontal position: E[e' P^-1 e] = 2 for a consistent filter. Samples are strongly
     # correlated in time, so the bounds are wide; a badly over- or under-confident filter falls outside.
-    nees = [float(e[:2] @ np.linalg.solve(h[3][:2, :2], e[:2])) for e, h in zip(err, cruise)]
+    nees = [float(e[:2] @ np.linalg.solve(h[3][:2, :2], e[:2])) for e, h in zip(err, cruise, strict=False)]
     mean_nees = float(np.mean(nees))
     assert 0.5 < mean_nees < 5.0, mean_nees
 

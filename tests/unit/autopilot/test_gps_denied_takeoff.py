@@ -19,9 +19,9 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
+from support.ground_flight import GroundFlight
 
 from autopilot_bridge.modes import CopterMode
-from support.ground_flight import GroundFlight
 
 
 def _takeoff(seed: int, alt_m: float = 40.0, hold_s: float = 3.0) -> dict:

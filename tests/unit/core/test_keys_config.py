@@ -1,13 +1,13 @@
 """Key expressions, scenario config loading and one-line config errors."""
 
 import pytest
+from support import REPO_ROOT
 
+from scenenav.app.scenario import FlightMode, load_scenario
 from scenenav.core.config import ConfigError, apply_overrides
 from scenenav.core.contracts import LockstepRole
 from scenenav.core.errors import UserError
 from scenenav.core.keys import Keys, type_for_key
-from scenenav.app.scenario import FlightMode, load_scenario
-from support import REPO_ROOT
 
 
 def test_keys_are_namespaced_and_typed():
@@ -71,7 +71,6 @@ def test_override_syntax():
 
 def test_every_shipped_scenario_loads():
     """Each file in scenarios/ is a valid scenario (what `scenenav run FILE` checks first)."""
-    from pathlib import Path
 
     from scenenav.app.scenario import load_scenario
     files = sorted((REPO_ROOT / "scenarios").glob("*.yaml"))
@@ -83,8 +82,8 @@ def test_every_shipped_scenario_loads():
 
 
 def test_autopilot_params_mapping_round_trips():
-    from scenenav.core.config import to_dict
     from scenenav.app.scenario import ScenarioConfig, load_scenario
+    from scenenav.core.config import to_dict
     cfg = load_scenario(None, ("autopilot.params={LAND_SPEED: 100, WPNAV_SPEED_DN: 300}",))
     assert cfg.autopilot.params == {"LAND_SPEED": 100.0, "WPNAV_SPEED_DN": 300.0}
     from scenenav.core.config import load_config

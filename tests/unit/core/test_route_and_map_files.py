@@ -8,11 +8,23 @@ import numpy as np
 import pytest
 
 from scenenav.core.errors import UserError
-from scenenav.core.formats.assistant_map_file import (AssistantMapFile, check_map_matches_world,
-                                                      read_assistant_map_file, read_probability_map,
-                                                      write_assistant_map_file)
-from scenenav.core.formats.route_file import (WPL_HEADER, MavCmd, MavFrame, MissionItem, read_route_file,
-                                              round_or_none, wpl_lines, write_route_json)
+from scenenav.core.formats.assistant_map_file import (
+    AssistantMapFile,
+    check_map_matches_world,
+    read_assistant_map_file,
+    read_probability_map,
+    write_assistant_map_file,
+)
+from scenenav.core.formats.route_file import (
+    WPL_HEADER,
+    MavCmd,
+    MavFrame,
+    MissionItem,
+    read_route_file,
+    round_or_none,
+    wpl_lines,
+    write_route_json,
+)
 from scenenav.core.formats.world_manifest import WorldManifest
 
 

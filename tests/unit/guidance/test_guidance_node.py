@@ -58,7 +58,7 @@ def test_legs_through_via_points_avoid_the_lake():
     assert np.allclose(route[0], pts[0]) and np.allclose(route[-1], pts[-1])
     assert any(np.allclose(p, pts[1]) for p in route)             # passes the via-point
     assert len(route) == len(legs[0].waypoints_xy_m) + len(legs[1].waypoints_xy_m) - 1
-    dense = np.concatenate([np.linspace(a, b, 20) for a, b in zip(route[:-1], route[1:])])
+    dense = np.concatenate([np.linspace(a, b, 20) for a, b in zip(route[:-1], route[1:], strict=False)])
     assert np.min(np.hypot(dense[:, 0], dense[:, 1])) >= 80.0 + 10.0 - 2.0 * M_PER_PX
 
 

@@ -9,8 +9,15 @@ import pytest
 
 from guidance.config import PlannerConfig
 from guidance.navigation_function import build_graph, grid_edges, navigation_function
-from guidance.potential_field import (REPULSIVE_CAP, DescentStatus, PotentialField, attractive_gradient,
-                                      build_grid, descend, repulsive_term)
+from guidance.potential_field import (
+    REPULSIVE_CAP,
+    DescentStatus,
+    PotentialField,
+    attractive_gradient,
+    build_grid,
+    descend,
+    repulsive_term,
+)
 
 GOOD, BAD = 0.9, 0.1
 

@@ -8,8 +8,16 @@ import cv2
 import numpy as np
 import pytest
 
-from perception.assistant_map import (GREY_FALSE, GREY_TRUE, GREY_UNVISITED, RGB_UNVISITED_CONTINUOUS,
-                                      AssistantMap, Cell, RenderMode, build_assistant_map)
+from perception.assistant_map import (
+    GREY_FALSE,
+    GREY_TRUE,
+    GREY_UNVISITED,
+    RGB_UNVISITED_CONTINUOUS,
+    AssistantMap,
+    Cell,
+    RenderMode,
+    build_assistant_map,
+)
 from scenenav.core.errors import UserError
 
 

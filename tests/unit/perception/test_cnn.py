@@ -7,8 +7,18 @@ import pytest
 import torch
 from torch import nn
 
-from perception.cnn import (DEFAULT_WEIGHTS_PATH, NUM_CLASSES, MatchClass, MatchClassifier, SceneMatchNet,
-                            WeightsMeta, feature_side_px, load_weights, normalise, save_weights)
+from perception.cnn import (
+    DEFAULT_WEIGHTS_PATH,
+    NUM_CLASSES,
+    MatchClass,
+    MatchClassifier,
+    SceneMatchNet,
+    WeightsMeta,
+    feature_side_px,
+    load_weights,
+    normalise,
+    save_weights,
+)
 from scenenav.core.errors import UserError
 
 
@@ -131,8 +141,8 @@ def test_shipped_weights_are_small_and_load():
 
 def test_shipped_model_separates_water_forest_from_a_cross_junction():
     """Behavioural check: P(bad) higher on water/forest crops than on four-arm junction crops."""
-    from perception.dataset_images import render_crop
     from perception.alignment import to_gray_float32 as to_gray
+    from perception.dataset_images import render_crop
     from perception.matchability import footprint_px
     from worlds.generator import CityConfig, generate_world
     from worlds.landcover import LandCover

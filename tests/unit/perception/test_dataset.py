@@ -16,8 +16,15 @@ from perception.dataset_config import EVAL_WORLD_SEEDS, AugmentRecipe, DatasetCo
 from perception.dataset_files import INDEX_FILE, MANIFEST_FILE, load_dataset, read_manifest
 from perception.dataset_images import augment_image, render_crop
 from perception.dataset_samples import BaseSample, CropSource, allocate_augmentation, arm_class
-from perception.matchability import (GLOBAL_SEARCH, CaptureNoise, MatchabilityConfig, footprint_px, matchability,
-                                     ncc_peak, render_camera)
+from perception.matchability import (
+    GLOBAL_SEARCH,
+    CaptureNoise,
+    MatchabilityConfig,
+    footprint_px,
+    matchability,
+    ncc_peak,
+    render_camera,
+)
 from scenenav.core.errors import UserError
 
 # one tiny world (seed 4 -> world seed 4001); what it contains is up to the generator

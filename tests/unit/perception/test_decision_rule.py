@@ -8,15 +8,22 @@ import math
 
 import numpy as np
 import pytest
+from test_pipeline import ALT, MPP, cnn_fake, fly, render
 
 from perception.config import PerceptionConfig
-from perception.decision import (COMBINED_FEATURES, DEFAULT_DECISION_MODEL, CombinedDecisionModel,
-                                 Decision, DecisionRule, TrackEvidence, FalseMatchMethod,
-                                 combined_features)
+from perception.decision import (
+    COMBINED_FEATURES,
+    DEFAULT_DECISION_MODEL,
+    CombinedDecisionModel,
+    Decision,
+    DecisionRule,
+    FalseMatchMethod,
+    TrackEvidence,
+    combined_features,
+)
 from perception.decision_fit import choose_threshold, fit_logistic, make_model, rejection_scores
 from perception.pipeline import PerceptionPipeline, Reason
 from scenenav.core.errors import UserError
-from test_pipeline import ALT, MPP, cnn_fake, fly, render, world  # noqa: F401 (fixture)
 
 K = len(COMBINED_FEATURES)
 
@@ -30,7 +37,7 @@ def _model(intercept: float, threshold: float = 0.5, **w) -> CombinedDecisionMod
 def test_features_known_and_unknown_parts():
     x = combined_features(0.5, 0.8, math.e, 0.3, 1.0, 9, 3.0, 2.0, 0.999, math.nan, 9.0)
     assert x.shape == (K,)
-    f = dict(zip(COMBINED_FEATURES, x))
+    f = dict(zip(COMBINED_FEATURES, x, strict=False))
     assert f["bad_logit"] == pytest.approx(0.0)
     assert f["log_psr"] == pytest.approx(1.0)
     assert f["innov"] == pytest.approx(math.log(2.0)) and f["no_track"] == 0.0
@@ -39,7 +46,7 @@ def test_features_known_and_unknown_parts():
     assert f["reach"] == pytest.approx(math.log(10.0))
     assert f["dr_innov"] == pytest.approx(math.log(4.0)) and f["dr_age"] == pytest.approx(math.log(3.0))
     assert f["no_dr"] == 0.0
-    y = dict(zip(COMBINED_FEATURES, combined_features(1.0, 0.2, 2.0, 0.9, math.nan)))
+    y = dict(zip(COMBINED_FEATURES, combined_features(1.0, 0.2, 2.0, 0.9, math.nan), strict=False))
     assert y["bad_logit"] == pytest.approx(math.log(0.995 / 0.005))
     assert y["no_track"] == 1.0 and y["innov"] == 0.0 and y["log_run"] == 0.0
     assert y["no_dr"] == 1.0 and y["dr_innov"] == 0.0 and y["reach"] == 0.0
@@ -162,6 +169,7 @@ def test_pipeline_combined_rule_loads_the_shipped_model(world):
 
 def test_node_pipeline_rule_follows_the_weights_file(world):
     from types import SimpleNamespace
+
     from perception.node import make_pipeline
     ref, _ = world
     w = SimpleNamespace(reference=ref, m_per_px=MPP, width_px=ref.shape[1], height_px=ref.shape[0],

@@ -14,8 +14,8 @@ from perception.config import PerceptionConfig, UnknownPolicy
 from perception.decision import Decision, FalseMatchMethod
 from perception.match_metrics import MatchMetrics
 from perception.ncc_search import SearchMode
-from perception.tracker import TrackState
 from perception.pipeline import BadInput, PerceptionPipeline, Reason
+from perception.tracker import TrackState
 from scenenav.core.errors import UserError
 
 MPP = 0.5
@@ -44,8 +44,7 @@ def render(world: np.ndarray, u: float, v: float, heading: float) -> np.ndarray:
     return np.dstack([g8, g8, g8])
 
 
-@pytest.fixture(scope="module")
-def world() -> tuple[np.ndarray, np.ndarray]:
+def make_synthetic_world() -> tuple[np.ndarray, np.ndarray]:
     """(reference RGB uint8, flight-day grey float32)."""
     ref = texture(H, W, seed=11)
     ref[:, :LAKE_COLS] = 0.5
@@ -112,7 +111,7 @@ def test_method_cnn_classifies_every_capture(world):
     pipe = PerceptionPipeline(ref, MPP, FalseMatchMethod.CNN, classify=clf)
     results = fly(pipe, day, 3)
     assert calls == [1, 1, 1]
-    for r, uv in results:
+    for r, _uv in results:
         assert r.accepted and r.reason is Reason.ACCEPTED
         assert r.p_true == pytest.approx(0.95)
         assert r.p_classes == pytest.approx((0.05, 0.8, 0.1, 0.05))
@@ -251,9 +250,8 @@ def test_configuration_errors(world):
 
 
 def test_config_loads_from_a_mapping_with_range_checks():
-    from scenenav.core.config import ConfigError, load_config
-
     from perception.config import MatcherConfig, NccMethod
+    from scenenav.core.config import ConfigError, load_config
 
     cfg = load_config(PerceptionConfig, {"method": "assistant-map", "unknown_policy": "accept",
                                          "matcher": {"ncc_method": "ccorr_normed", "lost_after_n": 5}})

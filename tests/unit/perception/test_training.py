@@ -11,8 +11,15 @@ import torch
 
 from perception.cnn import DEFAULT_WEIGHTS_PATH, MatchClass, MatchClassifier, load_weights
 from perception.dataset import DatasetConfig, build_dataset
-from perception.training import (TrainConfig, confusion_matrix, grouped_stratified_split, rejection_metrics, roc_auc,
-                                 sidecar_paths, train)
+from perception.training import (
+    TrainConfig,
+    confusion_matrix,
+    grouped_stratified_split,
+    rejection_metrics,
+    roc_auc,
+    sidecar_paths,
+    train,
+)
 from scenenav.core.errors import UserError
 
 
@@ -55,7 +62,7 @@ def test_training_is_deterministic(tiny_data, tmp_path):
     assert a["confusion_matrix"] == b["confusion_matrix"]
     wa, _ = load_weights(tmp_path / "a.pt")
     wb, _ = load_weights(tmp_path / "b.pt")
-    for (ka, va), (kb, vb) in zip(wa.state_dict().items(), wb.state_dict().items()):
+    for (ka, va), (kb, vb) in zip(wa.state_dict().items(), wb.state_dict().items(), strict=False):
         assert ka == kb and torch.equal(va, vb)
 
 

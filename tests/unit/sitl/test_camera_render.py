@@ -14,9 +14,9 @@ import cv2
 import numpy as np
 import pytest
 
+from scenenav.core.rotations import quat_from_euler_zyx, quat_from_yaw
 from sitl.camera import GroundCamera
 from sitl.config import CameraConfig, CameraMount, SimConfig
-from sitl.dynamics import quat_from_euler, quat_from_yaw
 from sitl.physics import PhysicsWorld
 from sitl.vehicle import VehicleParams
 
@@ -139,8 +139,8 @@ def test_heading_east_equals_rotated_north_render(rig):
 
 def test_gimbal_ignores_roll_and_pitch(rig):
     world, camera = rig
-    level = camera.render(np.array([10.0, 20.0, 80.0]), quat_from_euler(0.0, 0.0, 0.7))
-    tilted = camera.render(np.array([10.0, 20.0, 80.0]), quat_from_euler(0.3, -0.2, 0.7))
+    level = camera.render(np.array([10.0, 20.0, 80.0]), quat_from_euler_zyx(0.7, 0.0, 0.0))
+    tilted = camera.render(np.array([10.0, 20.0, 80.0]), quat_from_euler_zyx(0.7, -0.2, 0.3))
     assert np.array_equal(level, tilted)
 
 
@@ -149,13 +149,13 @@ def test_fixed_mount_level_matches_gimbal_and_follows_roll(orthophoto):
     with GroundCamera(-1, orthophoto, M_PER_PX, cfg) as fixed, \
             GroundCamera(-1, orthophoto, M_PER_PX, CameraConfig(ground_window_px=512)) as gimbal:
         pos = np.array([-30.0, 15.0, 100.0])
-        q = quat_from_euler(0.0, 0.0, 0.3)
+        q = quat_from_euler_zyx(0.3, 0.0, 0.0)
         assert np.array_equal(fixed.render(pos, q), gimbal.render(pos, q))
         # Rolled right by 10 deg (right side down, heading north): the belly, and the optical axis
         # with it, turns to the left, so the image centre shows the ground h tan(10 deg) WEST of
         # the nadir point.
         roll = math.radians(10.0)
-        image = fixed.render(pos, quat_from_euler(roll, 0.0, math.pi / 2.0))
+        image = fixed.render(pos, quat_from_euler_zyx(math.pi / 2.0, 0.0, roll))
         centre = (slice(80, 120), slice(80, 120))
 
         def similarity(offset_x_m: float) -> float:

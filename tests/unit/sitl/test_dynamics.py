@@ -13,9 +13,14 @@ import math
 import numpy as np
 import pytest
 
+from scenenav.core.rotations import (
+    heading_from_quat,
+    quat_from_euler_zyx,
+    quat_from_yaw,
+    quat_to_rotation_matrix,
+)
 from sitl.config import SimConfig, WindConfig
-from sitl.dynamics import (QuadrotorDynamics, heading_from_quat, quat_from_euler, quat_from_yaw,
-                           quat_to_rotation_matrix)
+from sitl.dynamics import QuadrotorDynamics
 from sitl.physics import PhysicsWorld, hover_motor_command
 from sitl.vehicle import SpinDirection, VehicleParams
 from sitl.wind import WindModel
@@ -38,10 +43,10 @@ def test_quaternion_helpers():
     assert heading_from_quat(q) == pytest.approx(0.0, abs=1e-12)
     assert heading_from_quat(quat_from_yaw(0.0)) == pytest.approx(math.pi / 2.0)   # facing east
     # Positive roll lowers the right side: body -y (right) points down.
-    right = quat_to_rotation_matrix(quat_from_euler(0.3, 0.0, 0.0)) @ np.array([0.0, -1.0, 0.0])
+    right = quat_to_rotation_matrix(quat_from_euler_zyx(0.0, 0.0, 0.3)) @ np.array([0.0, -1.0, 0.0])
     assert right[2] < 0.0
     # Positive pitch lowers the nose.
-    nose = quat_to_rotation_matrix(quat_from_euler(0.0, 0.3, 0.0)) @ np.array([1.0, 0.0, 0.0])
+    nose = quat_to_rotation_matrix(quat_from_euler_zyx(0.0, 0.3, 0.0)) @ np.array([1.0, 0.0, 0.0])
     assert nose[2] < 0.0
 
 
@@ -247,7 +252,7 @@ def test_vehicle_takes_off_after_resting():
 
 def test_set_pose_is_kinematic():
     with PhysicsWorld(PARAMS, SimConfig(), np.random.default_rng(0)) as world:
-        q = quat_from_euler(0.0, 0.1, 0.5)
+        q = quat_from_euler_zyx(0.5, 0.1, 0.0)
         state = world.set_pose(np.array([10.0, 20.0, 100.0]), q, np.array([5.0, 0.0, 0.0]))
         assert state.position_enu_m == pytest.approx([10.0, 20.0, 100.0])
         assert state.q_wxyz == pytest.approx(q)

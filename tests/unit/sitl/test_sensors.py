@@ -8,11 +8,28 @@ import numpy as np
 import pytest
 
 from scenenav.core.config import ConfigError, load_config
-from sitl.config import (BaroConfig, CameraConfig, CameraMount, CompassConfig, GpsConfig, ImuConfig,
-                         SimConfig, WindConfig)
-from sitl.sensors import (BaroModel, CameraEffects, CompassModel, GpsFixType, GpsModel, ImuModel,
-                          gaussian_blur, isa_altitude_m, isa_pressure_pa)
+from scenenav.core.contracts import GpsFixType
 from scenenav.core.frames import enu_to_geodetic, geodetic_to_enu
+from sitl.config import (
+    BaroConfig,
+    CameraConfig,
+    CameraMount,
+    CompassConfig,
+    GpsConfig,
+    ImuConfig,
+    SimConfig,
+    WindConfig,
+)
+from sitl.sensors import (
+    BaroModel,
+    CameraEffects,
+    CompassModel,
+    GpsModel,
+    ImuModel,
+    gaussian_blur,
+    isa_altitude_m,
+    isa_pressure_pa,
+)
 
 N = 20000
 
