@@ -20,6 +20,7 @@ from pathlib import Path
 import yaml
 
 from scenenav.app.scenario import FlightMode, ScenarioConfig, load_scenario, scenario_to_dict
+from scenenav.app.signals import interrupt_on_stop_signals
 from scenenav.core.bus import free_port
 from scenenav.core.contracts import ClockMode
 from scenenav.core.errors import UserError
@@ -158,20 +159,15 @@ def resolve_world(cfg: ScenarioConfig):
     return load_world_for(cfg)
 
 
-def _interrupt(signum, _frame):
-    raise KeyboardInterrupt(f"signal {signum}")
-
-
-def install_interrupt_handlers() -> None:
-    """Ctrl-C and SIGTERM both stop a run cleanly, even when the launcher was started with
-    SIGINT ignored (as background jobs of non-interactive shells are)."""
-    signal.signal(signal.SIGINT, _interrupt)
-    signal.signal(signal.SIGTERM, _interrupt)
-
-
 def run(scenario_path: str | None, out_dir: str, overrides: tuple[str, ...] = (),
         progress: bool = True) -> dict:
-    install_interrupt_handlers()
+    """Fly one scenario into ``out_dir``; Ctrl-C and SIGTERM stop every node cleanly (the summary is
+    still written, then KeyboardInterrupt is raised again)."""
+    with interrupt_on_stop_signals():
+        return _run(scenario_path, out_dir, overrides, progress)
+
+
+def _run(scenario_path: str | None, out_dir: str, overrides: tuple[str, ...], progress: bool) -> dict:
     cfg = load_scenario(scenario_path, overrides)
     world = resolve_world(cfg)          # fail early, with a one-line error, on a bad world
     cfg = _free_mavlink_port(cfg)

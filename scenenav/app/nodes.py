@@ -10,27 +10,16 @@ from __future__ import annotations
 import dataclasses
 import json
 import logging
-import signal
 import threading
 from pathlib import Path
 from types import SimpleNamespace
 
 from scenenav.app.scenario import FlightMode, ScenarioConfig, load_scenario, route_for
+from scenenav.app.signals import stop_event
 from scenenav.core.bus import BusConfig
 from scenenav.core.contracts import LockstepRole
 
 log = logging.getLogger(__name__)
-
-
-def _stop_event() -> threading.Event:
-    ev = threading.Event()
-
-    def handler(signum, _frame):
-        log.info("signal %d: stopping", signum)
-        ev.set()
-    signal.signal(signal.SIGINT, handler)
-    signal.signal(signal.SIGTERM, handler)
-    return ev
 
 
 def load_world_for(cfg: ScenarioConfig):
@@ -62,7 +51,7 @@ def run_sim(run_dir: Path, bus_cfg: BusConfig, expect: tuple[str, ...]) -> int:
     cfg = load_scenario(run_dir / "scenario.yaml")
     world = load_world_for(cfg)
     node = SimulatorNode(sim_node_config(cfg, world, expect), world, bus_cfg)
-    stop = _stop_event()
+    stop = stop_event()
     threading.Thread(target=lambda: (stop.wait(), node.stop()), daemon=True).start()
     if "recorder" in expect:
         node_ready = threading.Event()
@@ -82,7 +71,7 @@ def run_recorder(run_dir: Path, bus_cfg: BusConfig) -> int:
     from scenenav.app.recorder import RecorderNode
     cfg = load_scenario(run_dir / "scenario.yaml")
     node = RecorderNode(run_dir, cfg.recorder, bus_cfg)
-    stop = _stop_event()
+    stop = stop_event()
     stop.wait()
     info = node.close()
     (run_dir / "recorder_stats.json").write_text(json.dumps(info, indent=2))
@@ -120,7 +109,7 @@ def run_perception(run_dir: Path | None, bus_cfg: BusConfig, method: str | None,
         assistant_map_path=assistant_map if assistant_map is not None else (pcfg.assistant_map or None),
         lockstep=pcfg.lockstep if lockstep is None else lockstep,
         out_dir=run_dir, camera=perception_camera(cfg), weights=_perception_weights(pcfg))
-    stop = _stop_event()
+    stop = stop_event()
     stop.wait()
     node.close()
     return 0
@@ -154,7 +143,7 @@ def run_guidance(run_dir: Path, bus_cfg: BusConfig) -> int:
     node_cfg, planner_cfg = guidance_config_from_scenario(
         cfg, cfg.autopilot.mavlink_tcp_port, lockstep=cfg.clock.mode == ClockMode.LOCKSTEP)
     node = GuidanceNode(world, bus_cfg, node_cfg, planner_cfg, out_dir=run_dir)
-    stop = _stop_event()
+    stop = stop_event()
     threading.Thread(target=lambda: (stop.wait(), node.stop()), daemon=True).start()
     try:
         node.run()
@@ -208,7 +197,7 @@ def run_autopilot(run_dir: Path | None, bus_cfg: BusConfig) -> int:
     from autopilot_bridge.node import AutopilotNode
     cfg = load_scenario(run_dir / "scenario.yaml") if run_dir else ScenarioConfig()
     node = AutopilotNode(autopilot_setup(cfg), bus_cfg, run_dir)
-    stop = _stop_event()
+    stop = stop_event()
     try:
         stop.wait()
     finally:

@@ -12,7 +12,6 @@ from __future__ import annotations
 
 import json
 import logging
-import signal
 import socket
 import time
 from dataclasses import dataclass
@@ -21,6 +20,7 @@ from typing import Any, Callable
 
 from scenenav.app.launcher import Launch, prepare_run, resolve_world
 from scenenav.app.scenario import ScenarioConfig
+from scenenav.app.signals import interrupt_on_stop_signals
 from scenenav.core.config import apply_overrides, load_config, load_yaml
 from scenenav.core.errors import UserError
 
@@ -123,7 +123,13 @@ def _connect_text(cfg: ScenarioConfig, run_dir: Path, mavlink: dict) -> str:
 
 
 def run_sitl(opts: SitlOptions, announce: Callable[[str], None]) -> dict:
-    """Run a SITL session until Ctrl-C; returns the run summary."""
+    """Run a SITL session until Ctrl-C or SIGTERM (SIGINT explicitly: a shell may start us with it
+    ignored, e.g. as a background job); returns the run summary."""
+    with interrupt_on_stop_signals():
+        return _run_sitl(opts, announce)
+
+
+def _run_sitl(opts: SitlOptions, announce: Callable[[str], None]) -> dict:
     cfg = sitl_scenario(opts)
     world = resolve_world(cfg)
     _check_tcp_port(cfg.autopilot.mavlink_tcp_port)
@@ -131,9 +137,6 @@ def run_sitl(opts: SitlOptions, announce: Callable[[str], None]) -> dict:
     launch = prepare_run(cfg, world, run_dir, opts.scenario or "(sitl)", "sitl")
     meta = json.loads((run_dir / "run.json").read_text())
 
-    # Ctrl-C and SIGTERM end the session cleanly (SIGINT explicitly: a shell may start us with it
-    # ignored, e.g. as a background job).
-    previous = {sig: signal.signal(sig, _raise_interrupt) for sig in (signal.SIGINT, signal.SIGTERM)}
     interrupted = False
     reason = "stopped"
     wall0 = time.time()
@@ -158,8 +161,6 @@ def run_sitl(opts: SitlOptions, announce: Callable[[str], None]) -> dict:
         interrupted = True
         log.info("interrupted: stopping every node")
     finally:
-        for sig, handler in previous.items():
-            signal.signal(sig, handler)
         launch.stop_all(order=STOP_ORDER)
     from scenenav.app.evaluation import evaluate_run
     summary = evaluate_run(run_dir, cfg, world, wall_time_s=time.time() - wall0,
@@ -169,10 +170,6 @@ def run_sitl(opts: SitlOptions, announce: Callable[[str], None]) -> dict:
         summary["failed_nodes"] = failed
         (run_dir / "summary.json").write_text(json.dumps(summary, indent=2))
     return summary
-
-
-def _raise_interrupt(signum, _frame) -> None:
-    raise KeyboardInterrupt
 
 
 def _wait_ready(run_dir: Path, autopilot) -> dict:

@@ -29,3 +29,12 @@ def test_scenario_schema_page_is_current():
     from scenenav.app.schema_doc import render
     page = (REPO_ROOT / "docs" / "scenarios-schema.md").read_text()
     assert page == render(), "run: python -m scenenav.app.schema_doc > docs/scenarios-schema.md"
+
+
+def test_architecture_module_map_is_current():
+    """docs/architecture.md's module map is what tools/module_map.py prints for this checkout."""
+    import subprocess
+    import sys
+    r = subprocess.run([sys.executable, str(REPO_ROOT / "tools" / "module_map.py"), "--check",
+                        str(REPO_ROOT / "docs" / "architecture.md")], capture_output=True, text=True)
+    assert r.returncode == 0, r.stderr
