@@ -139,6 +139,16 @@ def _resolve_guidance_map(cfg: ScenarioConfig, progress: bool) -> ScenarioConfig
     return dataclasses.replace(cfg, guidance=dataclasses.replace(g, assistant_map=str(path)))
 
 
+def spawn_recorder_and_perception(launch: Launch, cfg: ScenarioConfig) -> list[str]:
+    """Start the recorder and (if enabled) the perception node; returns the lockstep members they
+    add (``camera`` for a lockstep perception node)."""
+    launch.spawn("recorder", ["recorder", "--run-dir", str(launch.run_dir)])
+    if not cfg.perception.enabled:
+        return []
+    launch.spawn("perception", ["perception", "--run-dir", str(launch.run_dir), "--node-id", "perception"])
+    return ["camera"] if cfg.perception.lockstep else []
+
+
 def prepare_run(cfg: ScenarioConfig, world, run_dir: Path, label: str, prefix: str) -> Launch:
     """Create the run folder (must be new or empty) with scenario.yaml and run.json, and the
     Launch holding the run's own namespace and hub port."""
@@ -179,12 +189,7 @@ def _run(scenario_path: str | None, out_dir: str, overrides: tuple[str, ...], pr
     interrupted = False
     wall0 = time.time()
     try:
-        launch.spawn("recorder", ["recorder", "--run-dir", str(run_dir)])
-        if cfg.perception.enabled:
-            launch.spawn("perception", ["perception", "--run-dir", str(run_dir),
-                                        "--node-id", "perception"])
-            if cfg.perception.lockstep:
-                expect.append("camera")
+        expect += spawn_recorder_and_perception(launch, cfg)
         if cfg.flight.mode == FlightMode.AUTOPILOT:
             launch.spawn("autopilot", ["autopilot", "--run-dir", str(run_dir)])
             expect.append("tick")

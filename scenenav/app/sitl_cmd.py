@@ -16,12 +16,12 @@ import socket
 import time
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any, Callable
+from typing import Callable
 
-from scenenav.app.launcher import Launch, prepare_run, resolve_world
+from scenenav.app.launcher import Launch, prepare_run, resolve_world, spawn_recorder_and_perception
 from scenenav.app.scenario import ScenarioConfig
 from scenenav.app.signals import interrupt_on_stop_signals
-from scenenav.core.config import apply_overrides, load_config, load_yaml
+from scenenav.core.config import apply_overrides, load_config, load_yaml, set_dotted
 from scenenav.core.errors import UserError
 
 log = logging.getLogger(__name__)
@@ -47,18 +47,6 @@ class SitlOptions:
     overrides: tuple[str, ...] = ()    # --set KEY=VALUE, applied last
 
 
-def _put(data: dict, dotted: str, value: Any) -> None:
-    node = data
-    parts = dotted.split(".")
-    for part in parts[:-1]:
-        child = node.get(part)
-        if not isinstance(child, dict):
-            child = {}
-            node[part] = child
-        node = child
-    node[parts[-1]] = value
-
-
 def sitl_scenario(opts: SitlOptions) -> ScenarioConfig:
     """The scenario of a SITL session: the options over the (optional) scenario file, then --set."""
     if not (opts.speedup > 0):
@@ -68,20 +56,20 @@ def sitl_scenario(opts: SitlOptions) -> ScenarioConfig:
                         f"{', '.join(PERCEPTION_CHOICES)}")
     data = load_yaml(opts.scenario) if opts.scenario else {}
     data.setdefault("name", "sitl")
-    _put(data, "flight.mode", "idle")
-    _put(data, "duration_s", SITL_DURATION_S)
-    _put(data, "clock.mode", "lockstep" if opts.lockstep else "realtime")
-    _put(data, "clock.speed_factor", float(opts.speedup))
-    _put(data, "sim.gps.enabled", bool(opts.gps))
-    _put(data, "autopilot.mavlink_tcp_port", int(opts.tcp_port))
-    _put(data, "autopilot.mavlink_udp_out", opts.udp_out)
+    set_dotted(data, "flight.mode", "idle")
+    set_dotted(data, "duration_s", SITL_DURATION_S)
+    set_dotted(data, "clock.mode", "lockstep" if opts.lockstep else "realtime")
+    set_dotted(data, "clock.speed_factor", float(opts.speedup))
+    set_dotted(data, "sim.gps.enabled", bool(opts.gps))
+    set_dotted(data, "autopilot.mavlink_tcp_port", int(opts.tcp_port))
+    set_dotted(data, "autopilot.mavlink_udp_out", opts.udp_out)
     if opts.world:
-        _put(data, "world", opts.world)
+        set_dotted(data, "world", opts.world)
     if opts.perception == PERCEPTION_OFF:
-        _put(data, "perception.enabled", False)
+        set_dotted(data, "perception.enabled", False)
     elif opts.perception is not None:
-        _put(data, "perception.enabled", True)
-        _put(data, "perception.method", opts.perception)
+        set_dotted(data, "perception.enabled", True)
+        set_dotted(data, "perception.method", opts.perception)
     source = opts.scenario or "sitl options"
     if opts.overrides:
         data = apply_overrides(data, list(opts.overrides))
@@ -141,13 +129,7 @@ def _run_sitl(opts: SitlOptions, announce: Callable[[str], None]) -> dict:
     reason = "stopped"
     wall0 = time.time()
     try:
-        expect = ["recorder", "tick"]
-        launch.spawn("recorder", ["recorder", "--run-dir", str(run_dir)])
-        if cfg.perception.enabled:
-            launch.spawn("perception", ["perception", "--run-dir", str(run_dir),
-                                        "--node-id", "perception"])
-            if cfg.perception.lockstep:
-                expect.append("camera")
+        expect = ["recorder", "tick", *spawn_recorder_and_perception(launch, cfg)]
         autopilot = launch.spawn("autopilot", ["autopilot", "--run-dir", str(run_dir)])
         launch.spawn("sim", ["sim", "--run-dir", str(run_dir), "--expect", ",".join(expect)])
         mavlink = _wait_ready(run_dir, autopilot)

@@ -154,16 +154,22 @@ def apply_overrides(mapping: Mapping[str, Any], overrides: list[str] | tuple[str
         if "=" not in item:
             raise ConfigError(f"--set {item!r}: expected KEY=VALUE, e.g. camera.rate_hz=5")
         key, text = item.split("=", 1)
-        parts = key.strip().split(".")
-        node = out
-        for part in parts[:-1]:
-            child = node.get(part)
-            if not isinstance(child, dict):
-                child = {}
-                node[part] = child
-            node = child
-        node[parts[-1]] = _parse_scalar(text)
+        set_dotted(out, key.strip(), _parse_scalar(text))
     return out
+
+
+def set_dotted(data: dict[str, Any], dotted: str, value: Any) -> None:
+    """``data["a"]["b"] = value`` for ``dotted == "a.b"``, creating (or replacing non-mapping)
+    intermediate levels."""
+    node = data
+    parts = dotted.split(".")
+    for part in parts[:-1]:
+        child = node.get(part)
+        if not isinstance(child, dict):
+            child = {}
+            node[part] = child
+        node = child
+    node[parts[-1]] = value
 
 
 def _deep_copy(mapping: Mapping[str, Any]) -> dict:
