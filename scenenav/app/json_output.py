@@ -24,16 +24,18 @@ _real_stdout: TextIO | None = None
 
 @contextmanager
 def json_only_stdout() -> Iterator[None]:
-    """Inside: fd 1 (and ``sys.stdout``) go to stderr; ``emit_json`` writes to the real stdout."""
+    """Inside: fd 1 and ``sys.stdout`` go to stderr; ``emit_json`` writes to the real stdout."""
     global _real_stdout
     sys.stdout.flush()
     saved = os.dup(1)
     os.dup2(2, 1)
     real = os.fdopen(os.dup(saved), "w", encoding="utf-8")
     previous, _real_stdout = _real_stdout, real
+    saved_sys_stdout, sys.stdout = sys.stdout, sys.stderr    # in case sys.stdout is not fd 1
     try:
         yield
     finally:
+        sys.stdout = saved_sys_stdout
         try:
             sys.stdout.flush()
         except (OSError, ValueError):

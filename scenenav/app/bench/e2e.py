@@ -109,11 +109,19 @@ def _read_cpu_s(pid: int) -> tuple[float, str] | None:
 
 
 def _children(pid: int) -> list[int]:
+    """Child processes of ``pid`` (forked by any of its threads)."""
+    out: list[int] = []
     try:
-        with open(f"/proc/{pid}/task/{pid}/children", encoding="ascii") as f:
-            return [int(x) for x in f.read().split()]
+        tasks = os.listdir(f"/proc/{pid}/task")
     except OSError:
-        return []
+        return out
+    for tid in tasks:
+        try:
+            with open(f"/proc/{pid}/task/{tid}/children", encoding="ascii") as f:
+                out.extend(int(x) for x in f.read().split())
+        except OSError:
+            continue
+    return out
 
 
 class CpuSampler:
