@@ -389,7 +389,7 @@ def register_bench(bench_subparsers) -> None:
                     "process, and per control tick where the simulator's wall time goes (physics, "
                     "render wait, publishing, bus wait) with what the members measured inside the "
                     "wait (answer times, the autopilot's flight-core step, perception's alignment / "
-                    "NCC / CNN / lookup). About a minute on 2 cores.")
+                    "NCC / CNN / lookup). 170 simulated s: 1-3 minutes on 2 shared cores.")
     p.add_argument("--json", action="store_true", help="print only one JSON object on stdout instead of a table")
     p.add_argument("--seed", type=int, default=d.seed, help=f"scenario seed (default {d.seed})")
     p.add_argument("--duration-s", type=float, default=d.duration_s,
