@@ -29,9 +29,15 @@ def json_only_stdout() -> Iterator[None]:
     sys.stdout.flush()
     saved = os.dup(1)
     os.dup2(2, 1)
-    real = os.fdopen(os.dup(saved), "w", encoding="utf-8")
+    saved_sys_stdout = sys.stdout
+    try:
+        on_fd1 = saved_sys_stdout.fileno() == 1
+    except (AttributeError, OSError, ValueError):
+        on_fd1 = False
+    # the document goes where stdout went: fd 1, or the object that replaced sys.stdout
+    real = os.fdopen(os.dup(saved), "w", encoding="utf-8") if on_fd1 else saved_sys_stdout
     previous, _real_stdout = _real_stdout, real
-    saved_sys_stdout, sys.stdout = sys.stdout, sys.stderr    # in case sys.stdout is not fd 1
+    sys.stdout = sys.stderr
     try:
         yield
     finally:
@@ -41,7 +47,8 @@ def json_only_stdout() -> Iterator[None]:
         except (OSError, ValueError):
             pass
         _real_stdout = previous
-        real.close()
+        if on_fd1:
+            real.close()
         os.dup2(saved, 1)
         os.close(saved)
 
@@ -70,8 +77,9 @@ def strict(obj: Any) -> Any:
     return obj
 
 
-def emit_json(obj: Any) -> None:
-    """Write ``obj`` as one strict JSON document (indented) to the real stdout."""
-    out = _real_stdout if _real_stdout is not None else sys.stdout
+def emit_json(obj: Any, out: TextIO | None = None) -> None:
+    """Write ``obj`` as one strict JSON document (indented) to ``out`` (default: the real stdout)."""
+    if out is None:
+        out = _real_stdout if _real_stdout is not None else sys.stdout
     out.write(json.dumps(strict(obj), indent=2, allow_nan=False, default=str) + "\n")
     out.flush()

@@ -260,18 +260,18 @@ def _track(flight: BenchFlight, cfg: AutopilotBenchConfig) -> dict:
 
 def run_bench(cfg: AutopilotBenchConfig | None = None, json_out: bool = False,
               out: TextIO | None = None) -> dict:
-    """Fly hold + route once; write a table to ``out`` (or the JSON to stdout) and return the figures."""
+    """Fly hold + route once; write a table (or the JSON) to ``out``
+    (default stdout; with ``--json`` the real stdout, see ``scenenav.app.json_output``) and return the figures."""
     cfg = cfg if cfg is not None else AutopilotBenchConfig()
-    out = out or sys.stdout
     flight = BenchFlight(cfg)
     try:
         report = _fly(flight, cfg)
     finally:
         flight.close()
     if json_out:
-        emit_json(report)
+        emit_json(report, out)
     else:
-        out.write(_table(report))
+        (out or sys.stdout).write(_table(report))
     return report
 
 

@@ -79,9 +79,9 @@ def synthetic_assistant_map(width_px: int, height_px: int, m_per_px: float = BEN
 
 def run_bench(sizes=DEFAULT_SIZES, json_out: bool = False, out: TextIO | None = None,
               seed: int = BENCH_SEED) -> dict:
-    """Plan one route per map size; write a table to ``out`` (or the JSON to stdout) and return the
+    """Plan one route per map size; write a table (or the JSON) to ``out``
+    (default stdout; with ``--json`` the real stdout, see ``scenenav.app.json_output``) and return the
     results."""
-    out = out or sys.stdout
     cfg = PlannerConfig()
     results = []
     for width, height in sizes:
@@ -112,9 +112,9 @@ def run_bench(sizes=DEFAULT_SIZES, json_out: bool = False, out: TextIO | None = 
         del prob
     report = {"bench": "plan", "seed": seed, "results": results}
     if json_out:
-        emit_json(report)
+        emit_json(report, out)
     else:
-        out.write(_table(results))
+        (out or sys.stdout).write(_table(results))
     return report
 
 
