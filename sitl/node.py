@@ -75,6 +75,9 @@ class SimStats:
     real_time_factor: float = 0.0
     end_reason: str = ""
     dropped: dict[str, int] = field(default_factory=dict)
+    #: per lockstep member: answers timed and their mean answer time (publish -> ack), wall ms
+    member_answers: dict[str, int] = field(default_factory=dict)
+    member_answer_ms_mean: dict[str, float] = field(default_factory=dict)
 
 
 class SimulatorNode:
@@ -251,6 +254,9 @@ class SimulatorNode:
         stats.real_time_factor = (t_end_us * 1e-6) / wall if wall > 0 else math.inf
         stats.end_reason = reason
         stats.dropped = dict(self.bus.dropped)
+        answers = self.barrier.answer_times()
+        stats.member_answers = {n: count for n, (count, _) in answers.items()}
+        stats.member_answer_ms_mean = {n: 1e3 * total / count for n, (count, total) in answers.items()}
         self.event(Severity.INFO, f"simulation finished: {reason} at t={t_end_us * 1e-6:.1f}s "
                                   f"({stats.real_time_factor:.1f}x real time)", t_end_us)
         return self.stats

@@ -6,13 +6,13 @@ Errors in what the user gave (files, keys, values) print one line ``error: ...``
 from __future__ import annotations
 
 import argparse
-import json
 import logging
 import re
 import sys
 from pathlib import Path
 
-from scenenav.core.errors import UserError, run_command
+from scenenav.app.json_output import emit_json, run_json_aware
+from scenenav.core.errors import UserError
 
 log = logging.getLogger("scenenav")
 
@@ -51,15 +51,18 @@ def _node(args: argparse.Namespace) -> int:
 
 def _bench(args: argparse.Namespace) -> int:
     if args.what == "sim":
-        from scenenav.app.bench.sim import run_sim_bench
+        from scenenav.app.bench.sim import format_table, run_sim_bench
         result = run_sim_bench(seconds=args.seconds, sizes=args.sizes)
     elif args.what == "perception":
-        from scenenav.app.bench.perception import run_perception_bench
-        result = run_perception_bench(n_frames=args.frames)
+        from scenenav.app.bench.perception import format_table, run_perception_bench
+        result = run_perception_bench(n_frames=args.frames, sizes_px=args.map_sizes,
+                                      stride_px=args.stride_px)
     else:
         raise UserError(f"unknown benchmark {args.what!r}")
     if args.json:
-        print(json.dumps(result, indent=2))
+        emit_json(result)
+    else:
+        print(format_table(result), end="")
     return 0
 
 
@@ -178,7 +181,7 @@ def build_parser() -> argparse.ArgumentParser:
     bsub = b.add_subparsers(dest="what", metavar="WHAT")
     bsub.required = True
     bs = bsub.add_parser("sim", help="simulator real-time factor (lockstep, camera 10 Hz) vs world size")
-    bs.add_argument("--json", action="store_true", help="print the results as JSON")
+    bs.add_argument("--json", action="store_true", help="print only the results as JSON on stdout")
     bs.add_argument("--seconds", type=float, default=20.0, help="simulated seconds per measurement (default 20)")
     bs.add_argument("--sizes", default="900x1000,2000x2000,8000x8000",
                     help="world sizes WxH in px, comma separated (default 900x1000,2000x2000,8000x8000)")
@@ -188,8 +191,12 @@ def build_parser() -> argparse.ArgumentParser:
                                      "method on camera frames over the default world, beside a raw "
                                      "cv2.matchTemplate on the same window; whole assistant-map build "
                                      "time; per-fix time as the map grows. One thread (one core).")
-    bp.add_argument("--json", action="store_true", help="print the results as JSON")
+    bp.add_argument("--json", action="store_true", help="print only the results as JSON on stdout")
     bp.add_argument("--frames", type=int, default=60, help="camera frames per method (default 60)")
+    bp.add_argument("--stride-px", type=_positive_int, default=5,
+                    help="stride of the whole assistant-map build, px (default 5)")
+    bp.add_argument("--map-sizes", type=_side_list, default=(1000, 4000, 8000), metavar="N,N,...",
+                    help="square map sides for the per-fix time vs map size, px (default 1000,4000,8000)")
     bp.set_defaults(func=_bench)
     _register_domain_commands(sub, bsub)
     return p
@@ -198,12 +205,14 @@ def build_parser() -> argparse.ArgumentParser:
 def _register_domain_commands(sub, bsub) -> None:
     """Subcommands and benchmarks of the domain packages (their own modules under app/)."""
     from scenenav.app.bench.autopilot import register_bench as register_autopilot_bench
+    from scenenav.app.bench.e2e import register_bench as register_e2e_bench
     from scenenav.app.bench.plan import register_bench as register_plan_bench
     from scenenav.app.commands import assistant_map, perception, plan, world
     for module in (world, plan, perception, assistant_map):
         module.register(sub)
     register_plan_bench(bsub)
     register_autopilot_bench(bsub)
+    register_e2e_bench(bsub)
 
 
 _NEGATIVE_LIST = re.compile(r"^-\d[\d.eE+-]*(,\s*[-+]?[\d.eE+-]+)+$")
@@ -226,12 +235,32 @@ def glue_negative_values(argv: list[str]) -> list[str]:
     return out
 
 
+def _positive_int(text: str) -> int:
+    try:
+        value = int(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"{text!r}: expected a positive integer") from None
+    if value < 1:
+        raise argparse.ArgumentTypeError(f"{text!r}: expected a positive integer")
+    return value
+
+
+def _side_list(text: str) -> tuple[int, ...]:
+    try:
+        sides = tuple(int(v) for v in text.split(","))
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"{text!r}: expected comma-separated sides in px, e.g. 1000,4000") from None
+    if not sides or any(not 256 <= v <= 20000 for v in sides):
+        raise argparse.ArgumentTypeError(f"{text!r}: each side must be 256 to 20000 px")
+    return sides
+
+
 def main(argv: list[str] | None = None) -> int:
     parser = build_parser()
     args = parser.parse_args(glue_negative_values(list(sys.argv[1:] if argv is None else argv)))
     logging.basicConfig(level=getattr(logging, args.log_level),
                         format="%(asctime)s %(levelname)s %(name)s: %(message)s")
-    return run_command(args)
+    return run_json_aware(args)
 
 
 if __name__ == "__main__":

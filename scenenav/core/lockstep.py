@@ -7,6 +7,10 @@ their outputs. A member is waited for only for ticks/frames published after its 
 member whose token disappears (stopped, crashed, swapped out) is no longer waited for. A member that
 does not answer within ``timeout_s`` wall seconds is reported and skipped for that tick.
 Pure threading, no Zenoh: the node feeds it liveliness changes and acks.
+
+``answer_times()`` reports, per member, how long its answers took: wall seconds from ``published``
+of a sequence number to that member's ack of it (round trip plus the member's work), summed over the
+answers (``scenenav bench e2e`` shows the mean per member).
 """
 
 from __future__ import annotations
@@ -35,6 +39,9 @@ class LockstepBarrier:
         self._cond = threading.Condition()
         self._members: dict[str, _Member] = {}
         self._published: dict[LockstepRole, int] = {LockstepRole.TICK: -1, LockstepRole.CAMERA: -1}
+        self._published_at: dict[LockstepRole, float] = {}
+        self._answer_s: dict[str, float] = {}
+        self._answers: dict[str, int] = {}
         self.timeouts = 0
 
     # called from Zenoh threads ---------------------------------------------------------------
@@ -53,6 +60,10 @@ class LockstepBarrier:
             m = self._members.get(node_id)
             if m is not None and m.role == role and seq > m.last_ack:
                 m.last_ack = seq
+                if seq == self._published[role] and role in self._published_at:
+                    self._answer_s[node_id] = self._answer_s.get(node_id, 0.0) + \
+                        time.perf_counter() - self._published_at[role]
+                    self._answers[node_id] = self._answers.get(node_id, 0) + 1
                 self._cond.notify_all()
 
     # called from the simulator loop -----------------------------------------------------------
@@ -60,6 +71,12 @@ class LockstepBarrier:
         """Record that ``seq`` of ``role`` has been published (before waiting for it)."""
         with self._cond:
             self._published[role] = seq
+            self._published_at[role] = time.perf_counter()
+
+    def answer_times(self) -> dict[str, tuple[int, float]]:
+        """Per member that ever answered: (answers timed, their summed answer time in wall s)."""
+        with self._cond:
+            return {n: (self._answers[n], self._answer_s[n]) for n in sorted(self._answers)}
 
     def members(self, role: LockstepRole | None = None) -> list[str]:
         with self._cond:

@@ -27,7 +27,6 @@ from __future__ import annotations
 import argparse
 import dataclasses
 import itertools
-import json
 import logging
 import math
 import sys
@@ -43,6 +42,7 @@ from autopilot_bridge.control import FlightController, PositionTarget
 from autopilot_bridge.ekf import NavFilter
 from autopilot_bridge.guidance_law import Waypoint, WaypointTracker
 from autopilot_bridge.mixer import QuadXMixer
+from scenenav.app.json_output import emit_json
 from scenenav.core.config import check
 from scenenav.core.errors import UserError
 from scenenav.core.frames import geodetic_to_enu
@@ -260,18 +260,18 @@ def _track(flight: BenchFlight, cfg: AutopilotBenchConfig) -> dict:
 
 def run_bench(cfg: AutopilotBenchConfig | None = None, json_out: bool = False,
               out: TextIO | None = None) -> dict:
-    """Fly hold + route once; write a table (or JSON) to ``out`` and return the figures."""
+    """Fly hold + route once; write a table (or the JSON) to ``out``
+    (default stdout; with ``--json`` the real stdout, see ``scenenav.app.json_output``) and return the figures."""
     cfg = cfg if cfg is not None else AutopilotBenchConfig()
-    out = out or sys.stdout
     flight = BenchFlight(cfg)
     try:
         report = _fly(flight, cfg)
     finally:
         flight.close()
     if json_out:
-        out.write(json.dumps(report) + "\n")
+        emit_json(report, out)
     else:
-        out.write(_table(report))
+        (out or sys.stdout).write(_table(report))
     return report
 
 
@@ -333,7 +333,7 @@ def register_bench(bench_subparsers) -> None:
                     "error in wind after settling, and the cross-track / along-track errors of a "
                     "rectangle flown at cruise speed (east and west legs across the wind). Truth "
                     "is used only for the figures. See docs/autopilot-control.md.")
-    p.add_argument("--json", action="store_true", help="print one JSON object instead of a table")
+    p.add_argument("--json", action="store_true", help="print only one JSON object on stdout instead of a table")
     p.add_argument("--seed", type=int, default=d.seed, help=f"random seed (default {d.seed})")
     p.add_argument("--hold-s", type=float, default=d.hold_s,
                    help=f"simulated seconds of position hold measured (default {d.hold_s:g})")

@@ -135,20 +135,33 @@ def run_perception_bench(n_frames: int = 60, sizes_px: tuple[int, ...] = (1000, 
         scaling.append({"map_px": f"{side}x{side}", "fix_time_ms_median": r["fix_time_ms_median"],
                         "ncc_ms_median": r["stages_ms_median"]["ncc"]})
     paper = {"cnn": 140.0, "assistant-map": 41.0, "statistical": 41.0, "none": 40.0}
-    print(f"perception per-fix time, one core, default world {world.width_px}x{world.height_px}, "
-          f"{rows[0]['fixes']} fixes (median ms)")
-    print(f"{'method':>14} {'align':>7} {'ncc':>7} {'cnn':>7} {'lookup':>7} {'total':>7} "
-          f"{'raw mT':>7} {'x raw':>6} {'paper':>6}")
-    for r in rows:
-        s = r["stages_ms_median"]
-        ratio = r["fix_time_ms_median"] / r["match_template_ms_median"] if r["match_template_ms_median"] else float("nan")
-        print(f"{r['method']:>14} {s['align']:>7.2f} {s['ncc']:>7.2f} {s['cnn']:>7.2f} {s['lookup']:>7.3f} "
-              f"{s['total']:>7.2f} {r['match_template_ms_median']:>7.2f} {ratio:>6.2f} {paper[r['method']]:>6.0f}")
-    print(f"whole assistant map {world.width_px}x{world.height_px} px at stride {stride_px} px: "
-          f"{build_s:.1f} s (target <= 60 s)")
-    print("tracking per-fix time vs map size: " + ", ".join(
-        f"{s['map_px']} {s['fix_time_ms_median']:.2f} ms" for s in scaling))
-    print("targets: assistant-map <= 1.5x raw matchTemplate; online CNN <= 20 ms; flat with map size")
     return {"methods": {r["method"]: r for r in rows}, "assistant_map_build_s": round(build_s, 2),
             "assistant_map_stride_px": stride_px, "scaling": scaling,
-            "paper_ms": paper}
+            "paper_ms": paper, "world_px": f"{world.width_px}x{world.height_px}"}
+
+
+def _ms(value: float | None, digits: int = 2) -> str:
+    return "n/a" if value is None else f"{value:.{digits}f}"
+
+
+def format_table(result: dict) -> str:
+    """The figures of ``run_perception_bench`` as a table (text, newline-terminated)."""
+    rows = list(result["methods"].values())
+    paper = result["paper_ms"]
+    lines = [f"perception per-fix time, one core, default world {result['world_px']}, "
+             f"{rows[0]['fixes']} fixes (median ms)",
+             f"{'method':>14} {'align':>7} {'ncc':>7} {'cnn':>7} {'lookup':>7} {'total':>7} "
+             f"{'raw mT':>7} {'x raw':>6} {'paper':>6}"]
+    for r in rows:
+        s = r["stages_ms_median"]
+        raw = r["match_template_ms_median"]
+        ratio = r["fix_time_ms_median"] / raw if raw and r["fix_time_ms_median"] is not None else None
+        lines.append(f"{r['method']:>14} {_ms(s['align']):>7} {_ms(s['ncc']):>7} {_ms(s['cnn']):>7} "
+                     f"{_ms(s['lookup'], 3):>7} {_ms(s['total']):>7} {_ms(raw):>7} {_ms(ratio):>6} "
+                     f"{paper[r['method']]:>6.0f}")
+    lines.append(f"whole assistant map {result['world_px']} px at stride {result['assistant_map_stride_px']} px: "
+                 f"{result['assistant_map_build_s']:.1f} s (target <= 60 s)")
+    lines.append("tracking per-fix time vs map size: " + ", ".join(
+        f"{s['map_px']} {_ms(s['fix_time_ms_median'])} ms" for s in result["scaling"]))
+    lines.append("targets: assistant-map <= 1.5x raw matchTemplate; online CNN <= 20 ms; flat with map size")
+    return "\n".join(lines) + "\n"

@@ -9,7 +9,6 @@ the goal inside the clearance zone are left out. Sizes are (width, height) in pi
 from __future__ import annotations
 
 import argparse
-import json
 import logging
 import math
 import sys
@@ -20,6 +19,7 @@ import numpy as np
 
 from guidance.config import PlannerConfig
 from guidance.planner import NoPathError, plan_route
+from scenenav.app.json_output import emit_json
 
 log = logging.getLogger(__name__)
 
@@ -79,8 +79,9 @@ def synthetic_assistant_map(width_px: int, height_px: int, m_per_px: float = BEN
 
 def run_bench(sizes=DEFAULT_SIZES, json_out: bool = False, out: TextIO | None = None,
               seed: int = BENCH_SEED) -> dict:
-    """Plan one route per map size; write a table (or JSON) to ``out`` and return the results."""
-    out = out or sys.stdout
+    """Plan one route per map size; write a table (or the JSON) to ``out``
+    (default stdout; with ``--json`` the real stdout, see ``scenenav.app.json_output``) and return the
+    results."""
     cfg = PlannerConfig()
     results = []
     for width, height in sizes:
@@ -111,9 +112,9 @@ def run_bench(sizes=DEFAULT_SIZES, json_out: bool = False, out: TextIO | None = 
         del prob
     report = {"bench": "plan", "seed": seed, "results": results}
     if json_out:
-        out.write(json.dumps(report, indent=2) + "\n")
+        emit_json(report, out)
     else:
-        out.write(_table(results))
+        (out or sys.stdout).write(_table(results))
     return report
 
 
@@ -152,7 +153,7 @@ def _cmd_bench_plan(args: argparse.Namespace) -> int:
 def register_bench(bench_subparsers) -> None:
     """Add ``plan`` to the ``scenenav bench`` sub-commands."""
     p = bench_subparsers.add_parser("plan", help="route planner timing and quality on synthetic maps")
-    p.add_argument("--json", action="store_true", help="print JSON instead of a table")
+    p.add_argument("--json", action="store_true", help="print only JSON on stdout instead of a table")
     p.add_argument("--size", action="append", type=_parse_size, metavar="WxH",
                    help="map size in pixels (repeatable; default 900x1000 and 8000x8000)")
     p.add_argument("--seed", type=int, default=BENCH_SEED, help="seed of the synthetic maps")

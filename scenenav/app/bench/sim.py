@@ -121,18 +121,23 @@ def run_sim_bench(seconds: float = 20.0, sizes: str = "900x1000,2000x2000,8000x8
     if seconds <= 0:
         raise UserError(f"--seconds {seconds}: expected a positive number of simulated seconds")
     rows = [measure(w, h, seconds) for w, h in parsed]
-    print(f"{'world px':>12} {'RTF':>6} {'ms wait/frame':>10} {'us/step':>8} "
-          f"{'physics':>8} {'render':>7} {'publish':>8} {'bus wait':>9}")
-    for r in rows:
-        s = r["share"]
-        print(f"{r['world_px']:>12} {r['real_time_factor']:>6.1f} {r['ms_render_wait_per_frame']:>10.2f} "
-              f"{r['us_per_physics_step']:>8.1f} {s['physics']:>8.0%} {s['render']:>7.0%} "
-              f"{s['publish']:>8.0%} {s['bus_wait']:>9.0%}")
-    print("lockstep, control tick 100 Hz, physics 400 Hz, camera 200x200 at 10 Hz, TinyRenderer; "
-          "target >= 10x real time (gym-pybullet-drones: 1.3x with TinyRenderer, 10.8x with OpenGL)")
     default = next((r for r in rows if r["world_px"] == "900x1000"), rows[0])
     return {"real_time_factor": default["real_time_factor"], "sizes": rows,
             "config": dataclasses.asdict(ClockConfig())}
+
+
+def format_table(result: dict) -> str:
+    """The figures of ``run_sim_bench`` as a table (text, newline-terminated)."""
+    lines = [f"{'world px':>12} {'RTF':>6} {'ms wait/frame':>10} {'us/step':>8} "
+             f"{'physics':>8} {'render':>7} {'publish':>8} {'bus wait':>9}"]
+    for r in result["sizes"]:
+        s = r["share"]
+        lines.append(f"{r['world_px']:>12} {r['real_time_factor']:>6.1f} {r['ms_render_wait_per_frame']:>10.2f} "
+                     f"{r['us_per_physics_step']:>8.1f} {s['physics']:>8.0%} {s['render']:>7.0%} "
+                     f"{s['publish']:>8.0%} {s['bus_wait']:>9.0%}")
+    lines.append("lockstep, control tick 100 Hz, physics 400 Hz, camera 200x200 at 10 Hz, TinyRenderer; "
+                 "target >= 10x real time (gym-pybullet-drones: 1.3x with TinyRenderer, 10.8x with OpenGL)")
+    return "\n".join(lines) + "\n"
 
 
 if __name__ == "__main__":

@@ -12,7 +12,8 @@ import shlex
 import sys
 from pathlib import Path
 
-from scenenav.core.errors import UserError, run_command
+from scenenav.app.json_output import emit_json, run_json_aware
+from scenenav.core.errors import UserError
 
 
 def _positive_int(text: str) -> int:
@@ -139,7 +140,7 @@ def _bench(args: argparse.Namespace) -> int:
            else MatchClassifier.default(num_threads=args.threads))
     res = benchmark(clf, crop_px=args.crop_px, n_batch=args.n, repeats=args.repeats)
     if args.json:
-        print(json.dumps(res, indent=2))
+        emit_json(res)
     else:
         print(f"one image ({args.crop_px} px): {res['single_image_ms']:.2f} ms; batch of {args.n}: "
               f"{res['batch_ms_per_image']:.3f} ms/image best, {res['batch_ms_per_image_median']:.3f} median "
@@ -276,7 +277,7 @@ def register(subparsers) -> None:
     cb.add_argument("--n", type=_positive_int, default=1000, help="crops per timed batch (default 1000)")
     cb.add_argument("--repeats", type=_positive_int, default=3, help="timed passes, best and median reported (default 3)")
     cb.add_argument("--crop-px", type=_positive_int, default=217, help="crop side in px (default 217)")
-    cb.add_argument("--json", action="store_true", help="print JSON")
+    cb.add_argument("--json", action="store_true", help="print only JSON on stdout")
     cb.set_defaults(func=_bench)
 
     from scenenav.app.decision_data import DEFAULT_TRAIN_SEEDS
@@ -325,7 +326,7 @@ def main(argv: list[str] | None = None) -> int:
     args = parser.parse_args(argv)
     logging.basicConfig(level=getattr(logging, args.log_level),
                         format="%(asctime)s %(levelname)s %(name)s: %(message)s")
-    return run_command(args)
+    return run_json_aware(args)
 
 
 if __name__ == "__main__":

@@ -60,3 +60,22 @@ def test_wait_members():
     threading.Timer(0.05, lambda: b.member_changed(T, "ap", True)).start()
     assert b.wait_members({T: 1}, 5.0)
     assert not b.wait_members({C: 1}, 0.05)
+
+
+def test_answer_times_count_each_members_answers_to_the_current_seq():
+    b = LockstepBarrier()
+    b.member_changed(T, "ap", True)
+    b.member_changed(C, "cam", True)
+    for seq in range(3):
+        b.published(T, seq)
+        b.ack("ap", T, seq)
+    b.ack("ap", T, 1)                     # a repeated (stale) ack is not timed again
+    b.published(C, 0)
+    b.ack("cam", C, 0)
+    b.ack("cam", C, 5)                    # an ack for a frame not yet published is not timed
+    times = b.answer_times()
+    assert set(times) == {"ap", "cam"}
+    assert times["ap"][0] == 3 and times["cam"][0] == 1
+    assert all(total >= 0.0 for _, total in times.values())
+    b.member_changed(T, "ap", False)      # a member that left keeps its figures
+    assert b.answer_times()["ap"][0] == 3

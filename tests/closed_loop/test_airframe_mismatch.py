@@ -5,7 +5,7 @@ difference, and the take-off climbs behind the matched one."""
 
 from __future__ import annotations
 
-from support.ground_flight import GroundFlight
+from support.sim_flight import CoreFlight
 
 from autopilot_bridge.modes import CopterMode
 
@@ -14,8 +14,9 @@ FLIGHT_S = 8.0
 
 
 def _takeoff(**params) -> dict:
-    f = GroundFlight(2, SN_VIS_TIMEOUT=0, **params)
+    f = CoreFlight(2, gps=False, EK3_SRC1_POSXY=6, SN_VIS_TIMEOUT=0, **params)
     c = f.core
+    c.set_vision_available(True)      # a perception node is followed (no fix arrives)
     for _ in range(150):
         f.tick()
     assert c.set_mode(CopterMode.GUIDED).ok and c.arm(False).ok and c.takeoff(TAKEOFF_ALT_M).ok

@@ -1,0 +1,159 @@
+"""Closed-loop test flights on the simulator's pure core: no second integrator.
+
+``SimPlant`` is ``sitl.core.SimulatorCore`` (the pybullet rigid body with the rotor/drag model of
+``sitl.dynamics``, wind, the sensor models) ticked at the control rate, with the truth the tests
+assert on (position, velocity, attitude, touchdown speed). ``CoreFlight`` flies the autopilot's
+``FlightCore`` on it the way the autopilot node does (``autopilot_bridge/node.py``: baro, compass,
+GPS and power samples as they arrive, then one ``FlightCore.step`` per tick with the tick's IMU
+sample, and the motor command drives the next tick), as ``scenenav/app/bench/autopilot.py`` drives
+the algorithms. Truth is used only by the tests' assertions.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+
+import numpy as np
+
+from autopilot_bridge.config import FlightCoreConfig
+from autopilot_bridge.flight_core import FlightCore
+from autopilot_bridge.fusion import GpsReading, ImuReading
+from autopilot_bridge.param_specs import PARAM_SPECS
+from autopilot_bridge.params import ParameterStore
+from sitl.config import SimConfig, WindConfig
+from sitl.core import SimulatorCore, TickOutput
+
+CONTROL_HZ = 100
+DT = 1.0 / CONTROL_HZ
+ORIGIN_LAT_DEG = 48.1          # any origin: the GPS model and the autopilot share it
+ORIGIN_LON_DEG = 11.5
+NORTH_ENU_YAW_RAD = 0.5 * math.pi
+#: Truth altitude below which the vehicle counts as on the ground (z = 0 when it rests there).
+GROUND_Z_M = 0.02
+
+
+def sim_config(wind_enu_m_s=(0.0, 0.0, 0.0), gust_std_m_s: float = 0.0, gps: bool = True) -> SimConfig:
+    """The simulator's defaults (sensor noise and biases, 400 Hz physics) with this wind."""
+    base = SimConfig()
+    return dataclasses.replace(
+        base, wind=WindConfig(tuple(float(w) for w in wind_enu_m_s), gust_std_m_s, 2.0),
+        gps=dataclasses.replace(base.gps, enabled=gps))
+
+
+class SimPlant:
+    """The simulator core at rest on flat ground at the origin (heading north unless given)."""
+
+    def __init__(self, seed: int, sim: SimConfig | None = None,
+                 yaw_enu_rad: float = NORTH_ENU_YAW_RAD) -> None:
+        self.core = SimulatorCore(sim if sim is not None else sim_config(), CONTROL_HZ, seed,
+                                  ORIGIN_LAT_DEG, ORIGIN_LON_DEG)
+        self.core.start_at(np.zeros(3), yaw_enu_rad)
+        self.touchdown_speed_m_s: float | None = None
+        self._airborne = False
+
+    @property
+    def t(self) -> float:
+        """Simulated time of the current tick, s."""
+        return self.core.time_us * 1e-6
+
+    @property
+    def p(self) -> np.ndarray:
+        return np.asarray(self.core.state().position_enu_m, dtype=float)
+
+    @property
+    def v(self) -> np.ndarray:
+        return np.asarray(self.core.state().velocity_enu_m_s, dtype=float)
+
+    @property
+    def q(self) -> np.ndarray:
+        return np.asarray(self.core.state().q_wxyz, dtype=float)
+
+    @property
+    def on_ground(self) -> bool:
+        return float(self.p[2]) < GROUND_Z_M
+
+    def sense(self) -> TickOutput:
+        return self.core.sense()
+
+    def advance(self, command) -> None:
+        """Run the tick's physics with ``command``; record the speed of a touchdown (the truth
+        speed of the last tick before the vehicle reached the ground)."""
+        before = self.v
+        self.core.advance(np.asarray(command, dtype=float))
+        if not self.on_ground:
+            self._airborne = True
+        elif self._airborne:
+            self._airborne = False
+            self.touchdown_speed_m_s = float(np.linalg.norm(before))
+
+    def close(self) -> None:
+        self.core.close()
+
+
+class CoreFlight:
+    """``FlightCore`` (parameters ``params`` over the defaults) flying ``SimPlant``.
+
+    ``gps``: GPS samples are delivered (the simulator makes them either way, from its own random
+    stream). ``vision``: every 10th tick a position fix (truth + ``vision_std_m`` noise from the
+    test's own stream, capture time 50 ms earlier) is handed to the core, as a perception node's
+    would be.
+    """
+
+    def __init__(self, seed: int = 3, gps: bool = True, sim: SimConfig | None = None,
+                 **params) -> None:
+        self.plant = SimPlant(seed, sim)
+        self.params = ParameterStore(PARAM_SPECS, defaults=params)
+        self.core = FlightCore(self.params, FlightCoreConfig(origin_lat_deg=ORIGIN_LAT_DEG,
+                                                             origin_lon_deg=ORIGIN_LON_DEG))
+        self.gps = gps
+        self.vision = False
+        self.vision_std_m = 0.7
+        self.rng = np.random.default_rng(seed + 1000)
+        self.cmd = np.zeros(4)
+        self.k = 0
+
+    @property
+    def t(self) -> float:
+        return self.plant.t
+
+    @property
+    def p(self) -> np.ndarray:
+        return self.plant.p
+
+    @property
+    def v(self) -> np.ndarray:
+        return self.plant.v
+
+    def tick(self) -> None:
+        out = self.plant.sense()
+        t = out.timestamp_us * 1e-6
+        c = self.core
+        if out.baro is not None:
+            c.on_baro(t, out.baro.altitude_m)
+        if out.compass is not None:
+            c.on_compass(t, out.compass.heading_rad)
+        if out.gps is not None and self.gps:
+            g = out.gps
+            c.on_gps(GpsReading(t, g.lat_deg, g.lon_deg, g.alt_m, tuple(g.velocity_enu_m_s), g.eph_m,
+                                g.epv_m, g.fix_type, g.satellites))
+        if out.power is not None:
+            c.on_power(t, out.power.voltage_v, out.power.current_a)
+        if self.vision and self.k % 10 == 0:
+            xy = self.plant.p[:2] + self.rng.normal(0.0, self.vision_std_m, 2)
+            c.on_vision_fix(t - 0.05, xy, np.eye(2) * 0.5, True, True, "test")
+        self.k += 1
+        imu = out.imu
+        self.cmd = c.step(imu.dt_s, ImuReading(imu.accel_flu_m_s2, imu.gyro_flu_rad_s), t)
+        self.plant.advance(self.cmd)
+
+    def run(self, seconds: float, until=None) -> bool:
+        """Tick for ``seconds`` (or until ``until()`` is true: then True)."""
+        for _ in range(int(round(seconds / DT))):
+            self.tick()
+            if until is not None and until():
+                return True
+        return until is None
+
+    def close(self) -> None:
+        self.plant.close()
