@@ -11,6 +11,8 @@ Non-blocking: the owner calls :meth:`MavlinkServer.poll` from its loop with its 
 (``now_s``, seconds, monotonic; simulated time is fine). Each poll does ``select`` with a zero
 timeout, reads what is there, handles every complete frame, runs the mission protocol timers,
 sends due telemetry and flushes. Telemetry timestamps are the vehicle's ``time_boot_ms``.
+HEARTBEAT alone is scheduled on the wall clock (``monotonic_s``, injectable), so ground stations
+keep their link while the simulated clock stands still (``telemetry.WALL_CLOCK_MSG_IDS``).
 
 Modules: this one has the server (configuration, poll loop, dispatch of decoded messages to their
 handlers, telemetry streams); ``mavlink_links`` the sockets and links, ``mavlink_framing`` the
@@ -138,7 +140,8 @@ class MavlinkServer(LinkTransportMixin, ParamProtocolMixin):
 
     def __init__(self, vehicle: Vehicle, params: ParameterStore,
                  cfg: MavlinkServerConfig | None = None, *,
-                 wallclock_s: Callable[[], float] = time.time) -> None:
+                 wallclock_s: Callable[[], float] = time.time,
+                 monotonic_s: Callable[[], float] = time.monotonic) -> None:
         self.cfg = cfg if cfg is not None else MavlinkServerConfig()
         self.vehicle = vehicle
         self.params = params
@@ -148,6 +151,7 @@ class MavlinkServer(LinkTransportMixin, ParamProtocolMixin):
         self.last_gcs_heartbeat_s: float | None = None
         self.last_any_gcs_heartbeat_s: float | None = None
         self._wallclock_s = wallclock_s
+        self._monotonic_s = monotonic_s
         self._signer = Signer(self.cfg.signing, wallclock_s)
         self._links: list[Link] = []
         self._udp_peers: dict[tuple[str, int], Link] = {}
@@ -291,7 +295,8 @@ class MavlinkServer(LinkTransportMixin, ParamProtocolMixin):
             self._send_encoded([link], mavlink2.MAVLINK_MSG_ID_MISSION_CURRENT)
 
     def _send_streams(self, now_s: float) -> None:
-        due = [(link, link.scheduler.due(now_s)) for link in self._links]
+        wall_s = self._monotonic_s()
+        due = [(link, link.scheduler.due(now_s, wall_s)) for link in self._links]
         if not any(ids for _, ids in due):
             return
         tel = self.vehicle.telemetry()

@@ -12,7 +12,10 @@ Shell module (uses pymavlink). Two request styles are honoured, per link as in A
   EXTRA2 = VFR_HUD; EXTRA3 = BATTERY_STATUS, EKF_STATUS_REPORT.
 
 Time is the caller's clock (``now_s`` given to :meth:`TelemetryScheduler.due`), so message
-counts over a window are deterministic under a simulated clock.
+counts over a window are deterministic under a simulated clock; except for the messages in
+``WALL_CLOCK_MSG_IDS`` (HEARTBEAT), which are scheduled on the wall clock (``wall_s``) so that a
+frozen simulated clock (a lockstep wait for perception of up to 5 s) never starves a ground
+station of heartbeats: QGC declares the link lost after ~3.5 s without one, MAVSDK after 3 s.
 
 Encoders never raise on odd vehicle values: NaN/inf and out-of-range numbers are mapped to
 MAVLink's "unknown" encodings or clamped to the field type.
@@ -108,6 +111,10 @@ DEFAULT_RATES_HZ: Mapping[int, float] = {
 }
 
 
+# Scheduled on the wall clock, not the caller's (see the module docstring).
+WALL_CLOCK_MSG_IDS: frozenset[int] = frozenset({_M.MAVLINK_MSG_ID_HEARTBEAT})
+
+
 class TelemetryScheduler:
     """Which message ids are due on one link at a given time of the caller's clock."""
 
@@ -167,19 +174,21 @@ class TelemetryScheduler:
                 self._set_rate(msg_id, rate_hz)
         return True
 
-    def due(self, now_s: float) -> list[int]:
-        """Message ids to send now; each scheduled message advances by its interval."""
+    def due(self, now_s: float, wall_s: float | None = None) -> list[int]:
+        """Message ids to send now; each scheduled message advances by its interval.
+        ``wall_s`` (monotonic wall seconds) times the ``WALL_CLOCK_MSG_IDS``; None = ``now_s``."""
         out = []
         for msg_id, interval in self._interval_s.items():
+            t = wall_s if wall_s is not None and msg_id in WALL_CLOCK_MSG_IDS else now_s
             nxt = self._next_due_s.get(msg_id)
             if nxt is None:
                 out.append(msg_id)
-                self._next_due_s[msg_id] = now_s + interval
-            elif now_s >= nxt:
+                self._next_due_s[msg_id] = t + interval
+            elif t >= nxt:
                 out.append(msg_id)
                 nxt += interval
-                if nxt <= now_s:  # fell behind (e.g. the clock jumped): restart the phase
-                    nxt = now_s + interval
+                if nxt <= t:  # fell behind (e.g. the clock jumped): restart the phase
+                    nxt = t + interval
                 self._next_due_s[msg_id] = nxt
         return out
 
