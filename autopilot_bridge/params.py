@@ -227,6 +227,7 @@ class ParameterStore:
         self._path = Path(path) if path is not None else None
         for name, value in (defaults or {}).items():
             self._apply_initial(name, value, "defaults")
+        self._defaults: tuple[float, ...] = tuple(self._values)
         if self._path is not None and self._path.exists():
             self._load(self._path)
 
@@ -259,6 +260,10 @@ class ParameterStore:
 
     def by_index(self, index: int) -> tuple[ParamSpec, float]:
         return self._specs[index], self._values[index]
+
+    def default_at(self, index: int) -> float:
+        """The start-up default of a parameter: the spec's, or the ``defaults`` given."""
+        return self._defaults[index]
 
     def as_dict(self) -> dict[str, float]:
         return {s.name: v for s, v in zip(self._specs, self._values, strict=False)}

@@ -45,10 +45,11 @@ FIRMWARE_VERSION = (4, 5, 7)
 FIRMWARE_VERSION_TYPE = mavlink2.FIRMWARE_VERSION_TYPE_OFFICIAL
 FLIGHT_CUSTOM_VERSION = b"scenenav"  # 8 bytes where ArduPilot puts its git hash
 
-# AUTOPILOT_VERSION.capabilities: what this emulator implements. Not claimed: FTP (QGC would
-# fetch parameters by FTP), MISSION_FENCE / MISSION_RALLY (fence and rally are answered as
-# empty lists), SET_ATTITUDE_TARGET, FLIGHT_TERMINATION, COMPASS_CALIBRATION, TERRAIN.
+# AUTOPILOT_VERSION.capabilities: what this emulator implements (FTP: the packed parameter file,
+# autopilot_bridge.mavlink_ftp). Not claimed: MISSION_FENCE / MISSION_RALLY (fence and rally are
+# answered as empty lists), SET_ATTITUDE_TARGET, FLIGHT_TERMINATION, COMPASS_CALIBRATION, TERRAIN.
 CAPABILITIES = (mavlink2.MAV_PROTOCOL_CAPABILITY_MISSION_FLOAT
+                | mavlink2.MAV_PROTOCOL_CAPABILITY_FTP
                 | mavlink2.MAV_PROTOCOL_CAPABILITY_PARAM_FLOAT
                 | mavlink2.MAV_PROTOCOL_CAPABILITY_MISSION_INT
                 | mavlink2.MAV_PROTOCOL_CAPABILITY_COMMAND_INT

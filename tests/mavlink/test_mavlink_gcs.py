@@ -3,21 +3,37 @@
 * the link clock: HEARTBEAT on the wall clock while the simulated clock stands still (a lockstep
   wait), on a server with a frozen caller clock and end to end on ``scenenav sitl`` with the
   simulator stopped.
+* MAVFTP: pymavlink's own MAVFTP client (the one MAVProxy uses) downloads ``@PARAM/param.pck``
+  and decodes it with its own parser; other paths and requests get ArduPilot's NAKs.
 """
 
 from __future__ import annotations
 
+import errno
 import os
 import signal
+import struct
 import threading
 import time
 
+import pytest
+from pymavlink import mavftp
 from pymavlink.dialects.v20 import ardupilotmega as mavlink2
-from support.fake_vehicle import FakeVehicle, gcs_connection, server_config
+from support.fake_vehicle import (
+    FakeVehicle,
+    gcs_connection,
+    running_server,
+    server_config,
+    wait_for,
+)
 from support.sitl_session import SitlSession, monitor_connection
 
+from autopilot_bridge import telemetry
+from autopilot_bridge.mavlink_ftp import FtpError, FtpOp, FtpServer
 from autopilot_bridge.mavlink_server import MavlinkServer
-from autopilot_bridge.params import ParameterStore
+from autopilot_bridge.param_pack import PackedParam, PackQuery, pack_params, parse_query
+from autopilot_bridge.param_specs import PARAM_SPECS
+from autopilot_bridge.params import ParameterStore, ParamType
 
 M = mavlink2
 # QGC declares the link lost after ~3.5 s without a heartbeat, MAVSDK after 3 s; ArduPilot sends
@@ -38,7 +54,7 @@ def heartbeat_times(conn, duration_s: float, kinds=("HEARTBEAT",)) -> dict[str, 
 
 def gaps(times: list[float], start: float, end: float) -> list[float]:
     points = [start, *times, end]
-    return [b - a for a, b in zip(points, points[1:])]
+    return [b - a for a, b in zip(points, points[1:], strict=False)]
 
 
 # ----------------------------------------------------------------------------- item 8: link clock
@@ -128,3 +144,171 @@ def test_sitl_heartbeats_go_on_while_the_simulator_stands_still(tmp_path):
         if conn is not None:
             conn.close()
         sitl.stop()
+
+
+# ----------------------------------------------------------------------------- item 1: MAVFTP
+
+
+def ftp_get(conn, path: str):
+    """pymavlink's MAVFTP client: (error code, file bytes)."""
+    client = mavftp.MAVFTP(conn, 1, 1)
+    client.cmd_get([path])
+    ret = client.process_ftp_reply("OpenFileRO", timeout=10)
+    return ret.error_code, client.get_result
+
+
+def test_pymavlink_mavftp_downloads_the_packed_parameter_file():
+    params = ParameterStore(PARAM_SPECS, defaults={"WPNAV_SPEED": 800.0})
+    assert params.set("RTL_ALT", 2500).ok and params.set("SN_ARM_BY", 0.25).ok
+    with running_server(params=params) as (server, _):
+        conn = gcs_connection(server.tcp_port)
+        try:
+            assert wait_for(conn, "HEARTBEAT") is not None
+            version = _request_autopilot_version(conn)
+            assert version.capabilities & M.MAV_PROTOCOL_CAPABILITY_FTP
+            code, data = ftp_get(conn, "@PARAM/param.pck?withdefaults=1")
+            assert code == 0 and data is not None
+            pdata = mavftp.MAVFTP.ftp_param_decode(data)
+            assert pdata is not None
+            magic, num, total = struct.unpack_from("<HHH", data)
+            assert (magic, num, total) == (0x671C, params.count, params.count)
+            got = [(n.decode(), v, t) for n, v, t in pdata.params]
+            want_types = {ParamType.INT8: 1, ParamType.INT16: 2, ParamType.INT32: 3,
+                          ParamType.REAL32: 4}
+            assert [g[0] for g in got] == params.names()             # every one, in index order
+            for (name, value, ptype), spec in zip(got, params.specs(), strict=True):
+                assert ptype == want_types[spec.ptype], name
+                assert value == pytest.approx(params.get(name), rel=1e-6), name
+            # defaults only where the value differs (as ArduPilot): the two sets; WPNAV_SPEED's
+            # start-up default is the one given to the store
+            values = {name: value for name, value, _ in got}
+            defaults = {n.decode(): v for n, v, _ in pdata.defaults or []}
+            changed = {n: d for n, d in defaults.items() if d != values[n]}
+            assert changed == {"RTL_ALT": 1500, "SN_ARM_BY": pytest.approx(0.20, rel=1e-6)}
+            assert values["WPNAV_SPEED"] == 800.0
+            # without defaults, and a range of indices
+            code, data = ftp_get(conn, "@PARAM/param.pck?start=2&count=3")
+            assert code == 0
+            pdata = mavftp.MAVFTP.ftp_param_decode(data)
+            assert struct.unpack_from("<HHH", data) == (0x671B, 3, params.count)
+            assert [n.decode() for n, _, _ in pdata.params] == params.names()[2:5]
+            assert pdata.defaults is None
+        finally:
+            conn.close()
+
+
+def _request_autopilot_version(conn):
+    conn.mav.command_long_send(1, 1, M.MAV_CMD_REQUEST_MESSAGE, 0,
+                               M.MAVLINK_MSG_ID_AUTOPILOT_VERSION, 0, 0, 0, 0, 0, 0)
+    msg = wait_for(conn, "AUTOPILOT_VERSION")
+    assert msg is not None
+    return msg
+
+
+def ftp_request(conn, seq: int, opcode: int, data: bytes = b"", size: int | None = None,
+                offset: int = 0, session: int = 0):
+    """One raw request; the reply (FILE_TRANSFER_PROTOCOL decoded as (header..., data))."""
+    head = struct.pack("<HBBBBBBI", seq, session, opcode, len(data) if size is None else size,
+                       0, 0, 0, offset)
+    conn.mav.file_transfer_protocol_send(0, 1, 1, list((head + data).ljust(251, b"\0")))
+    msg = wait_for(conn, "FILE_TRANSFER_PROTOCOL",
+                   condition=lambda m: struct.unpack_from("<H", bytes(m.payload))[0] == seq + 1)
+    assert msg is not None, f"no FTP reply to opcode {opcode}"
+    payload = bytes(msg.payload)
+    return struct.unpack_from("<HBBBBBBI", payload) + (payload[12:],)
+
+
+def test_ftp_naks_as_ardupilot_without_such_a_file():
+    with running_server() as (server, _):
+        conn = gcs_connection(server.tcp_port)
+        try:
+            seq, session, op, size, req, _b, _p, _o, data = ftp_request(
+                conn, 10, FtpOp.OPEN_FILE_RO, b"@PARAM/param.pck.bak")
+            assert (seq, op, size, req, data[0]) == (11, FtpOp.NAK, 1, FtpOp.OPEN_FILE_RO,
+                                                      FtpError.FILE_NOT_FOUND)
+            for k, (opcode, name) in enumerate(((FtpOp.LIST_DIRECTORY, b"/APM/LOGS"),
+                                                (FtpOp.REMOVE_FILE, b"/x.txt"),
+                                                (FtpOp.CALC_FILE_CRC32, b"/x.txt"))):
+                reply = ftp_request(conn, 20 + 2 * k, opcode, name)
+                assert (reply[2], reply[4], reply[8][0]) == (FtpOp.NAK, opcode,
+                                                             FtpError.FILE_NOT_FOUND), opcode
+            reply = ftp_request(conn, 30, FtpOp.READ_FILE, size=80)         # nothing open
+            assert (reply[2], reply[8][0]) == (FtpOp.NAK, FtpError.FILE_NOT_FOUND)
+            reply = ftp_request(conn, 32, FtpOp.CREATE_FILE, b"/new.txt")   # read-only
+            assert (reply[2], reply[3], reply[8][0], reply[8][1]) == (
+                FtpOp.NAK, 2, FtpError.FAIL_ERRNO, errno.EROFS)
+            reply = ftp_request(conn, 34, FtpOp.TRUNCATE_FILE, b"/x.txt")
+            assert (reply[2], reply[8][0]) == (FtpOp.NAK, FtpError.UNKNOWN_COMMAND)
+            reply = ftp_request(conn, 36, FtpOp.OPEN_FILE_RO, b"@PARAM/param.pck", size=3)
+            assert (reply[2], reply[8][0]) == (FtpOp.NAK, FtpError.INVALID_DATA_SIZE)
+            reply = ftp_request(conn, 38, FtpOp.RESET_SESSIONS)
+            assert reply[2] == FtpOp.ACK
+        finally:
+            conn.close()
+
+
+def test_ftp_read_burst_resend_and_session_rules():
+    """The protocol rules on the pure server: open twice, a resend answered with the very same
+    reply, a burst that ends with EndOfFile + burst_complete, stale sessions reopen after 3 s."""
+    content = bytes(range(256)) * 3                       # 768 bytes
+    ftp = FtpServer(lambda path: content if path == "/f" else None)
+
+    def req(seq, opcode, data=b"", size=None, offset=0, session=0):
+        head = struct.pack("<HBBBBBBI", seq, session, opcode,
+                           len(data) if size is None else size, 0, 0, 0, offset)
+        return (head + data).ljust(251, b"\0")
+
+    def unpack(payload):
+        return struct.unpack_from("<HBBBBBBI", payload) + (payload[12:],)
+
+    (open_reply,) = ftp.handle("c", req(0, FtpOp.OPEN_FILE_RO, b"/f"), 0.0)
+    head = unpack(open_reply)
+    assert head[2] == FtpOp.ACK and struct.unpack_from("<I", head[8])[0] == 768
+    (again,) = ftp.handle("c", req(0, FtpOp.OPEN_FILE_RO, b"/f"), 0.1)
+    assert again == open_reply                             # a resend: the same bytes
+    (busy,) = ftp.handle("c", req(2, FtpOp.OPEN_FILE_RO, b"/f"), 1.0)
+    assert unpack(busy)[2] == FtpOp.NAK and unpack(busy)[8][0] == FtpError.FAIL
+    (read,) = ftp.handle("c", req(4, FtpOp.READ_FILE, size=100, offset=700), 1.0)
+    r = unpack(read)
+    assert (r[2], r[3], r[7]) == (FtpOp.ACK, 68, 700) and r[8][:68] == content[700:]
+    burst = [unpack(p) for p in ftp.handle("c", req(6, FtpOp.BURST_READ_FILE, size=200), 1.0)]
+    assert [b[0] for b in burst] == [7, 8, 9, 10, 11]
+    assert b"".join(b[8][:b[3]] for b in burst[:-1]) == content
+    assert [b[7] for b in burst] == [0, 200, 400, 600, 768]
+    assert burst[-1][2] == FtpOp.NAK and burst[-1][8][0] == FtpError.END_OF_FILE
+    assert burst[-1][5] == 1 and all(b[5] == 0 for b in burst[:-1])
+    # idle for more than 3 s: the open file is given up and the session opens again
+    (reopen,) = ftp.handle("c", req(20, FtpOp.OPEN_FILE_RO, b"/f"), 5.0)
+    assert unpack(reopen)[2] == FtpOp.ACK
+    # another client has its own sessions; TerminateSession closes
+    (other,) = ftp.handle("d", req(0, FtpOp.READ_FILE, size=10), 5.0)
+    assert unpack(other)[8][0] == FtpError.FILE_NOT_FOUND
+    (term,) = ftp.handle("c", req(22, FtpOp.TERMINATE_SESSION), 5.0)
+    assert unpack(term)[2] == FtpOp.ACK
+    (closed,) = ftp.handle("c", req(24, FtpOp.READ_FILE, size=10), 5.0)
+    assert unpack(closed)[8][0] == FtpError.FILE_NOT_FOUND
+    assert ftp.handle("c", req(26, FtpOp.ACK), 5.0) == []
+    assert ftp.handle("c", b"\x01\x02", 5.0) == []
+
+
+def test_param_pack_shares_name_prefixes_and_options():
+    params = [PackedParam("SN_ARM_BX", ParamType.REAL32, 0.13, 0.13),
+              PackedParam("SN_ARM_BY", ParamType.REAL32, 0.25, 0.20),
+              PackedParam("SN_ARM_FX", ParamType.INT8, -5, -5),
+              PackedParam("SN_ARM_FXY_LNG16", ParamType.INT32, 70000, 1),
+              PackedParam("SN_ARM_FXY_LNG17", ParamType.INT16, -300, -300)]
+    data = pack_params(params, PackQuery(with_defaults=True))
+    # SN_ARM_BY shares 8 characters with SN_ARM_BX: type byte float + default flag, then
+    # (suffix length 1 - 1) << 4 | 8, "Y", the value and the default
+    second = data[6 + 2 + 9 + 4:]
+    assert second[:3] == bytes((0x14, 0x08)) + b"Y"
+    assert struct.unpack_from("<ff", second, 3) == pytest.approx((0.25, 0.20), rel=1e-6)
+    decoded = mavftp.MAVFTP.ftp_param_decode(data)
+    assert [(n.decode(), v) for n, v, _ in decoded.params] == [
+        ("SN_ARM_BX", pytest.approx(0.13, rel=1e-6)), ("SN_ARM_BY", pytest.approx(0.25, rel=1e-6)),
+        ("SN_ARM_FX", -5), ("SN_ARM_FXY_LNG16", 70000), ("SN_ARM_FXY_LNG17", -300)]
+    # 15 characters shared with the name before (the most the low nibble holds): suffix "7"
+    assert data.endswith(bytes((0x02, 15)) + b"7" + struct.pack("<h", -300))
+    assert parse_query("withdefaults=1&start=1&count=2") == PackQuery(True, 1, 2)
+    assert parse_query("withdefaults=x") is None and parse_query("") == PackQuery()
+    assert telemetry.CAPABILITIES & M.MAV_PROTOCOL_CAPABILITY_FTP
