@@ -185,7 +185,7 @@ def test_reposition_change_speed_and_messages():
             assert vehicle.mode == CopterMode.GUIDED
             name, args = vehicle.calls[-1]
             assert name == "reposition" and args[0] == pytest.approx(47.3985)
-            assert args[2] == 25.0 and args[4] == 5.0 and args[5] is None
+            assert args[2] == 25.0 and args[4] is None and args[5] is None  # speed 5 ignored
             assert long_cmd(conn, M.MAV_CMD_DO_REPOSITION, -1, 1, 0, 0, 47.0, 8.0, 10) == \
                 MavResult.COMMAND_INT_ONLY
             assert long_cmd(conn, M.MAV_CMD_DO_CHANGE_SPEED, 1, 0) == MavResult.DENIED
