@@ -208,14 +208,21 @@ def load_param_file(path: Path) -> dict[str, object]:
 class ParameterStore:
     """Typed parameters in a fixed order (``param_index`` = position in ``specs``).
 
-    ``path`` (optional) is a JSON file ``{"NAME": value, ...}`` read at construction and
-    rewritten atomically after every change. ``defaults`` overrides spec defaults (e.g. from a
-    scenario) before the file is applied.
+    ``path`` (optional) is a JSON file ``{"NAME": value, ...}`` of every value, read at
+    construction and rewritten atomically after every change. ``defaults`` overrides spec defaults
+    (e.g. from a scenario) before the files are applied.
+
+    ``persist_path`` (optional) is the parameter file kept from one start to the next, as
+    ArduPilot SITL keeps ``eeprom.bin``: it holds only the parameters set through :meth:`set`
+    (ArduPilot saves a parameter when it is set, not its defaults), is read at construction over
+    the defaults (so a later start with other defaults, e.g. without GPS, keeps them unless they
+    were set) and rewritten atomically after every set.
     """
 
     def __init__(self, specs: Iterable[ParamSpec] = DEFAULT_PARAM_SPECS,
                  path: str | Path | None = None,
-                 defaults: Mapping[str, float] | None = None) -> None:
+                 defaults: Mapping[str, float] | None = None,
+                 persist_path: str | Path | None = None) -> None:
         self._specs: tuple[ParamSpec, ...] = tuple(specs)
         self._index: dict[str, int] = {}
         for i, spec in enumerate(self._specs):
@@ -230,6 +237,11 @@ class ParameterStore:
         self._defaults: tuple[float, ...] = tuple(self._values)
         if self._path is not None and self._path.exists():
             self._load(self._path)
+        self._persist_path = Path(persist_path) if persist_path is not None else None
+        self._persisted: set[str] = set()
+        if self._persist_path is not None and self._persist_path.exists():
+            for name in self._load(self._persist_path):
+                self._persisted.add(name)
 
     # ----------------------------------------------------------------- queries
     @property
@@ -287,44 +299,80 @@ class ParameterStore:
             logger.info("parameter set refused: %s", reason)
             return SetResult(False, self._values[i], reason)
         if new == self._values[i]:
+            if name not in self._persisted and self._persist_path is not None:
+                self._persisted.add(name)
+                self._save_persisted()
             return SetResult(True, new)
         self._values[i] = new
         logger.info("parameter %s = %g", name, new)
+        self._persisted.add(name)
         self._save()
+        self._save_persisted()
         for observer in list(self._observers):
             observer(name, new)
         return SetResult(True, new)
 
     # ----------------------------------------------------------------- persistence
-    def _apply_initial(self, name: str, value: object, source: str) -> None:
+    def _apply_initial(self, name: str, value: object, source: str) -> bool:
         i = self._index.get(name)
         if i is None:
             logger.warning("%s: unknown parameter %s ignored", source, name)
-            return
+            return False
         if isinstance(value, bool) or not isinstance(value, (int, float)):
             raise UserError(f"{source}: {name} = {value!r}: expected a number")
         new, reason = self._specs[i].coerce(value)
         if new is None:
             raise UserError(f"{source}: {reason}")
         self._values[i] = new
+        return True
 
-    def _load(self, path: Path) -> None:
+    def _load(self, path: Path) -> list[str]:
+        """Apply a parameter file; the names it set (unknown ones are logged and skipped)."""
+        applied = []
         for name, value in load_param_file(path).items():
-            self._apply_initial(str(name), value, str(path))
+            if self._apply_initial(str(name), value, str(path)):
+                applied.append(str(name))
+        return applied
+
+    def save(self) -> None:
+        """Write the files now (``path`` with every value, ``persist_path`` with the set ones)."""
+        self._save()
+        self._save_persisted()
+
+    @property
+    def persisted_names(self) -> frozenset[str]:
+        """The parameters that are in (or go to) the ``persist_path`` file."""
+        return frozenset(self._persisted)
 
     def _save(self) -> None:
         if self._path is None:
             return
-        data = {s.name: (int(v) if s.is_integer else v) for s, v in zip(self._specs, self._values, strict=False)}
-        self._path.parent.mkdir(parents=True, exist_ok=True)
-        fd, tmp = tempfile.mkstemp(prefix=self._path.name, dir=self._path.parent)
-        try:
-            with os.fdopen(fd, "w", encoding="utf-8") as fh:
-                json.dump(data, fh, indent=1, sort_keys=True)
-                fh.write("\n")
-            os.replace(tmp, self._path)
-        except OSError:
-            logger.exception("could not save parameters to %s", self._path)
+        _write_json(self._path, {s.name: (int(v) if s.is_integer else v)
+                                 for s, v in zip(self._specs, self._values, strict=True)})
+
+    def _save_persisted(self) -> None:
+        if self._persist_path is None:
+            return
+        _write_json(self._persist_path, {
+            s.name: (int(v) if s.is_integer else v)
+            for s, v in zip(self._specs, self._values, strict=True) if s.name in self._persisted})
+
+
+def _write_json(path: Path, data: dict[str, float]) -> None:
+    """Atomically replace ``path`` (a crash leaves the old file or the new one, never half)."""
+    tmp = ""
+    try:
+        path.parent.mkdir(parents=True, exist_ok=True)
+        fd, tmp = tempfile.mkstemp(prefix=path.name, dir=path.parent)
+        with os.fdopen(fd, "w", encoding="utf-8") as fh:
+            json.dump(data, fh, indent=1, sort_keys=True)
+            fh.write("\n")
+            fh.flush()
+            os.fsync(fh.fileno())
+        os.replace(tmp, path)
+    except OSError:
+        logger.exception("could not save parameters to %s", path)
+        if tmp:
             try:
                 os.unlink(tmp)
             except OSError:

@@ -10,6 +10,7 @@
 from __future__ import annotations
 
 import errno
+import json
 import os
 import signal
 import struct
@@ -34,6 +35,7 @@ from autopilot_bridge.mavlink_server import MavlinkServer
 from autopilot_bridge.param_pack import PackedParam, PackQuery, pack_params, parse_query
 from autopilot_bridge.param_specs import PARAM_SPECS
 from autopilot_bridge.params import ParameterStore, ParamType
+from scenenav.core.errors import UserError
 
 M = mavlink2
 # QGC declares the link lost after ~3.5 s without a heartbeat, MAVSDK after 3 s; ArduPilot sends
@@ -312,3 +314,71 @@ def test_param_pack_shares_name_prefixes_and_options():
     assert parse_query("withdefaults=1&start=1&count=2") == PackQuery(True, 1, 2)
     assert parse_query("withdefaults=x") is None and parse_query("") == PackQuery()
     assert telemetry.CAPABILITIES & M.MAV_PROTOCOL_CAPABILITY_FTP
+
+
+# ----------------------------------------------------------------------------- item 9: persistence
+
+
+def test_persist_file_keeps_only_the_set_parameters(tmp_path):
+    store_file = tmp_path / "eeprom.json"
+    first = ParameterStore(PARAM_SPECS, defaults={"EK3_SRC1_POSXY": 6}, persist_path=store_file)
+    assert first.set("RTL_ALT", 2500).ok and first.set("LAND_SPEED", 50).ok   # 50: the default
+    assert first.set("RTL_ALT", 1e12).ok is False                              # refused: not kept
+    assert json.loads(store_file.read_text()) == {"LAND_SPEED": 50, "RTL_ALT": 2500}
+    # the next start, with other defaults: the set values win, the rest are the new defaults
+    second = ParameterStore(PARAM_SPECS, defaults={"RTL_ALT": 3000}, persist_path=store_file)
+    assert second.get("RTL_ALT") == 2500 and second.get("EK3_SRC1_POSXY") == 3
+    assert second.persisted_names == {"RTL_ALT", "LAND_SPEED"}
+    assert second.default_at(second.index_of("RTL_ALT")) == 3000   # param.pck's default
+    store_file.write_text('{"RTL_ALT": "high"}')
+    with pytest.raises(UserError, match="RTL_ALT"):
+        ParameterStore(PARAM_SPECS, persist_path=store_file)
+
+
+def _read_param(conn, name: str) -> float | None:
+    conn.mav.param_request_read_send(1, 1, name.encode(), -1)
+    msg = wait_for(conn, "PARAM_VALUE", timeout_s=20, condition=lambda m: m.param_id == name)
+    return None if msg is None else msg.param_value
+
+
+def test_sitl_parameters_persist_between_starts_and_wipe(tmp_path):
+    """Parameters set while one ``scenenav sitl`` runs are there after it is started again (and
+    only those: the second start is GPS-denied and keeps its own EK3_SRC1_POSXY); ``--wipe``
+    forgets them."""
+    store_file = tmp_path / "instance0.json"
+    sitl = SitlSession(tmp_path, "--perception", "off", params_store=store_file, run_name="run1")
+    try:
+        sitl.wait_ready()
+        conn = gcs_connection(sitl.port)
+        for name, value in (("RTL_ALT", 2500.0), ("WPNAV_SPEED", 750.0)):
+            conn.mav.param_set_send(1, 1, name.encode(), value, M.MAV_PARAM_TYPE_REAL32)
+            assert wait_for(conn, "PARAM_VALUE", timeout_s=20, condition=lambda m, n=name, v=value:
+                            m.param_id == n and m.param_value == v) is not None
+        conn.close()
+    finally:
+        sitl.stop()
+    assert json.loads(store_file.read_text()) == {"RTL_ALT": 2500, "WPNAV_SPEED": 750.0}
+
+    sitl = SitlSession(tmp_path, "--perception", "off", "--no-gps", params_store=store_file,
+                       run_name="run2")
+    try:
+        sitl.wait_ready()
+        assert any("parameters kept in" in ln for ln in sitl.lines)
+        conn = gcs_connection(sitl.port)
+        assert _read_param(conn, "RTL_ALT") == 2500.0
+        assert _read_param(conn, "WPNAV_SPEED") == 750.0
+        assert _read_param(conn, "EK3_SRC1_POSXY") == 6.0       # this start's own default
+        conn.close()
+    finally:
+        sitl.stop()
+    assert json.loads((tmp_path / "run2" / "params.json").read_text())["RTL_ALT"] == 2500
+
+    sitl = SitlSession(tmp_path, "--perception", "off", "--wipe", params_store=store_file,
+                       run_name="run3")
+    try:
+        sitl.wait_ready()
+        conn = gcs_connection(sitl.port)
+        assert _read_param(conn, "RTL_ALT") == 1500.0
+        conn.close()
+    finally:
+        sitl.stop()
