@@ -382,3 +382,24 @@ def test_sitl_parameters_persist_between_starts_and_wipe(tmp_path):
         conn.close()
     finally:
         sitl.stop()
+
+
+def test_safe_limits_table_agrees_with_the_specs():
+    """docs/mavlink.md lists every parameter with a safe limit, with that limit."""
+    from support import REPO_ROOT
+    doc = (REPO_ROOT / "docs" / "mavlink.md").read_text()
+    table = doc[doc.index("Safe limits"):doc.index("| name | type | default")]
+
+    def fmt(v):
+        return "-" if v is None else f"{v:g}"
+
+    airframe = ("MOT_", "SN_ARM_", "SN_I", "SN_MASS_KG", "SN_ROT_")
+    for spec in PARAM_SPECS:
+        if spec.safe_min is None and spec.safe_max is None:
+            continue
+        if spec.name.startswith(airframe):
+            assert (spec.safe_min, spec.safe_max) == (spec.min_value, spec.max_value), spec.name
+            continue
+        row = f"| `{spec.name}` | {fmt(spec.safe_min)} | {fmt(spec.safe_max)} |"
+        grouped = f"`{spec.name}`," in table or f", `{spec.name}` |" in table
+        assert row in table or (grouped and spec.safe_min == 0 and spec.safe_max is None), spec.name
