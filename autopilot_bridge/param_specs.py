@@ -1,10 +1,12 @@
 """Every parameter the autopilot serves: ArduCopter's (``params.DEFAULT_PARAM_SPECS``), the scenenav
-vision-failsafe parameters and the airframe model (``airframe.AIRFRAME_PARAM_SPECS``), in the order of
+vision-failsafe parameters, the airframe model (``airframe.AIRFRAME_PARAM_SPECS``) and the ones QGC's
+setup pages read that change nothing here (``gcs_param_specs.GCS_PARAM_SPECS``), in the order of
 their MAVLink ``param_index``."""
 
 from __future__ import annotations
 
 from autopilot_bridge.airframe import AIRFRAME_PARAM_SPECS
+from autopilot_bridge.gcs_param_specs import GCS_PARAM_SPECS
 from autopilot_bridge.params import DEFAULT_PARAM_SPECS, ParamSpec, ParamType
 
 # scenenav parameters of the vision failsafe and of vision fusion.
@@ -17,5 +19,6 @@ SN_PARAM_SPECS: tuple[ParamSpec, ...] = (
     ParamSpec("SN_VIS_MIN_ALT", ParamType.REAL32, 35.0, 0.0, 1000.0, "m",
               "Vision fixes are used (and expected) only this high above home", safe_min=0.0),
 )
-PARAM_SPECS: tuple[ParamSpec, ...] = DEFAULT_PARAM_SPECS + SN_PARAM_SPECS + AIRFRAME_PARAM_SPECS
+PARAM_SPECS: tuple[ParamSpec, ...] = (DEFAULT_PARAM_SPECS + SN_PARAM_SPECS + AIRFRAME_PARAM_SPECS
+                                      + GCS_PARAM_SPECS)
 PARAM_NAMES = frozenset(spec.name for spec in PARAM_SPECS)

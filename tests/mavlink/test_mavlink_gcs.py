@@ -403,3 +403,104 @@ def test_safe_limits_table_agrees_with_the_specs():
         row = f"| `{spec.name}` | {fmt(spec.safe_min)} | {fmt(spec.safe_max)} |"
         grouped = f"`{spec.name}`," in table or f", `{spec.name}` |" in table
         assert row in table or (grouped and spec.safe_min == 0 and spec.safe_max is None), spec.name
+
+
+# ----------------------------------------------------------------------------- item 2: QGC's set
+
+# What QGC's APM setup pages read (src/AutoPilotPlugins/APM: APMRadioComponent, APMSensorsComponent,
+# APMAirframeComponent, the flight mode, power and safety pages).
+QGC_SETUP_PARAMS = (
+    ["RCMAP_ROLL", "RCMAP_PITCH", "RCMAP_YAW", "RCMAP_THROTTLE", "FLTMODE_CH", "SIMPLE",
+     "SUPER_SIMPLE", "FRAME_CLASS", "FRAME_TYPE", "ARMING_CHECK", "COMPASS_ENABLE",
+     "BATT_MONITOR", "BATT_CAPACITY", "BATT_LOW_VOLT", "BATT_CRT_VOLT", "BATT_FS_LOW_ACT",
+     "BATT_FS_CRT_ACT", "BATT_VOLT_MULT", "BATT_AMP_PERVLT", "FENCE_ENABLE", "FENCE_TYPE",
+     "FENCE_ACTION", "FENCE_ALT_MAX", "FENCE_RADIUS", "FS_THR_ENABLE", "FS_THR_VALUE",
+     "FS_GCS_ENABLE", "RTL_ALT", "RTL_LOIT_TIME", "RTL_ALT_FINAL", "LAND_SPEED"]
+    + [f"FLTMODE{i}" for i in range(1, 7)]
+    + [f"RC{n}_{k}" for n in range(1, 17) for k in ("MIN", "MAX", "TRIM", "REVERSED", "DZ")]
+    + [f"COMPASS_{k}{s}" for s in ("", "2", "3") for k in ("DEV_ID", "USE")]
+    + [f"COMPASS_OFS{s}_{a}" for s in ("", "2", "3") for a in "XYZ"]
+    + [f"INS_ACC{s}{k}_{a}" for s in ("", "2", "3") for k in ("OFFS", "SCAL") for a in "XYZ"])
+
+
+def _all_params(conn) -> dict[str, float]:
+    conn.mav.param_request_list_send(1, 1)
+    got: dict[str, float] = {}
+    count = None
+    while count is None or len(got) < count:
+        msg = wait_for(conn, "PARAM_VALUE", timeout_s=10.0)
+        assert msg is not None, f"only {len(got)} of {count} parameters"
+        count = msg.param_count
+        got[msg.param_id] = msg.param_value
+    return got
+
+
+def qgc_setup_complete(p: dict[str, float]) -> dict[str, bool]:
+    """QGC's setupComplete() of the APM components that require setup, from QGC's source."""
+    channels = [int(p[f"RCMAP_{a}"]) for a in ("ROLL", "PITCH", "YAW", "THROTTLE")]
+    radio = all(c > 0 for c in channels) and any(
+        (int(p[f"RC{c}_MIN"]), int(p[f"RC{c}_MAX"]), int(p[f"RC{c}_TRIM"])) != (1100, 1900, 1500)
+        for c in channels)
+    compass_needed = any(
+        int(p[f"COMPASS_DEV_ID{s}"]) != 0 and int(p[f"COMPASS_USE{s}"]) != 0
+        and any(p[f"COMPASS_OFS{s}_{a}"] == 0.0 for a in "XYZ") for s in ("", "2", "3"))
+    accel_needed = all(p[f"INS_ACCOFFS_{a}"] == 0.0 for a in "XYZ")
+    return {"airframe": int(p["FRAME_CLASS"]) > 0, "radio": radio,
+            "sensors": not compass_needed and not accel_needed}
+
+
+def test_qgc_finds_every_setup_parameter_and_setup_complete():
+    params = ParameterStore(PARAM_SPECS)
+    with running_server(params=params) as (server, _):
+        conn = gcs_connection(server.tcp_port)
+        try:
+            got = _all_params(conn)
+            assert len(got) == params.count
+            missing = [n for n in QGC_SETUP_PARAMS if n not in got]
+            assert not missing, missing
+            assert qgc_setup_complete(got) == {"airframe": True, "radio": True, "sensors": True}
+            # the SITL calibration values, as ArduPilot's copter.parm
+            assert got["INS_ACCOFFS_X"] == pytest.approx(0.001) and got["RC3_MIN"] == 1000
+            assert [got[f"FLTMODE{i}"] for i in range(1, 7)] == [7, 9, 6, 3, 5, 0]
+            # a protection that does not exist cannot be switched on
+            conn.mav.param_set_send(1, 1, b"FENCE_ENABLE", 1.0, M.MAV_PARAM_TYPE_INT8)
+            text = wait_for(conn, "STATUSTEXT", condition=lambda m: "FENCE_ENABLE" in m.text)
+            assert text is not None and "not supported" in text.text
+            assert params.get("FENCE_ENABLE") == 0
+            # one that changes nothing is stored as sent
+            conn.mav.param_set_send(1, 1, b"RC3_MIN", 1100.0, M.MAV_PARAM_TYPE_INT16)
+            assert wait_for(conn, "PARAM_VALUE", condition=lambda m: m.param_id == "RC3_MIN"
+                            and m.param_value == 1100.0) is not None
+        finally:
+            conn.close()
+    # QGC would flag a radio that was never calibrated: the check can fail
+    uncalibrated = dict(got, **{f"RC{c}_{k}": v for c in range(1, 5)
+                                for k, v in (("MIN", 1100), ("MAX", 1900), ("TRIM", 1500))})
+    assert not qgc_setup_complete(uncalibrated)["radio"]
+    assert not qgc_setup_complete(dict(got, INS_ACCOFFS_X=0, INS_ACCOFFS_Y=0,
+                                       INS_ACCOFFS_Z=0))["sensors"]
+
+
+def test_gcs_parameters_are_documented_as_changing_nothing():
+    """Every such parameter is in the docs table (`RCn_...` stands for RC1..RC16, `_X/Y/Z` for
+    the three axes), and says so in its own description."""
+    import re
+
+    from support import REPO_ROOT
+
+    from autopilot_bridge.gcs_param_specs import GCS_PARAM_SPECS
+    doc = (REPO_ROOT / "docs" / "mavlink.md").read_text()
+    section = doc[doc.index("### Parameters QGC's setup pages read"):doc.index("## Failsafes")]
+    names: set[str] = set()
+    for token in re.findall(r"`([A-Z0-9_/n]+)`", section):
+        token = token.replace("RCn_", "RC{n}_")
+        axes = ["X", "Y", "Z"] if token.endswith("_X/Y/Z") else [None]
+        for axis in axes:
+            t = token[:-len("X/Y/Z")] + axis if axis else token
+            if "{n}" in t:
+                names.update(t.format(n=n) for n in range(1, 17))
+            else:
+                names.add(t)
+    for spec in GCS_PARAM_SPECS:
+        assert "changes nothing" in spec.description, spec.name
+        assert spec.name in names, spec.name
