@@ -306,6 +306,10 @@ class CommandHandler:
         interval = req.p(2)
         if msg_id is None or not math.isfinite(interval):
             return CommandResult(MavResult.DENIED)
+        if not self._svc.can_send(msg_id):
+            # as GCS_MAVLINK::set_mavlink_message_id_interval for an id it has no ap_message for
+            self._svc.statustext(MavSeverity.INFO, f"No ap_message for mavlink id ({msg_id})")
+            return CommandResult(MavResult.DENIED)
         ok = self._svc.set_message_interval(link, msg_id, interval)
         return CommandResult(MavResult.ACCEPTED if ok else MavResult.DENIED)
 

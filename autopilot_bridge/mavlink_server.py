@@ -274,7 +274,8 @@ class MavlinkServer(LinkTransportMixin, ParamProtocolMixin):
 
     def _encode_context(self) -> EncodeContext:
         return EncodeContext(mission_item_count=len(self.missions.items),
-                             battery_monitor=self.params.get_int("BATT_MONITOR"))
+                             battery_monitor=self.params.get_int("BATT_MONITOR"),
+                             unix_time_us=int(self._wallclock_s() * 1e6))
 
     def _send_encoded(self, links: Iterable[Link], msg_id: int,
                       tel: VehicleTelemetry | None = None) -> None:

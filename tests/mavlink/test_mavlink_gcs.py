@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import errno
 import json
+import math
 import os
 import signal
 import struct
@@ -504,3 +505,51 @@ def test_gcs_parameters_are_documented_as_changing_nothing():
     for spec in GCS_PARAM_SPECS:
         assert "changes nothing" in spec.description, spec.name
         assert spec.name in names, spec.name
+
+
+# ----------------------------------------------------------------------------- item 12: telemetry
+
+
+def _command(conn, command: int, *params: float) -> int:
+    p = list(params) + [0.0] * (7 - len(params))
+    conn.mav.command_long_send(1, 1, command, 0, *p)
+    ack = wait_for(conn, "COMMAND_ACK", condition=lambda m: m.command == command)
+    assert ack is not None, command
+    return ack.result
+
+
+def test_new_telemetry_and_unknown_message_interval_answered_as_ardupilot():
+    from pymavlink.quaternion import Quaternion
+    from support.fake_vehicle import HOME
+    with running_server() as (server, vehicle):
+        conn = gcs_connection(server.tcp_port)
+        try:
+            # ArduPilot: DENIED and "No ap_message for mavlink id (N)" (GCS_Common.cpp)
+            assert _command(conn, M.MAV_CMD_SET_MESSAGE_INTERVAL, 140, 100_000) == \
+                M.MAV_RESULT_DENIED
+            text = wait_for(conn, "STATUSTEXT", condition=lambda m: "ap_message" in m.text)
+            assert text is not None and text.text == "No ap_message for mavlink id (140)"
+            assert text.severity == M.MAV_SEVERITY_INFO
+            # ATTITUDE_QUATERNION on request, agreeing with ATTITUDE's angles
+            assert _command(conn, M.MAV_CMD_SET_MESSAGE_INTERVAL,
+                            M.MAVLINK_MSG_ID_ATTITUDE_QUATERNION, 200_000) == M.MAV_RESULT_ACCEPTED
+            q = wait_for(conn, "ATTITUDE_QUATERNION")
+            assert q is not None
+            want = Quaternion([0.01, -0.02, math.radians(90.0)]).q
+            assert [q.q1, q.q2, q.q3, q.q4] == pytest.approx(list(want), abs=1e-6)
+            # streamed by default, in ArduPilot's groups
+            power = wait_for(conn, "POWER_STATUS")
+            assert power is not None and power.Vcc == 5000
+            assert power.flags & M.MAV_POWER_STATUS_BRICK_VALID
+            st = wait_for(conn, "SYSTEM_TIME")
+            assert st is not None and abs(st.time_unix_usec / 1e6 - time.time()) < 60
+            # GPS_GLOBAL_ORIGIN when asked
+            assert _command(conn, M.MAV_CMD_REQUEST_MESSAGE,
+                            M.MAVLINK_MSG_ID_GPS_GLOBAL_ORIGIN) == M.MAV_RESULT_ACCEPTED
+            origin = wait_for(conn, "GPS_GLOBAL_ORIGIN")
+            assert origin is not None
+            assert (origin.latitude, origin.longitude) == (round(HOME[0] * 1e7),
+                                                           round(HOME[1] * 1e7))
+            assert server.stats["handler_errors"] == 0
+        finally:
+            conn.close()
