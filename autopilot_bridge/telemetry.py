@@ -8,7 +8,7 @@ Shell module (uses pymavlink). Two request styles are honoured, per link as in A
 * REQUEST_DATA_STREAM (legacy stream groups at a rate in Hz), used by MAVProxy
   (``set streamrate``, default 4 Hz). Groups follow ArduPilot's SRx_ streams for the
   messages we produce (``GCS_MAVLink`` ``STREAM_*`` tables): EXTENDED_STATUS = SYS_STATUS,
-  POWER_STATUS, MISSION_CURRENT, GPS_RAW_INT, EXTENDED_SYS_STATE; POSITION =
+  POWER_STATUS, MISSION_CURRENT, NAV_CONTROLLER_OUTPUT, GPS_RAW_INT, EXTENDED_SYS_STATE; POSITION =
   GLOBAL_POSITION_INT, LOCAL_POSITION_NED; EXTRA1 = ATTITUDE; EXTRA2 = VFR_HUD; EXTRA3 =
   SYSTEM_TIME, BATTERY_STATUS, EKF_STATUS_REPORT. ATTITUDE_QUATERNION and GPS_GLOBAL_ORIGIN are
   in no group (as in ArduPilot): SET_MESSAGE_INTERVAL or REQUEST_MESSAGE.
@@ -88,6 +88,7 @@ STREAM_GROUPS: Mapping[DataStream, tuple[int, ...]] = {
     DataStream.RAW_SENSORS: (),
     DataStream.EXTENDED_STATUS: (_M.MAVLINK_MSG_ID_SYS_STATUS, _M.MAVLINK_MSG_ID_POWER_STATUS,
                                  _M.MAVLINK_MSG_ID_MISSION_CURRENT,
+                                 _M.MAVLINK_MSG_ID_NAV_CONTROLLER_OUTPUT,
                                  _M.MAVLINK_MSG_ID_GPS_RAW_INT,
                                  _M.MAVLINK_MSG_ID_EXTENDED_SYS_STATE),
     DataStream.RC_CHANNELS: (),
@@ -105,6 +106,7 @@ DEFAULT_RATES_HZ: Mapping[int, float] = {
     _M.MAVLINK_MSG_ID_HEARTBEAT: 1.0,
     _M.MAVLINK_MSG_ID_SYS_STATUS: 2.0,
     _M.MAVLINK_MSG_ID_POWER_STATUS: 2.0,
+    _M.MAVLINK_MSG_ID_NAV_CONTROLLER_OUTPUT: 2.0,
     _M.MAVLINK_MSG_ID_SYSTEM_TIME: 1.0,
     _M.MAVLINK_MSG_ID_MISSION_CURRENT: 2.0,
     _M.MAVLINK_MSG_ID_GPS_RAW_INT: 2.0,
@@ -445,6 +447,16 @@ def encode_gps_global_origin(tel: VehicleTelemetry, ctx: EncodeContext
         clamp_int(tel.time_boot_ms * 1000, 0, 2 ** 63 - 1, 0))
 
 
+def encode_nav_controller_output(tel: VehicleTelemetry, ctx: EncodeContext
+                                 ) -> mavlink2.MAVLink_message:
+    return mavlink2.MAVLink_nav_controller_output_message(
+        finite_float(tel.nav_roll_deg), finite_float(tel.nav_pitch_deg),
+        clamp_int(tel.nav_bearing_deg, -32768, INT16_MAX, 0),
+        clamp_int(tel.target_bearing_deg, -32768, INT16_MAX, 0),
+        clamp_int(tel.wp_dist_m, 0, UINT16_MAX, 0), finite_float(tel.alt_error_m), 0.0,
+        finite_float(tel.xtrack_error_m))
+
+
 # A healthy board as ArduPilot SITL reports it: 5 V rail, brick valid (AP_HAL board voltage).
 POWER_STATUS_VCC_MV = 5000
 
@@ -481,6 +493,7 @@ ENCODERS: Mapping[int, Encoder] = {
     _M.MAVLINK_MSG_ID_SYSTEM_TIME: encode_system_time,
     _M.MAVLINK_MSG_ID_GPS_GLOBAL_ORIGIN: encode_gps_global_origin,
     _M.MAVLINK_MSG_ID_POWER_STATUS: encode_power_status,
+    _M.MAVLINK_MSG_ID_NAV_CONTROLLER_OUTPUT: encode_nav_controller_output,
 }
 
 STREAMABLE_MSG_IDS: frozenset[int] = frozenset(ENCODERS)

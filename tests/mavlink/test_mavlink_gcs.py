@@ -538,6 +538,8 @@ def test_new_telemetry_and_unknown_message_interval_answered_as_ardupilot():
             want = Quaternion([0.01, -0.02, math.radians(90.0)]).q
             assert [q.q1, q.q2, q.q3, q.q4] == pytest.approx(list(want), abs=1e-6)
             # streamed by default, in ArduPilot's groups
+            nav = wait_for(conn, "NAV_CONTROLLER_OUTPUT")     # EXTENDED_STATUS, from boot
+            assert nav is not None and nav.wp_dist == 0
             power = wait_for(conn, "POWER_STATUS")
             assert power is not None and power.Vcc == 5000
             assert power.flags & M.MAV_POWER_STATUS_BRICK_VALID
