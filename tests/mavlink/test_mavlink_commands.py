@@ -79,7 +79,7 @@ def test_enums_match_mavlink():
     assert isinstance(FakeVehicle(), Vehicle)   # the fake implements the whole protocol
     assert mode_from_name("guided") == CopterMode.GUIDED
     assert {m.name for m in SUPPORTED_MODES} == {"STABILIZE", "ALT_HOLD", "GUIDED", "AUTO",
-                                                 "LOITER", "RTL", "LAND"}
+                                                 "LOITER", "RTL", "LAND", "POSHOLD", "BRAKE"}
 
 
 # ----------------------------------------------------------------------------- arming & modes
