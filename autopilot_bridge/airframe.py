@@ -28,6 +28,7 @@ Rotor order: ``scenenav.core.contracts.QuadXRotor`` (ArduPilot's quad-X motors 1
 
 from __future__ import annotations
 
+import dataclasses
 from dataclasses import dataclass
 
 from autopilot_bridge.params import ParameterStore, ParamSpec, ParamType
@@ -160,4 +161,9 @@ AIRFRAME_PARAM_SPECS: tuple[ParamSpec, ...] = (
               "Airframe model: rotor speed at full command"),
 )
 
+# The model's physics needs every value within its range (a zero mass or arm length breaks the
+# mixer): each is clamped there when set (params module docstring: safe limits).
+AIRFRAME_PARAM_SPECS = tuple(dataclasses.replace(spec, safe_min=spec.min_value,
+                                                 safe_max=spec.max_value)
+                             for spec in AIRFRAME_PARAM_SPECS)
 AIRFRAME_PARAM_NAMES = frozenset(spec.name for spec in AIRFRAME_PARAM_SPECS)

@@ -276,7 +276,11 @@ class CommandHandler:
             alt_frame = AltFrame.RELATIVE_HOME
         else:
             return CommandResult(MavResult.DENIED)
-        speed, flags, yaw, alt = req.p(1), req.p(2), req.p(4), req.p(7)
+        # ArduCopter ignores param1 (speed) and param4 (yaw): handle_command_int_do_reposition
+        # calls mode_guided.set_destination(loc, use_yaw=false, 0, use_yaw_rate=false, 0), and
+        # clients rely on it (MAVProxy's `guided` sends p4 = 0, MAVSDK's goto_location sends its
+        # yaw in degrees, QGC NaN).
+        flags, alt = req.p(2), req.p(7)
         if not (abs(req.x) <= 900_000_000 and abs(req.y) <= 1_800_000_000
                 and math.isfinite(alt) and abs(alt) < 83_000.0):
             return CommandResult(MavResult.DENIED)
@@ -286,10 +290,8 @@ class CommandHandler:
                 return CommandResult(MavResult.DENIED)
             if self.change_mode(CopterMode.GUIDED) != MavResult.ACCEPTED:
                 return CommandResult(MavResult.FAILED)
-        speed_m_s = speed if math.isfinite(speed) and speed > 0 else None
-        yaw_deg = yaw if math.isfinite(yaw) else None
         return CommandResult(self._outcome(self._vehicle.reposition(
-            req.x * 1e-7, req.y * 1e-7, alt, alt_frame, speed_m_s, yaw_deg)))
+            req.x * 1e-7, req.y * 1e-7, alt, alt_frame, None, None)))
 
     def _change_speed(self, req: CommandRequest, link: object) -> CommandResult:
         kind = _as_int(req.p(1), 0, max(SpeedType))
@@ -303,6 +305,10 @@ class CommandHandler:
         msg_id = _as_int(req.p(1), 0, MAX_MSG_ID)
         interval = req.p(2)
         if msg_id is None or not math.isfinite(interval):
+            return CommandResult(MavResult.DENIED)
+        if not self._svc.can_send(msg_id):
+            # as GCS_MAVLINK::set_mavlink_message_id_interval for an id it has no ap_message for
+            self._svc.statustext(MavSeverity.INFO, f"No ap_message for mavlink id ({msg_id})")
             return CommandResult(MavResult.DENIED)
         ok = self._svc.set_message_interval(link, msg_id, interval)
         return CommandResult(MavResult.ACCEPTED if ok else MavResult.DENIED)

@@ -326,6 +326,7 @@ class AutopilotNodeConfig:
     vision_wait_s: float = 5.0         # lockstep: wall seconds to wait for the fix of an acked frame
     estimate_rate_hz: float = 20.0     # autopilot/estimate rate (simulated time)
     params: dict[str, float] = field(default_factory=dict)   # ArduPilot parameters {NAME: value}, after params_file
+    params_store: str = ""             # parameter file kept between runs, like ArduPilot's eeprom.bin: the set parameters, over the defaults ("" = none; scenenav sitl sets it)
 
     def __post_init__(self) -> None:
         check(0 <= self.mavlink_tcp_port <= 65535, "mavlink_tcp_port", self.mavlink_tcp_port,

@@ -117,7 +117,38 @@ class TelemetryMixin:
             ekf_pos_vert_variance=float(std[2] / ok),
             ekf_compass_variance=float(self.nav.attitude_std_rad()[2] / 0.2) if aligned else 1.0,
             sensors_present=int(sensors[0]), sensors_enabled=int(sensors[1]),
-            sensors_health=int(sensors[2]))
+            sensors_health=int(sensors[2]),
+            **self._nav_controller_output(pos, (roll, pitch, heading)))
+
+    def _nav_controller_output(self, pos: np.ndarray, attitude: tuple[float, float, float]
+                               ) -> dict[str, float]:
+        """NAV_CONTROLLER_OUTPUT as ArduCopter's ``send_nav_controller_output``: the attitude
+        target (degrees), the bearing and horizontal distance to the waypoint of the current
+        leg, the vertical position error (target - estimate, m) and the distance from the leg's
+        line (0 without a waypoint). Reads state only."""
+        out = self._last_out
+        if out is not None and self._armed:
+            roll, pitch, heading = aviation_euler_from_quat(
+                tuple(float(a) for a in out.q_target_wxyz))
+        else:
+            roll, pitch, heading = attitude
+        fields = {"nav_roll_deg": math.degrees(roll), "nav_pitch_deg": math.degrees(pitch),
+                  "nav_bearing_deg": math.degrees(heading) % 360.0}
+        target = self._last_target
+        if target is not None and self._armed and not self.fc.landed:
+            fields["alt_error_m"] = float(target.position_enu_m[2] - pos[2])
+        leg = getattr(self._law, "leg", None)
+        if callable(leg) and self._armed:
+            start, wp = leg()
+            d = wp[:2] - pos[:2]
+            fields["wp_dist_m"] = float(math.hypot(d[0], d[1]))
+            fields["target_bearing_deg"] = math.degrees(math.atan2(d[0], d[1])) % 360.0
+            track = wp[:2] - start[:2]
+            length = float(math.hypot(track[0], track[1]))
+            if length > 1e-6:
+                rel = pos[:2] - start[:2]
+                fields["xtrack_error_m"] = float(abs(track[0] * rel[1] - track[1] * rel[0]) / length)
+        return fields
 
     def _landed_state(self) -> LandedState:
         if not self.nav.aligned:

@@ -20,8 +20,8 @@ origin (= the point where the filter was aligned, on the ground), body FRD, lati
 Modes (ArduCopter numbers, ``autopilot_bridge.modes``): STABILIZE and ALT_HOLD without RC (level
 attitude; hover thrust / hold altitude), GUIDED (position, position+velocity, velocity and
 acceleration targets, DO_REPOSITION, takeoff), AUTO (NAV_TAKEOFF, NAV_WAYPOINT with hold time,
-NAV_LAND, NAV_RETURN_TO_LAUNCH, DO_CHANGE_SPEED; other stored commands are skipped), LOITER (hold),
-RTL (climb to RTL_ALT, return, loiter RTL_LOIT_TIME, land or hold at RTL_ALT_FINAL) and LAND. LAND,
+NAV_LAND, NAV_RETURN_TO_LAUNCH, DO_CHANGE_SPEED; other stored commands are skipped), LOITER and
+POSHOLD (hold; no pilot input), BRAKE (stop at 7.5 m/s/s, then hold), RTL (climb to RTL_ALT, return, loiter RTL_LOIT_TIME, land or hold at RTL_ALT_FINAL) and LAND. LAND,
 RTL and AUTO landings disarm at touchdown; other modes disarm DISARM_DELAY s after landing.
 
 Position source (EK3_SRC1_POSXY, switchable in flight): 3 GPS, 6 external navigation (scene-matching
@@ -88,6 +88,11 @@ from autopilot_bridge.vehicle_interface import (
 )
 
 logger = logging.getLogger(__name__)
+
+# BRAKE's horizontal deceleration: ArduCopter's BRAKE_MODE_DECEL_RATE, 750 cm/s/s
+# (ArduCopter/config.h, used by ModeBrake::init); the position controller's own limits (ANGLE_MAX)
+# may decelerate less.
+BRAKE_DECEL_M_S2 = 7.5
 
 
 @dataclass(frozen=True)
@@ -461,8 +466,12 @@ class FlightCore(SensorFusionMixin, ArmingMixin, GuidedMixin, AutoMissionMixin,
         mode = self._mode
         stop = stopping_point(est.position_enu_m, est.velocity_enu_m_s, self._gcfg.wp_accel_m_s2)
         heading = float(est.heading_rad)
-        if mode in (CopterMode.GUIDED, CopterMode.LOITER):
+        if mode in (CopterMode.GUIDED, CopterMode.LOITER, CopterMode.POSHOLD):
+            # POSHOLD without pilot input (there is no RC here) brakes and holds, as LOITER
             self._law = Hold(stop if not self.fc.landed else est.position_enu_m, heading)
+        elif mode == CopterMode.BRAKE:
+            brake = stopping_point(est.position_enu_m, est.velocity_enu_m_s, BRAKE_DECEL_M_S2)
+            self._law = Hold(brake if not self.fc.landed else est.position_enu_m, heading)
         elif mode == CopterMode.AUTO:
             self._auto_enter(est)
         elif mode == CopterMode.RTL:

@@ -110,6 +110,10 @@ class WaypointTracker(GuidanceLaw):
         """Index of the waypoint being flown to (the last one once complete)."""
         return self._index
 
+    def leg(self) -> tuple[np.ndarray, np.ndarray]:
+        """The current leg (start, waypoint) in ENU metres, copies (telemetry only)."""
+        return self._origin.copy(), np.array(self._wps[self._index].position_enu_m, dtype=float)
+
     def handle_position_reset(self, delta_xy_m) -> None:
         """Shift the carrot with an EKF position reset (restarts the current leg from the shifted carrot)."""
         carrot = self._carrot()

@@ -74,7 +74,11 @@ class ParamProtocolMixin:
             self.stats["param_set_refused"] += 1
             self.send(link, self._param_value(index))
             self.statustext(MavSeverity.WARNING, result.reason)
-        elif result.value == before:
+            return
+        if result.reason:                       # stored, clamped to a safe limit: say so
+            self.stats["param_set_clamped"] += 1
+            self.statustext(MavSeverity.WARNING, result.reason)
+        if result.value == before:
             self.broadcast(self._param_value(index))
         else:
             self._flush_param_changes()  # echo the change right away

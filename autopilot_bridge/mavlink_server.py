@@ -11,6 +11,8 @@ Non-blocking: the owner calls :meth:`MavlinkServer.poll` from its loop with its 
 (``now_s``, seconds, monotonic; simulated time is fine). Each poll does ``select`` with a zero
 timeout, reads what is there, handles every complete frame, runs the mission protocol timers,
 sends due telemetry and flushes. Telemetry timestamps are the vehicle's ``time_boot_ms``.
+HEARTBEAT alone is scheduled on the wall clock (``monotonic_s``, injectable), so ground stations
+keep their link while the simulated clock stands still (``telemetry.WALL_CLOCK_MSG_IDS``).
 
 Modules: this one has the server (configuration, poll loop, dispatch of decoded messages to their
 handlers, telemetry streams); ``mavlink_links`` the sockets and links, ``mavlink_framing`` the
@@ -27,7 +29,6 @@ system 0 or ours, target component 0, 1 or 190), and its fields pass the handler
 
 from __future__ import annotations
 
-import enum
 import logging
 import math
 import socket
@@ -41,10 +42,12 @@ from pymavlink.dialects.v20 import ardupilotmega as mavlink2
 
 from autopilot_bridge.commands import CommandHandler, CommandRequest, MavResult
 from autopilot_bridge.mavlink_framing import frame_is_signed, frame_msg_id
+from autopilot_bridge.mavlink_ftp import PAYLOAD_LEN, FtpServer
 from autopilot_bridge.mavlink_links import Link, LinkKind, LinkTransportMixin, close_socket
 from autopilot_bridge.mavlink_params import ParamProtocolMixin
 from autopilot_bridge.mission import MissionManager
 from autopilot_bridge.modes import CopterMode
+from autopilot_bridge.param_pack import PackedParam, pack_params, parse_query
 from autopilot_bridge.params import ParameterStore
 from autopilot_bridge.setpoints import global_position_target, local_position_target, odometry_from_message
 from autopilot_bridge.signing import Signer, SigningConfig
@@ -70,21 +73,14 @@ logger = logging.getLogger(__name__)
 
 MAV_COMP_ID_AUTOPILOT1 = 1
 MAV_COMP_ID_MISSIONPLANNER = 190
-# MAVLink FTP header: seq u16, session, opcode, size, req_opcode, burst_complete, padding, offset
-FTP_HEADER = struct.Struct("<HBBBBBBI")
-FTP_ERR_UNKNOWN_COMMAND = 7
-
-
-class FtpOpcode(enum.IntEnum):
-    ACK = 128
-    NAK = 129
+PARAM_FILE = "@PARAM/param.pck"     # ArduPilot's packed parameter file (autopilot_bridge.param_pack)
 
 
 STAT_KEYS = (
     "rx_bytes", "rx_msgs", "tx_msgs", "tx_bytes", "tx_dropped", "garbage_bytes", "bad_crc",
     "parse_errors", "unknown", "truncated", "dropped_unsigned", "bad_signature", "not_for_us",
     "own_echo", "ignored", "handler_errors", "setpoints_ignored", "setpoints_rejected",
-    "vision_ignored", "vision_rejected", "param_set_refused", "tcp_clients", "tcp_refused",
+    "vision_ignored", "vision_rejected", "param_set_refused", "param_set_clamped", "tcp_clients", "tcp_refused",
     "udp_peers", "udp_refused", "socket_errors", "encode_errors",
 )
 
@@ -138,7 +134,8 @@ class MavlinkServer(LinkTransportMixin, ParamProtocolMixin):
 
     def __init__(self, vehicle: Vehicle, params: ParameterStore,
                  cfg: MavlinkServerConfig | None = None, *,
-                 wallclock_s: Callable[[], float] = time.time) -> None:
+                 wallclock_s: Callable[[], float] = time.time,
+                 monotonic_s: Callable[[], float] = time.monotonic) -> None:
         self.cfg = cfg if cfg is not None else MavlinkServerConfig()
         self.vehicle = vehicle
         self.params = params
@@ -148,6 +145,7 @@ class MavlinkServer(LinkTransportMixin, ParamProtocolMixin):
         self.last_gcs_heartbeat_s: float | None = None
         self.last_any_gcs_heartbeat_s: float | None = None
         self._wallclock_s = wallclock_s
+        self._monotonic_s = monotonic_s
         self._signer = Signer(self.cfg.signing, wallclock_s)
         self._links: list[Link] = []
         self._udp_peers: dict[tuple[str, int], Link] = {}
@@ -165,6 +163,7 @@ class MavlinkServer(LinkTransportMixin, ParamProtocolMixin):
                                        upload_timeout_s=self.cfg.mission_upload_timeout_s,
                                        request_retry_s=self.cfg.mission_request_retry_s)
         self.commands = CommandHandler(vehicle, self)
+        self.ftp = FtpServer(self._ftp_file)
         self._open_sockets()
         params.add_observer(self._on_param_changed)
         logger.info("MAVLink server sysid %d compid %d: tcp %s, udp %s -> %s:%d",
@@ -275,7 +274,8 @@ class MavlinkServer(LinkTransportMixin, ParamProtocolMixin):
 
     def _encode_context(self) -> EncodeContext:
         return EncodeContext(mission_item_count=len(self.missions.items),
-                             battery_monitor=self.params.get_int("BATT_MONITOR"))
+                             battery_monitor=self.params.get_int("BATT_MONITOR"),
+                             unix_time_us=int(self._wallclock_s() * 1e6))
 
     def _send_encoded(self, links: Iterable[Link], msg_id: int,
                       tel: VehicleTelemetry | None = None) -> None:
@@ -291,7 +291,8 @@ class MavlinkServer(LinkTransportMixin, ParamProtocolMixin):
             self._send_encoded([link], mavlink2.MAVLINK_MSG_ID_MISSION_CURRENT)
 
     def _send_streams(self, now_s: float) -> None:
-        due = [(link, link.scheduler.due(now_s)) for link in self._links]
+        wall_s = self._monotonic_s()
+        due = [(link, link.scheduler.due(now_s, wall_s)) for link in self._links]
         if not any(ids for _, ids in due):
             return
         tel = self.vehicle.telemetry()
@@ -399,19 +400,25 @@ class MavlinkServer(LinkTransportMixin, ParamProtocolMixin):
 
     def _on_file_transfer_protocol(self, msg: mavlink2.MAVLink_message, link: Link,
                                    now_s: float) -> None:
-        """MAVLink FTP is not implemented: NAK every request with "unknown command" so clients
-        (MAVProxy tries FTP for parameters first) fall back at once instead of timing out."""
-        payload = bytes(msg.payload)
-        if len(payload) < FTP_HEADER.size:
-            return
-        seq, session, opcode, _size, _req, _burst, _pad, _offset = FTP_HEADER.unpack_from(payload)
-        if opcode in (FtpOpcode.ACK, FtpOpcode.NAK):
-            return
-        reply = FTP_HEADER.pack((seq + 1) & 0xFFFF, session, FtpOpcode.NAK, 1, opcode, 0, 0, 0)
-        reply += bytes((FTP_ERR_UNKNOWN_COMMAND,))
-        self.send(link, mavlink2.MAVLink_file_transfer_protocol_message(
-            msg.target_network, msg.get_srcSystem(), msg.get_srcComponent(),
-            list(reply.ljust(251, b"\0"))))
+        """MAVLink FTP as ArduPilot answers it (``autopilot_bridge.mavlink_ftp``): serves
+        ``@PARAM/param.pck``, NAKs every other path with FileNotFound. Sessions are timed on the
+        wall clock (a frozen simulated clock must not keep a session alive)."""
+        client = (link, msg.get_srcSystem(), msg.get_srcComponent())
+        for payload in self.ftp.handle(client, bytes(msg.payload), self._monotonic_s()):
+            self.send(link, mavlink2.MAVLink_file_transfer_protocol_message(
+                0, msg.get_srcSystem(), msg.get_srcComponent(), list(payload[:PAYLOAD_LEN])))
+
+    def _ftp_file(self, path: str) -> bytes | None:
+        name, _, query = path.partition("?")
+        if name != PARAM_FILE:
+            return None
+        options = parse_query(query)
+        if options is None:
+            return None
+        params = self.params
+        return pack_params((PackedParam(spec.name, spec.ptype, value, params.default_at(i))
+                            for i, (spec, value) in enumerate(
+                                params.by_index(k) for k in range(params.count))), options)
 
     def _on_request_data_stream(self, msg: mavlink2.MAVLink_message, link: Link,
                                 now_s: float) -> None:

@@ -50,6 +50,8 @@ SUPPORTED_MODES: frozenset[CopterMode] = frozenset({
     CopterMode.LOITER,
     CopterMode.RTL,
     CopterMode.LAND,
+    CopterMode.POSHOLD,
+    CopterMode.BRAKE,
 })
 
 # Modes in which ArduCopter's horizontal position controller runs; HEARTBEAT.base_mode then
@@ -72,13 +74,17 @@ POSITION_CONTROLLED_MODES: frozenset[CopterMode] = frozenset({
 
 # Modes with a position controller in the flight core (failsafes treat them as position modes).
 POSITION_MODES: frozenset[CopterMode] = frozenset({CopterMode.GUIDED, CopterMode.AUTO,
-                                                   CopterMode.LOITER, CopterMode.RTL, CopterMode.LAND})
+                                                   CopterMode.LOITER, CopterMode.RTL, CopterMode.LAND,
+                                                   CopterMode.POSHOLD, CopterMode.BRAKE})
 # Modes that need a horizontal position estimate to be entered (ArduCopter requires_GPS()).
 NEEDS_POSITION: frozenset[CopterMode] = frozenset({CopterMode.GUIDED, CopterMode.AUTO,
-                                                   CopterMode.LOITER, CopterMode.RTL})
-# Modes a ground station may arm in (ArduCopter Mode::allows_arming for GCS arming).
+                                                   CopterMode.LOITER, CopterMode.RTL,
+                                                   CopterMode.POSHOLD, CopterMode.BRAKE})
+# Modes a ground station may arm in (ArduCopter Mode::allows_arming for GCS arming; BRAKE's is
+# false, POSHOLD's true).
 ARMABLE_MODES: frozenset[CopterMode] = frozenset({CopterMode.STABILIZE, CopterMode.ALT_HOLD,
-                                                  CopterMode.GUIDED, CopterMode.LOITER})
+                                                  CopterMode.GUIDED, CopterMode.LOITER,
+                                                  CopterMode.POSHOLD})
 
 
 def mode_from_number(number: int) -> CopterMode | None:

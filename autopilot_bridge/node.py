@@ -21,7 +21,8 @@ Outputs
   ``events/autopilot``               Event         every STATUSTEXT and other notable changes
   ``info/autopilot``                 NodeInfo      at start
   liveliness ``nodes/autopilot/autopilot`` and ``lockstep/member/tick/autopilot`` (declared after the
-  subscribers); ``<run>/autopilot.tlog`` (MAVLink log), ``<run>/params.json`` (parameters),
+  subscribers); ``<run>/autopilot.tlog`` (MAVLink log), ``<run>/params.json`` (parameters;
+  the set ones also in ``autopilot.params_store`` when given, kept between runs),
   ``<run>/mavlink.json`` (the MAVLink ports), ``<run>/autopilot_stats.json`` (counters, at exit)
 
 Threading: every Zenoh callback only enqueues; one worker thread handles the queue in arrival order
@@ -141,7 +142,12 @@ class AutopilotNode:
             defaults.update(load_param_file(Path(self.acfg.params_file)))
         defaults.update(self.acfg.params)
         self.params = ParameterStore(PARAM_SPECS, path=run_dir / PARAMS_FILE if run_dir else None,
-                                     defaults=defaults)
+                                     defaults=defaults,
+                                     persist_path=self.acfg.params_store or None)
+        if self.acfg.params_store:
+            log.info("parameters kept in %s (%d set there)", self.acfg.params_store,
+                     len(self.params.persisted_names))
+            self.params.save()      # the run folder's params.json shows the values flown
         self.core = FlightCore(self.params, setup.core)
         self.server = self._open_server()
         # worker state

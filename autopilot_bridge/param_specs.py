@@ -1,21 +1,24 @@
 """Every parameter the autopilot serves: ArduCopter's (``params.DEFAULT_PARAM_SPECS``), the scenenav
-vision-failsafe parameters and the airframe model (``airframe.AIRFRAME_PARAM_SPECS``), in the order of
+vision-failsafe parameters, the airframe model (``airframe.AIRFRAME_PARAM_SPECS``) and the ones QGC's
+setup pages read that change nothing here (``gcs_param_specs.GCS_PARAM_SPECS``), in the order of
 their MAVLink ``param_index``."""
 
 from __future__ import annotations
 
 from autopilot_bridge.airframe import AIRFRAME_PARAM_SPECS
+from autopilot_bridge.gcs_param_specs import GCS_PARAM_SPECS
 from autopilot_bridge.params import DEFAULT_PARAM_SPECS, ParamSpec, ParamType
 
 # scenenav parameters of the vision failsafe and of vision fusion.
 SN_PARAM_SPECS: tuple[ParamSpec, ...] = (
     ParamSpec("SN_VIS_TIMEOUT", ParamType.REAL32, 5.0, 0.0, 120.0, "s",
               "Vision failsafe: hold position after this long without a usable fix in "
-              "GPS-denied flight (EK3_SRC1_POSXY 6); 0 disables"),
+              "GPS-denied flight (EK3_SRC1_POSXY 6); 0 disables", safe_min=0.0),
     ParamSpec("SN_VIS_FS_LAND", ParamType.REAL32, 10.0, 0.0, 600.0, "s",
-              "Vision failsafe: land after holding this long without a fix"),
+              "Vision failsafe: land after holding this long without a fix", safe_min=0.0),
     ParamSpec("SN_VIS_MIN_ALT", ParamType.REAL32, 35.0, 0.0, 1000.0, "m",
-              "Vision fixes are used (and expected) only this high above home"),
+              "Vision fixes are used (and expected) only this high above home", safe_min=0.0),
 )
-PARAM_SPECS: tuple[ParamSpec, ...] = DEFAULT_PARAM_SPECS + SN_PARAM_SPECS + AIRFRAME_PARAM_SPECS
+PARAM_SPECS: tuple[ParamSpec, ...] = (DEFAULT_PARAM_SPECS + SN_PARAM_SPECS + AIRFRAME_PARAM_SPECS
+                                      + GCS_PARAM_SPECS)
 PARAM_NAMES = frozenset(spec.name for spec in PARAM_SPECS)

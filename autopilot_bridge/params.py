@@ -6,14 +6,23 @@ them (``store.get("WPNAV_SPEED")``) and subscribes to changes (``store.add_obser
 
 Names, types, units, defaults and ranges follow ArduCopter 4.5 (``@Param`` documentation in
 ArduPilot ``ArduCopter/Parameters.cpp``, ``libraries/AC_WPNav/AC_WPNav.cpp``,
-``libraries/AP_NavEKF3/AP_NavEKF3.cpp``, ``libraries/GCS_MAVLink/GCS.cpp``). Enumerated
-parameters accept only the values this stack implements (``ParamSpec.values``).
+``libraries/AP_NavEKF3/AP_NavEKF3.cpp``, ``libraries/GCS_MAVLink/GCS.cpp``).
 
-Differences from ArduPilot, on purpose: ArduPilot does not range-check PARAM_SET (ranges are
-ground-station metadata); we refuse out-of-range or not-implemented values and the server
-answers with the unchanged value plus a STATUSTEXT, the way ArduPilot answers a write to a
-read-only parameter. Integer parameters are converted from the float on the wire as
-ArduPilot's ``AP_Param::set_float`` does (truncation after adding 0.01 towards the sign).
+What a set accepts, as ArduPilot: any value within the parameter's type (an integer that fits
+INT8/16/32, a finite float32); the documented range (``min_value`` .. ``max_value``) is
+ground-station metadata, as ArduPilot's ``@Range`` is. Two exceptions, each said in the reply:
+
+* a value beyond a parameter's **safe limit** (``safe_min`` / ``safe_max``) is clamped to it,
+  where the flight core would otherwise be unsafe (no descent in LAND, a zero mass in the mixer)
+  or where ArduPilot's own code clamps (``AC_WPNav``: WPNAV_SPEED >= 20 cm/s, WPNAV_RADIUS >= 5 cm,
+  WPNAV_ACCEL >= 50 cm/s/s; ``ArduCopter/config.h``: RTL_ALT >= 30 cm); the reason goes back with
+  the stored value;
+* an enumerated value this stack does not implement (``ParamSpec.values``) is refused: the old
+  value stays and the server answers with it plus a STATUSTEXT, the way ArduPilot answers a write
+  to a read-only parameter (ArduPilot stores it and runs that feature, which does not exist here).
+
+Integer parameters are converted from the float on the wire as ArduPilot's
+``AP_Param::set_float`` does (truncation after adding 0.01 towards the sign).
 """
 
 from __future__ import annotations
@@ -63,8 +72,11 @@ class ParamSpec:
     max_value: float
     units: str = ""
     description: str = ""
-    # allowed enumerated values as (value, label); empty = any value in range
+    # allowed enumerated values as (value, label); empty = any value of the type
     values: tuple[tuple[int, str], ...] = ()
+    # safe limits: a value beyond them is clamped (None = no limit); see the module docstring
+    safe_min: float | None = None
+    safe_max: float | None = None
 
     def __post_init__(self) -> None:
         if not self.name or len(self.name) > PARAM_NAME_MAX_LEN or not self.name.isascii():
@@ -74,13 +86,17 @@ class ParamSpec:
                              f"[{self.min_value}, {self.max_value}]")
         if self.values and int(self.default) not in {v for v, _ in self.values}:
             raise ValueError(f"{self.name}: default {self.default} not among the allowed values")
+        if not ((self.safe_min is None or self.safe_min <= self.default)
+                and (self.safe_max is None or self.default <= self.safe_max)):
+            raise ValueError(f"{self.name}: default {self.default} beyond its safe limits")
 
     @property
     def is_integer(self) -> bool:
         return self.ptype != ParamType.REAL32
 
     def coerce(self, value: float) -> tuple[float | None, str]:
-        """The stored value for a requested ``value``, or ``(None, reason)`` when refused."""
+        """The stored value for a requested ``value`` and a note when it was clamped, or
+        ``(None, reason)`` when refused."""
         try:
             v = float(value)
         except (TypeError, ValueError):
@@ -95,12 +111,20 @@ class ParamSpec:
         else:
             # what goes over the wire is a float32
             v = _to_float32(v)
-        if not self.min_value <= v <= self.max_value:
-            return None, f"{self.name}={v:g} out of range [{self.min_value:g}, {self.max_value:g}]"
+            if not math.isfinite(v):
+                return None, f"{self.name}: {value:g} does not fit REAL32"
         if self.values and int(v) not in {val for val, _ in self.values}:
             allowed = ", ".join(f"{val}:{label}" for val, label in self.values)
             return None, f"{self.name}={v:g} not supported ({allowed})"
+        if self.safe_min is not None and v < self.safe_min:
+            return self._clamped(v, self.safe_min, "minimum")
+        if self.safe_max is not None and v > self.safe_max:
+            return self._clamped(v, self.safe_max, "maximum")
         return v, ""
+
+    def _clamped(self, requested: float, limit: float, which: str) -> tuple[float, str]:
+        v = float(limit) if self.is_integer else _to_float32(limit)
+        return v, f"{self.name} {requested:g} clamped to {v:g} (safe {which})"
 
 
 def _to_float32(v: float) -> float:
@@ -111,7 +135,8 @@ def _to_float32(v: float) -> float:
 
 
 class SetResult(NamedTuple):
-    """Outcome of :meth:`ParameterStore.set`: the value now stored and why a set was refused."""
+    """Outcome of :meth:`ParameterStore.set`: the value now stored and why a set was refused
+    (``ok`` False) or clamped (``ok`` True with a reason)."""
 
     ok: bool
     value: float
@@ -119,22 +144,23 @@ class SetResult(NamedTuple):
 
 
 def _spec(name: str, ptype: ParamType, default: float, lo: float, hi: float, units: str,
-          description: str, values: tuple[tuple[int, str], ...] = ()) -> ParamSpec:
-    return ParamSpec(name, ptype, default, lo, hi, units, description, values)
+          description: str, values: tuple[tuple[int, str], ...] = (), *,
+          safe: tuple[float | None, float | None] = (None, None)) -> ParamSpec:
+    return ParamSpec(name, ptype, default, lo, hi, units, description, values, safe[0], safe[1])
 
 
 _I8, _I16, _I32, _F = ParamType.INT8, ParamType.INT16, ParamType.INT32, ParamType.REAL32
 
 # ArduCopter 4.5 names, units, defaults and ranges (see the module docstring for sources).
 DEFAULT_PARAM_SPECS: tuple[ParamSpec, ...] = (
-    _spec("ANGLE_MAX", _I16, 3000, 1000, 8000, "cdeg", "Maximum lean angle in all flight modes"),
+    _spec("ANGLE_MAX", _I16, 3000, 1000, 8000, "cdeg", "Maximum lean angle in all flight modes", safe=(1000, 8000)),
     _spec("ARMING_CHECK", _I32, 1, 0, 2 ** 31 - 1, "",
           "Pre-arm checks bitmask: 0 skips all checks, 1 runs all"),
-    _spec("BATT_CAPACITY", _I32, 3300, 0, 1_000_000, "mAh", "Battery capacity"),
+    _spec("BATT_CAPACITY", _I32, 3300, 0, 1_000_000, "mAh", "Battery capacity", safe=(0, None)),
     _spec("BATT_MONITOR", _I8, 4, 0, 4, "", "Battery monitoring reported to the GCS",
           ((0, "Disabled"), (3, "Analog Voltage Only"), (4, "Analog Voltage and Current"))),
     _spec("DISARM_DELAY", _I8, 10, 0, 127, "s",
-          "Delay before automatic disarm after landing; 0 disables auto disarm"),
+          "Delay before automatic disarm after landing; 0 disables auto disarm", safe=(0, None)),
     _spec("EK3_SRC1_POSXY", _I8, 3, 0, 6, "", "EKF horizontal position source",
           ((0, "None"), (3, "GPS"), (6, "ExternalNav"))),
     _spec("EK3_SRC1_POSZ", _I8, 1, 0, 6, "", "EKF vertical position source",
@@ -157,35 +183,35 @@ DEFAULT_PARAM_SPECS: tuple[ParamSpec, ...] = (
           "GCS failsafe action after FS_GCS_TIMEOUT without a SYSID_MYGCS heartbeat",
           ((0, "Disabled"), (1, "RTL"), (3, "SmartRTL or RTL"), (4, "SmartRTL or Land"),
            (5, "Land"))),
-    _spec("FS_GCS_TIMEOUT", _F, 5.0, 2.0, 120.0, "s", "GCS failsafe timeout"),
+    _spec("FS_GCS_TIMEOUT", _F, 5.0, 2.0, 120.0, "s", "GCS failsafe timeout", safe=(0.1, None)),
     _spec("GUID_TIMEOUT", _F, 3.0, 0.1, 5.0, "s",
-          "Guided mode: stop if no velocity/acceleration setpoint arrives for this long"),
-    _spec("LAND_SPEED", _I16, 50, 30, 200, "cm/s", "Descent speed for the final stage of landing"),
+          "Guided mode: stop if no velocity/acceleration setpoint arrives for this long", safe=(0.1, None)),
+    _spec("LAND_SPEED", _I16, 50, 30, 200, "cm/s", "Descent speed for the final stage of landing", safe=(30, None)),
     _spec("LAND_SPEED_HIGH", _I16, 0, 0, 500, "cm/s",
-          "Descent speed for the first stage of landing; 0 = WPNAV_SPEED_DN"),
+          "Descent speed for the first stage of landing; 0 = WPNAV_SPEED_DN", safe=(0, None)),
     _spec("PILOT_SPEED_DN", _I16, 0, 0, 500, "cm/s",
-          "Maximum pilot descent speed; 0 = PILOT_SPEED_UP"),
-    _spec("PILOT_SPEED_UP", _I16, 250, 50, 500, "cm/s", "Maximum pilot climb speed"),
+          "Maximum pilot descent speed; 0 = PILOT_SPEED_UP", safe=(0, None)),
+    _spec("PILOT_SPEED_UP", _I16, 250, 50, 500, "cm/s", "Maximum pilot climb speed", safe=(50, None)),
     _spec("RTL_ALT", _I32, 1500, 30, 300000, "cm",
-          "Minimum altitude above home for the return leg of RTL"),
+          "Minimum altitude above home for the return leg of RTL", safe=(30, 300000)),
     _spec("RTL_ALT_FINAL", _I16, 0, 0, 1000, "cm",
-          "Final RTL altitude above home; 0 = land"),
-    _spec("RTL_LOIT_TIME", _I32, 5000, 0, 60000, "ms", "Loiter time above home before descending"),
-    _spec("RTL_SPEED", _I16, 0, 0, 2000, "cm/s", "Horizontal RTL speed; 0 = WPNAV_SPEED"),
+          "Final RTL altitude above home; 0 = land", safe=(0, None)),
+    _spec("RTL_LOIT_TIME", _I32, 5000, 0, 60000, "ms", "Loiter time above home before descending", safe=(0, None)),
+    _spec("RTL_SPEED", _I16, 0, 0, 2000, "cm/s", "Horizontal RTL speed; 0 = WPNAV_SPEED", safe=(0, None)),
     _spec("SYSID_MYGCS", _I16, 255, 1, 255, "",
-          "System id of the GCS whose heartbeats keep the GCS failsafe quiet"),
-    _spec("SYSID_THISMAV", _I16, 1, 1, 255, "", "MAVLink system id of this vehicle (at start-up)"),
+          "System id of the GCS whose heartbeats keep the GCS failsafe quiet", safe=(1, 255)),
+    _spec("SYSID_THISMAV", _I16, 1, 1, 255, "", "MAVLink system id of this vehicle (at start-up)", safe=(1, 255)),
     _spec("VISO_TYPE", _I8, 0, 0, 1, "",
           "Visual odometry: 1 accepts VISION_POSITION_ESTIMATE / ODOMETRY over MAVLink",
           ((0, "None"), (1, "MAVLink"))),
     _spec("WP_YAW_BEHAVIOR", _I8, 2, 0, 3, "", "Yaw during missions and RTL",
           ((0, "Never change yaw"), (1, "Face next waypoint"),
            (2, "Face next waypoint except RTL"), (3, "Face along GPS course"))),
-    _spec("WPNAV_ACCEL", _F, 250.0, 50.0, 500.0, "cm/s/s", "Horizontal waypoint acceleration"),
-    _spec("WPNAV_RADIUS", _F, 200.0, 5.0, 1000.0, "cm", "Waypoint acceptance radius"),
-    _spec("WPNAV_SPEED", _F, 1000.0, 10.0, 2000.0, "cm/s", "Horizontal waypoint speed"),
-    _spec("WPNAV_SPEED_DN", _F, 150.0, 10.0, 500.0, "cm/s", "Waypoint descent speed"),
-    _spec("WPNAV_SPEED_UP", _F, 250.0, 10.0, 1000.0, "cm/s", "Waypoint climb speed"),
+    _spec("WPNAV_ACCEL", _F, 250.0, 50.0, 500.0, "cm/s/s", "Horizontal waypoint acceleration", safe=(50.0, None)),
+    _spec("WPNAV_RADIUS", _F, 200.0, 5.0, 1000.0, "cm", "Waypoint acceptance radius", safe=(5.0, None)),
+    _spec("WPNAV_SPEED", _F, 1000.0, 10.0, 2000.0, "cm/s", "Horizontal waypoint speed", safe=(20.0, None)),
+    _spec("WPNAV_SPEED_DN", _F, 150.0, 10.0, 500.0, "cm/s", "Waypoint descent speed", safe=(10.0, None)),
+    _spec("WPNAV_SPEED_UP", _F, 250.0, 10.0, 1000.0, "cm/s", "Waypoint climb speed", safe=(10.0, None)),
 )
 
 ParamObserver = Callable[[str, float], None]
@@ -208,14 +234,21 @@ def load_param_file(path: Path) -> dict[str, object]:
 class ParameterStore:
     """Typed parameters in a fixed order (``param_index`` = position in ``specs``).
 
-    ``path`` (optional) is a JSON file ``{"NAME": value, ...}`` read at construction and
-    rewritten atomically after every change. ``defaults`` overrides spec defaults (e.g. from a
-    scenario) before the file is applied.
+    ``path`` (optional) is a JSON file ``{"NAME": value, ...}`` of every value, read at
+    construction and rewritten atomically after every change. ``defaults`` overrides spec defaults
+    (e.g. from a scenario) before the files are applied.
+
+    ``persist_path`` (optional) is the parameter file kept from one start to the next, as
+    ArduPilot SITL keeps ``eeprom.bin``: it holds only the parameters set through :meth:`set`
+    (ArduPilot saves a parameter when it is set, not its defaults), is read at construction over
+    the defaults (so a later start with other defaults, e.g. without GPS, keeps them unless they
+    were set) and rewritten atomically after every set.
     """
 
     def __init__(self, specs: Iterable[ParamSpec] = DEFAULT_PARAM_SPECS,
                  path: str | Path | None = None,
-                 defaults: Mapping[str, float] | None = None) -> None:
+                 defaults: Mapping[str, float] | None = None,
+                 persist_path: str | Path | None = None) -> None:
         self._specs: tuple[ParamSpec, ...] = tuple(specs)
         self._index: dict[str, int] = {}
         for i, spec in enumerate(self._specs):
@@ -227,8 +260,14 @@ class ParameterStore:
         self._path = Path(path) if path is not None else None
         for name, value in (defaults or {}).items():
             self._apply_initial(name, value, "defaults")
+        self._defaults: tuple[float, ...] = tuple(self._values)
         if self._path is not None and self._path.exists():
             self._load(self._path)
+        self._persist_path = Path(persist_path) if persist_path is not None else None
+        self._persisted: set[str] = set()
+        if self._persist_path is not None and self._persist_path.exists():
+            for name in self._load(self._persist_path):
+                self._persisted.add(name)
 
     # ----------------------------------------------------------------- queries
     @property
@@ -260,6 +299,10 @@ class ParameterStore:
     def by_index(self, index: int) -> tuple[ParamSpec, float]:
         return self._specs[index], self._values[index]
 
+    def default_at(self, index: int) -> float:
+        """The start-up default of a parameter: the spec's, or the ``defaults`` given."""
+        return self._defaults[index]
+
     def as_dict(self) -> dict[str, float]:
         return {s.name: v for s, v in zip(self._specs, self._values, strict=False)}
 
@@ -281,45 +324,85 @@ class ParameterStore:
         if new is None:
             logger.info("parameter set refused: %s", reason)
             return SetResult(False, self._values[i], reason)
+        if reason:
+            logger.info("parameter set clamped: %s", reason)
         if new == self._values[i]:
-            return SetResult(True, new)
+            if name not in self._persisted and self._persist_path is not None:
+                self._persisted.add(name)
+                self._save_persisted()
+            return SetResult(True, new, reason)
         self._values[i] = new
         logger.info("parameter %s = %g", name, new)
+        self._persisted.add(name)
         self._save()
+        self._save_persisted()
         for observer in list(self._observers):
             observer(name, new)
-        return SetResult(True, new)
+        return SetResult(True, new, reason)
 
     # ----------------------------------------------------------------- persistence
-    def _apply_initial(self, name: str, value: object, source: str) -> None:
+    def _apply_initial(self, name: str, value: object, source: str) -> bool:
         i = self._index.get(name)
         if i is None:
             logger.warning("%s: unknown parameter %s ignored", source, name)
-            return
+            return False
         if isinstance(value, bool) or not isinstance(value, (int, float)):
             raise UserError(f"{source}: {name} = {value!r}: expected a number")
         new, reason = self._specs[i].coerce(value)
         if new is None:
             raise UserError(f"{source}: {reason}")
+        if reason:
+            logger.warning("%s: %s", source, reason)
         self._values[i] = new
+        return True
 
-    def _load(self, path: Path) -> None:
+    def _load(self, path: Path) -> list[str]:
+        """Apply a parameter file; the names it set (unknown ones are logged and skipped)."""
+        applied = []
         for name, value in load_param_file(path).items():
-            self._apply_initial(str(name), value, str(path))
+            if self._apply_initial(str(name), value, str(path)):
+                applied.append(str(name))
+        return applied
+
+    def save(self) -> None:
+        """Write the files now (``path`` with every value, ``persist_path`` with the set ones)."""
+        self._save()
+        self._save_persisted()
+
+    @property
+    def persisted_names(self) -> frozenset[str]:
+        """The parameters that are in (or go to) the ``persist_path`` file."""
+        return frozenset(self._persisted)
 
     def _save(self) -> None:
         if self._path is None:
             return
-        data = {s.name: (int(v) if s.is_integer else v) for s, v in zip(self._specs, self._values, strict=False)}
-        self._path.parent.mkdir(parents=True, exist_ok=True)
-        fd, tmp = tempfile.mkstemp(prefix=self._path.name, dir=self._path.parent)
-        try:
-            with os.fdopen(fd, "w", encoding="utf-8") as fh:
-                json.dump(data, fh, indent=1, sort_keys=True)
-                fh.write("\n")
-            os.replace(tmp, self._path)
-        except OSError:
-            logger.exception("could not save parameters to %s", self._path)
+        _write_json(self._path, {s.name: (int(v) if s.is_integer else v)
+                                 for s, v in zip(self._specs, self._values, strict=True)})
+
+    def _save_persisted(self) -> None:
+        if self._persist_path is None:
+            return
+        _write_json(self._persist_path, {
+            s.name: (int(v) if s.is_integer else v)
+            for s, v in zip(self._specs, self._values, strict=True) if s.name in self._persisted})
+
+
+def _write_json(path: Path, data: dict[str, float]) -> None:
+    """Atomically replace ``path`` (a crash leaves the old file or the new one, never half)."""
+    tmp = ""
+    try:
+        path.parent.mkdir(parents=True, exist_ok=True)
+        fd, tmp = tempfile.mkstemp(prefix=path.name, dir=path.parent)
+        with os.fdopen(fd, "w", encoding="utf-8") as fh:
+            json.dump(data, fh, indent=1, sort_keys=True)
+            fh.write("\n")
+            fh.flush()
+            os.fsync(fh.fileno())
+        os.replace(tmp, path)
+    except OSError:
+        logger.exception("could not save parameters to %s", path)
+        if tmp:
             try:
                 os.unlink(tmp)
             except OSError:

@@ -7,12 +7,17 @@ Shell module (uses pymavlink). Two request styles are honoured, per link as in A
   MAVSDK and QGC;
 * REQUEST_DATA_STREAM (legacy stream groups at a rate in Hz), used by MAVProxy
   (``set streamrate``, default 4 Hz). Groups follow ArduPilot's SRx_ streams for the
-  messages we produce: EXTENDED_STATUS = SYS_STATUS, MISSION_CURRENT, GPS_RAW_INT,
-  EXTENDED_SYS_STATE; POSITION = GLOBAL_POSITION_INT, LOCAL_POSITION_NED; EXTRA1 = ATTITUDE;
-  EXTRA2 = VFR_HUD; EXTRA3 = BATTERY_STATUS, EKF_STATUS_REPORT.
+  messages we produce (``GCS_MAVLink`` ``STREAM_*`` tables): EXTENDED_STATUS = SYS_STATUS,
+  POWER_STATUS, MISSION_CURRENT, NAV_CONTROLLER_OUTPUT, GPS_RAW_INT, EXTENDED_SYS_STATE; POSITION =
+  GLOBAL_POSITION_INT, LOCAL_POSITION_NED; EXTRA1 = ATTITUDE; EXTRA2 = VFR_HUD; EXTRA3 =
+  SYSTEM_TIME, BATTERY_STATUS, EKF_STATUS_REPORT. ATTITUDE_QUATERNION and GPS_GLOBAL_ORIGIN are
+  in no group (as in ArduPilot): SET_MESSAGE_INTERVAL or REQUEST_MESSAGE.
 
 Time is the caller's clock (``now_s`` given to :meth:`TelemetryScheduler.due`), so message
-counts over a window are deterministic under a simulated clock.
+counts over a window are deterministic under a simulated clock; except for the messages in
+``WALL_CLOCK_MSG_IDS`` (HEARTBEAT), which are scheduled on the wall clock (``wall_s``) so that a
+frozen simulated clock (a lockstep wait for perception of up to 5 s) never starves a ground
+station of heartbeats: QGC declares the link lost after ~3.5 s without one, MAVSDK after 3 s.
 
 Encoders never raise on odd vehicle values: NaN/inf and out-of-range numbers are mapped to
 MAVLink's "unknown" encodings or clamped to the field type.
@@ -29,6 +34,7 @@ from pymavlink.dialects.v20 import ardupilotmega as mavlink2
 
 from autopilot_bridge.modes import POSITION_CONTROLLED_MODES, CopterMode
 from autopilot_bridge.vehicle_interface import SensorFlag, VehicleTelemetry
+from scenenav.core.rotations import quat_from_euler_zyx
 
 INT16_MAX = 2 ** 15 - 1
 INT32_MIN, INT32_MAX = -(2 ** 31), 2 ** 31 - 1
@@ -42,10 +48,11 @@ FIRMWARE_VERSION = (4, 5, 7)
 FIRMWARE_VERSION_TYPE = mavlink2.FIRMWARE_VERSION_TYPE_OFFICIAL
 FLIGHT_CUSTOM_VERSION = b"scenenav"  # 8 bytes where ArduPilot puts its git hash
 
-# AUTOPILOT_VERSION.capabilities: what this emulator implements. Not claimed: FTP (QGC would
-# fetch parameters by FTP), MISSION_FENCE / MISSION_RALLY (fence and rally are answered as
-# empty lists), SET_ATTITUDE_TARGET, FLIGHT_TERMINATION, COMPASS_CALIBRATION, TERRAIN.
+# AUTOPILOT_VERSION.capabilities: what this emulator implements (FTP: the packed parameter file,
+# autopilot_bridge.mavlink_ftp). Not claimed: MISSION_FENCE / MISSION_RALLY (fence and rally are
+# answered as empty lists), SET_ATTITUDE_TARGET, FLIGHT_TERMINATION, COMPASS_CALIBRATION, TERRAIN.
 CAPABILITIES = (mavlink2.MAV_PROTOCOL_CAPABILITY_MISSION_FLOAT
+                | mavlink2.MAV_PROTOCOL_CAPABILITY_FTP
                 | mavlink2.MAV_PROTOCOL_CAPABILITY_PARAM_FLOAT
                 | mavlink2.MAV_PROTOCOL_CAPABILITY_MISSION_INT
                 | mavlink2.MAV_PROTOCOL_CAPABILITY_COMMAND_INT
@@ -79,7 +86,9 @@ class MissionMode(IntEnum):
 _M = mavlink2
 STREAM_GROUPS: Mapping[DataStream, tuple[int, ...]] = {
     DataStream.RAW_SENSORS: (),
-    DataStream.EXTENDED_STATUS: (_M.MAVLINK_MSG_ID_SYS_STATUS, _M.MAVLINK_MSG_ID_MISSION_CURRENT,
+    DataStream.EXTENDED_STATUS: (_M.MAVLINK_MSG_ID_SYS_STATUS, _M.MAVLINK_MSG_ID_POWER_STATUS,
+                                 _M.MAVLINK_MSG_ID_MISSION_CURRENT,
+                                 _M.MAVLINK_MSG_ID_NAV_CONTROLLER_OUTPUT,
                                  _M.MAVLINK_MSG_ID_GPS_RAW_INT,
                                  _M.MAVLINK_MSG_ID_EXTENDED_SYS_STATE),
     DataStream.RC_CHANNELS: (),
@@ -88,13 +97,17 @@ STREAM_GROUPS: Mapping[DataStream, tuple[int, ...]] = {
                           _M.MAVLINK_MSG_ID_LOCAL_POSITION_NED),
     DataStream.EXTRA1: (_M.MAVLINK_MSG_ID_ATTITUDE,),
     DataStream.EXTRA2: (_M.MAVLINK_MSG_ID_VFR_HUD,),
-    DataStream.EXTRA3: (_M.MAVLINK_MSG_ID_BATTERY_STATUS, _M.MAVLINK_MSG_ID_EKF_STATUS_REPORT),
+    DataStream.EXTRA3: (_M.MAVLINK_MSG_ID_SYSTEM_TIME, _M.MAVLINK_MSG_ID_BATTERY_STATUS,
+                        _M.MAVLINK_MSG_ID_EKF_STATUS_REPORT),
 }
 
 # Default rates of a new link (Hz). HEARTBEAT and HOME_POSITION belong to no stream group.
 DEFAULT_RATES_HZ: Mapping[int, float] = {
     _M.MAVLINK_MSG_ID_HEARTBEAT: 1.0,
     _M.MAVLINK_MSG_ID_SYS_STATUS: 2.0,
+    _M.MAVLINK_MSG_ID_POWER_STATUS: 2.0,
+    _M.MAVLINK_MSG_ID_NAV_CONTROLLER_OUTPUT: 2.0,
+    _M.MAVLINK_MSG_ID_SYSTEM_TIME: 1.0,
     _M.MAVLINK_MSG_ID_MISSION_CURRENT: 2.0,
     _M.MAVLINK_MSG_ID_GPS_RAW_INT: 2.0,
     _M.MAVLINK_MSG_ID_EXTENDED_SYS_STATE: 2.0,
@@ -106,6 +119,10 @@ DEFAULT_RATES_HZ: Mapping[int, float] = {
     _M.MAVLINK_MSG_ID_EKF_STATUS_REPORT: 1.0,
     _M.MAVLINK_MSG_ID_HOME_POSITION: 0.2,
 }
+
+
+# Scheduled on the wall clock, not the caller's (see the module docstring).
+WALL_CLOCK_MSG_IDS: frozenset[int] = frozenset({_M.MAVLINK_MSG_ID_HEARTBEAT})
 
 
 class TelemetryScheduler:
@@ -167,19 +184,21 @@ class TelemetryScheduler:
                 self._set_rate(msg_id, rate_hz)
         return True
 
-    def due(self, now_s: float) -> list[int]:
-        """Message ids to send now; each scheduled message advances by its interval."""
+    def due(self, now_s: float, wall_s: float | None = None) -> list[int]:
+        """Message ids to send now; each scheduled message advances by its interval.
+        ``wall_s`` (monotonic wall seconds) times the ``WALL_CLOCK_MSG_IDS``; None = ``now_s``."""
         out = []
         for msg_id, interval in self._interval_s.items():
+            t = wall_s if wall_s is not None and msg_id in WALL_CLOCK_MSG_IDS else now_s
             nxt = self._next_due_s.get(msg_id)
             if nxt is None:
                 out.append(msg_id)
-                self._next_due_s[msg_id] = now_s + interval
-            elif now_s >= nxt:
+                self._next_due_s[msg_id] = t + interval
+            elif t >= nxt:
                 out.append(msg_id)
                 nxt += interval
-                if nxt <= now_s:  # fell behind (e.g. the clock jumped): restart the phase
-                    nxt = now_s + interval
+                if nxt <= t:  # fell behind (e.g. the clock jumped): restart the phase
+                    nxt = t + interval
                 self._next_due_s[msg_id] = nxt
         return out
 
@@ -270,6 +289,7 @@ class EncodeContext:
 
     mission_item_count: int   # stored items excluding home
     battery_monitor: int      # BATT_MONITOR parameter
+    unix_time_us: int = 0     # wall clock for SYSTEM_TIME (0 = unknown)
 
 
 Encoder = Callable[[VehicleTelemetry, EncodeContext], "mavlink2.MAVLink_message | None"]
@@ -400,6 +420,52 @@ def encode_ekf_status_report(tel: VehicleTelemetry, ctx: EncodeContext
         finite_float(tel.ekf_compass_variance), finite_float(tel.ekf_terrain_alt_variance), 0.0)
 
 
+def encode_attitude_quaternion(tel: VehicleTelemetry, ctx: EncodeContext
+                               ) -> mavlink2.MAVLink_message:
+    """ATTITUDE's angles as a quaternion (w, x, y, z; body FRD -> NED): the Z-Y-X Euler formula
+    of ``rotations.quat_from_euler_zyx`` is the same for NED/FRD angles."""
+    r, p, y = _triple(tel.attitude_rpy_rad)
+    rr, pr, yr = _triple(tel.body_rates_rad_s)
+    w, x, qy, z = quat_from_euler_zyx(y, p, r)
+    return mavlink2.MAVLink_attitude_quaternion_message(_time_ms(tel), w, x, qy, z, rr, pr, yr,
+                                                        [0.0, 0.0, 0.0, 0.0])
+
+
+def encode_system_time(tel: VehicleTelemetry, ctx: EncodeContext) -> mavlink2.MAVLink_message:
+    """Unix time from the wall clock (ArduPilot: its RTC, set from GPS) and the boot time."""
+    return mavlink2.MAVLink_system_time_message(max(0, int(ctx.unix_time_us)), _time_ms(tel))
+
+
+def encode_gps_global_origin(tel: VehicleTelemetry, ctx: EncodeContext
+                             ) -> mavlink2.MAVLink_message | None:
+    """The EKF origin. Here the EKF works around home, so the origin is home (ArduPilot sets its
+    origin at the first good GPS fix, usually the same place); nothing before home is set."""
+    if not tel.home_set:
+        return None
+    return mavlink2.MAVLink_gps_global_origin_message(
+        deg_e7(tel.home_lat_deg), deg_e7(tel.home_lon_deg), _mm(tel.home_alt_amsl_m),
+        clamp_int(tel.time_boot_ms * 1000, 0, 2 ** 63 - 1, 0))
+
+
+def encode_nav_controller_output(tel: VehicleTelemetry, ctx: EncodeContext
+                                 ) -> mavlink2.MAVLink_message:
+    return mavlink2.MAVLink_nav_controller_output_message(
+        finite_float(tel.nav_roll_deg), finite_float(tel.nav_pitch_deg),
+        clamp_int(tel.nav_bearing_deg, -32768, INT16_MAX, 0),
+        clamp_int(tel.target_bearing_deg, -32768, INT16_MAX, 0),
+        clamp_int(tel.wp_dist_m, 0, UINT16_MAX, 0), finite_float(tel.alt_error_m), 0.0,
+        finite_float(tel.xtrack_error_m))
+
+
+# A healthy board as ArduPilot SITL reports it: 5 V rail, brick valid (AP_HAL board voltage).
+POWER_STATUS_VCC_MV = 5000
+
+
+def encode_power_status(tel: VehicleTelemetry, ctx: EncodeContext) -> mavlink2.MAVLink_message:
+    return mavlink2.MAVLink_power_status_message(POWER_STATUS_VCC_MV, 0,
+                                                 mavlink2.MAV_POWER_STATUS_BRICK_VALID)
+
+
 def encode_autopilot_version(tel: VehicleTelemetry, ctx: EncodeContext
                              ) -> mavlink2.MAVLink_message:
     major, minor, patch = FIRMWARE_VERSION
@@ -423,6 +489,11 @@ ENCODERS: Mapping[int, Encoder] = {
     _M.MAVLINK_MSG_ID_MISSION_CURRENT: encode_mission_current,
     _M.MAVLINK_MSG_ID_EKF_STATUS_REPORT: encode_ekf_status_report,
     _M.MAVLINK_MSG_ID_AUTOPILOT_VERSION: encode_autopilot_version,
+    _M.MAVLINK_MSG_ID_ATTITUDE_QUATERNION: encode_attitude_quaternion,
+    _M.MAVLINK_MSG_ID_SYSTEM_TIME: encode_system_time,
+    _M.MAVLINK_MSG_ID_GPS_GLOBAL_ORIGIN: encode_gps_global_origin,
+    _M.MAVLINK_MSG_ID_POWER_STATUS: encode_power_status,
+    _M.MAVLINK_MSG_ID_NAV_CONTROLLER_OUTPUT: encode_nav_controller_output,
 }
 
 STREAMABLE_MSG_IDS: frozenset[int] = frozenset(ENCODERS)

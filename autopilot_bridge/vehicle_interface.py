@@ -394,6 +394,15 @@ class VehicleTelemetry:
     sensors_enabled: int = int(DEFAULT_SENSORS)
     sensors_health: int = int(DEFAULT_SENSORS)
     cpu_load_pct: float = 0.0
+    # NAV_CONTROLLER_OUTPUT (ArduCopter: attitude target, bearing/distance to the waypoint, the
+    # vertical position error, the cross-track error); 0 where the mode has no waypoint
+    nav_roll_deg: float = 0.0
+    nav_pitch_deg: float = 0.0
+    nav_bearing_deg: float = 0.0
+    target_bearing_deg: float = 0.0
+    wp_dist_m: float = 0.0
+    alt_error_m: float = 0.0
+    xtrack_error_m: float = 0.0
 
 
 @dataclass(frozen=True)

@@ -79,7 +79,7 @@ def _sitl(args: argparse.Namespace) -> int:
     opts = SitlOptions(scenario=args.scenario, world=args.world, gps=not args.no_gps,
                        speedup=args.speedup, out=args.out, tcp_port=args.tcp_port,
                        udp_out=args.udp_out, perception=args.perception, lockstep=args.lockstep,
-                       overrides=tuple(args.set or ()))
+                       overrides=tuple(args.set or ()), instance=args.instance, wipe=args.wipe)
     summary = run_sitl(opts, announce=lambda text: print(text, flush=True))
     from scenenav.app.evaluation import format_summary
     print(format_summary(summary))
@@ -174,6 +174,13 @@ def build_parser() -> argparse.ArgumentParser:
                     help="lockstep clock: as fast as the nodes allow, deterministic (default realtime)")
     st.add_argument("--set", action="append", metavar="KEY=VALUE",
                     help="override a scenario key, e.g. --set autopilot.params_file=params.json")
+    st.add_argument("-I", "--instance", type=int, default=0, metavar="N",
+                    help="vehicle instance 0..255: parameters set by a ground station are kept in "
+                         "runs/sitl-params/instanceN.json from one start to the next, like "
+                         "sim_vehicle.py's eeprom.bin (default 0; ports are not changed: use "
+                         "--tcp-port)")
+    st.add_argument("-w", "--wipe", action="store_true",
+                    help="forget the instance's kept parameters before starting (sim_vehicle.py -w)")
     st.set_defaults(func=_sitl)
 
     b = sub.add_parser("bench", help="benchmarks that print figures (never part of the tests)",

@@ -6,6 +6,12 @@ autopilot (MAVLink on TCP 127.0.0.1:5760 and UDP out to 127.0.0.1:14550 by defau
 perception node, and the recorder, as child processes through ``scenenav.app.launcher``; prints how to
 connect; runs until Ctrl-C (or SIGTERM); stops every child in order and writes the run folder
 (``summary.json`` etc. through ``scenenav.app.evaluation``).
+
+Parameters persist from one start to the next, per vehicle instance, as ``sim_vehicle.py`` keeps
+``eeprom.bin``: the parameters a ground station sets are kept in
+``runs/sitl-params/instance<N>.json`` (``--instance N``, default 0; the autopilot's
+``autopilot.params_store``) and applied over the defaults at the next start; ``--wipe`` deletes the
+file first (sim_vehicle.py ``-w``).
 """
 
 from __future__ import annotations
@@ -31,6 +37,8 @@ PERCEPTION_CHOICES = ("cnn", "assistant-map", "statistical", "none", PERCEPTION_
 SITL_DURATION_S = 7 * 24 * 3600.0     # "until Ctrl-C"
 READY_TIMEOUT_S = 120.0
 STOP_ORDER = ["sim", "autopilot", "perception", "recorder"]
+PARAMS_STORE_DIR = Path("runs") / "sitl-params"
+MAX_INSTANCE = 255
 
 
 @dataclass(frozen=True)
@@ -45,12 +53,21 @@ class SitlOptions:
     perception: str | None = None      # method, "off" for no perception node, None: the scenario's
     lockstep: bool = False             # lockstep clock (as fast as the nodes allow) instead of realtime
     overrides: tuple[str, ...] = ()    # --set KEY=VALUE, applied last
+    instance: int = 0                  # vehicle instance: which kept parameter file
+    wipe: bool = False                 # delete the instance's kept parameters before starting
+
+
+def params_store_path(instance: int) -> Path:
+    """The parameter file kept between starts of a vehicle instance (absolute)."""
+    return (PARAMS_STORE_DIR / f"instance{instance}.json").resolve()
 
 
 def sitl_scenario(opts: SitlOptions) -> ScenarioConfig:
     """The scenario of a SITL session: the options over the (optional) scenario file, then --set."""
     if not (opts.speedup > 0):
         raise UserError(f"--speedup {opts.speedup}: expected a positive number")
+    if not 0 <= opts.instance <= MAX_INSTANCE:
+        raise UserError(f"--instance {opts.instance}: expected 0..{MAX_INSTANCE}")
     if opts.perception is not None and opts.perception not in PERCEPTION_CHOICES:
         raise UserError(f"--perception {opts.perception}: expected one of "
                         f"{', '.join(PERCEPTION_CHOICES)}")
@@ -63,6 +80,7 @@ def sitl_scenario(opts: SitlOptions) -> ScenarioConfig:
     set_dotted(data, "sim.gps.enabled", bool(opts.gps))
     set_dotted(data, "autopilot.mavlink_tcp_port", int(opts.tcp_port))
     set_dotted(data, "autopilot.mavlink_udp_out", opts.udp_out)
+    set_dotted(data, "autopilot.params_store", str(params_store_path(opts.instance)))
     if opts.world:
         set_dotted(data, "world", opts.world)
     if opts.perception == PERCEPTION_OFF:
@@ -89,6 +107,26 @@ def _check_tcp_port(port: int) -> None:
                             f"is another SITL running? choose another port") from None
 
 
+def _check_params_store(path: Path, wipe: bool) -> None:
+    """Delete the kept parameters for ``--wipe``; a file that cannot be read is a user error now,
+    before any process starts (the autopilot would fail on it)."""
+    if wipe:
+        try:
+            path.unlink(missing_ok=True)
+        except OSError as exc:
+            raise UserError(f"--wipe: cannot delete {path}: {exc.strerror}") from None
+        log.info("parameters wiped: %s", path)
+        return
+    if path.exists():
+        from autopilot_bridge.param_specs import PARAM_SPECS
+        from autopilot_bridge.params import ParameterStore
+        try:
+            ParameterStore(PARAM_SPECS, persist_path=path)
+        except UserError as exc:
+            raise UserError(f"{exc} (the parameters kept by an earlier scenenav sitl; "
+                            f"--wipe resets them)") from None
+
+
 def _connect_text(cfg: ScenarioConfig, run_dir: Path, mavlink: dict) -> str:
     tcp = mavlink.get("tcp_port")
     udp = mavlink.get("udp_out")
@@ -98,6 +136,8 @@ def _connect_text(cfg: ScenarioConfig, run_dir: Path, mavlink: dict) -> str:
              f"clock {clock}, perception "
              f"{cfg.perception.method if cfg.perception.enabled else 'off'}",
              f"run folder: {run_dir}"]
+    if cfg.autopilot.params_store:
+        lines.append(f"parameters kept in {cfg.autopilot.params_store} (--wipe resets them)")
     if tcp:
         lines += [f"MAVLink TCP server: 127.0.0.1:{tcp}",
                   f"  MAVProxy:       mavproxy.py --master tcp:127.0.0.1:{tcp}",
@@ -121,6 +161,9 @@ def _run_sitl(opts: SitlOptions, announce: Callable[[str], None]) -> dict:
     cfg = sitl_scenario(opts)
     world = resolve_world(cfg)
     _check_tcp_port(cfg.autopilot.mavlink_tcp_port)
+    store = Path(cfg.autopilot.params_store) if cfg.autopilot.params_store else None
+    if store is not None:
+        _check_params_store(store, wipe=opts.wipe)
     run_dir = Path(opts.out) if opts.out else Path("runs") / time.strftime("sitl-%Y%m%d-%H%M%S")
     launch = prepare_run(cfg, world, run_dir, opts.scenario or "(sitl)", "sitl")
     meta = json.loads((run_dir / "run.json").read_text())

@@ -47,6 +47,9 @@ def test_mavproxy_guided_takeoff_mission_and_rtl(tmp_path):
             mp.send(f"param set {name} {value}")
             assert wait_until(lambda name=name, value=value: sitl.param(name) == value, 30), f"{name} not set"
         monitor = monitor_connection(sitl.port)
+        # GUIDED needs a position, as in ArduCopter: wait for the EKF (parameters now arrive by
+        # MAVFTP within a second, before the EKF has aligned)
+        mp.expect("EKF3 IMU0 is using")
         mark = mp.send("mode GUIDED")
         mp.expect("GUIDED>", mark)
         mark = mp.send("arm throttle")

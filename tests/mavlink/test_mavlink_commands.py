@@ -79,7 +79,7 @@ def test_enums_match_mavlink():
     assert isinstance(FakeVehicle(), Vehicle)   # the fake implements the whole protocol
     assert mode_from_name("guided") == CopterMode.GUIDED
     assert {m.name for m in SUPPORTED_MODES} == {"STABILIZE", "ALT_HOLD", "GUIDED", "AUTO",
-                                                 "LOITER", "RTL", "LAND"}
+                                                 "LOITER", "RTL", "LAND", "POSHOLD", "BRAKE"}
 
 
 # ----------------------------------------------------------------------------- arming & modes
@@ -185,7 +185,7 @@ def test_reposition_change_speed_and_messages():
             assert vehicle.mode == CopterMode.GUIDED
             name, args = vehicle.calls[-1]
             assert name == "reposition" and args[0] == pytest.approx(47.3985)
-            assert args[2] == 25.0 and args[4] == 5.0 and args[5] is None
+            assert args[2] == 25.0 and args[4] is None and args[5] is None  # speed 5 ignored
             assert long_cmd(conn, M.MAV_CMD_DO_REPOSITION, -1, 1, 0, 0, 47.0, 8.0, 10) == \
                 MavResult.COMMAND_INT_ONLY
             assert long_cmd(conn, M.MAV_CMD_DO_CHANGE_SPEED, 1, 0) == MavResult.DENIED
@@ -197,10 +197,10 @@ def test_reposition_change_speed_and_messages():
                             M.MAVLINK_MSG_ID_AUTOPILOT_VERSION) == MavResult.ACCEPTED
             ver = wait_for(conn, "AUTOPILOT_VERSION")
             assert ver is not None
-            for cap in ("MISSION_INT", "COMMAND_INT", "MAVLINK2", "PARAM_FLOAT",
+            for cap in ("MISSION_INT", "COMMAND_INT", "MAVLINK2", "PARAM_FLOAT", "FTP",
                         "SET_POSITION_TARGET_LOCAL_NED", "SET_POSITION_TARGET_GLOBAL_INT"):
                 assert ver.capabilities & getattr(M, "MAV_PROTOCOL_CAPABILITY_" + cap), cap
-            assert not ver.capabilities & M.MAV_PROTOCOL_CAPABILITY_FTP
+            assert not ver.capabilities & M.MAV_PROTOCOL_CAPABILITY_MISSION_FENCE  # no fence yet
             assert ver.flight_sw_version >> 24 == 4
             assert long_cmd(conn, M.MAV_CMD_REQUEST_MESSAGE, 60000) == MavResult.DENIED
             assert long_cmd(conn, M.MAV_CMD_GET_HOME_POSITION) == MavResult.ACCEPTED

@@ -41,16 +41,39 @@ def test_param_type_values_match_mavlink():
     assert ParamType.REAL32 == mavlink2.MAV_PARAM_TYPE_REAL32
 
 
-@pytest.mark.parametrize("name,value", [("WPNAV_SPEED", 5.0), ("WPNAV_SPEED", 2500.0),
-                                        ("ANGLE_MAX", 9000), ("FS_GCS_ENABLE", 2),
-                                        ("FS_GCS_ENABLE", 6), ("RTL_ALT", math.nan),
-                                        ("WPNAV_SPEED", math.inf), ("SYSID_THISMAV", 0)])
-def test_out_of_range_refused_and_old_value_kept(name, value):
+@pytest.mark.parametrize("name,value", [("FS_GCS_ENABLE", 2), ("FS_GCS_ENABLE", 6),
+                                        ("FRAME_CLASS", 2), ("RTL_ALT", math.nan),
+                                        ("WPNAV_SPEED", math.inf), ("WPNAV_SPEED", 1e39),
+                                        ("DISARM_DELAY", 128), ("RTL_ALT", 2 ** 31)])
+def test_not_implemented_or_not_of_the_type_refused_and_old_value_kept(name, value):
     store = ParameterStore()
     before = store.get(name)
     result = store.set(name, value)
     assert not result.ok and result.reason
     assert result.value == before == store.get(name)
+
+
+@pytest.mark.parametrize("name,value", [("WPNAV_SPEED", 2500.0), ("ARMING_CHECK", -5),
+                                        ("FS_EKF_THRESH", 3.0), ("RTL_LOIT_TIME", 600000),
+                                        ("BATT_CAPACITY", 5_000_000)])
+def test_any_value_of_the_type_is_stored_as_arducopter(name, value):
+    """The documented range is ground-station metadata (ArduPilot's @Range): beyond it, within the
+    type and the safe limits, the value is stored as sent."""
+    store = ParameterStore()
+    spec = store.spec(name)
+    assert not spec.min_value <= value <= spec.max_value
+    result = store.set(name, value)
+    assert result.ok and not result.reason and store.get(name) == pytest.approx(value)
+
+
+@pytest.mark.parametrize("name,value,stored", [("WPNAV_SPEED", 5.0, 20.0), ("ANGLE_MAX", 9000, 8000),
+                                               ("SYSID_THISMAV", 0, 1), ("LAND_SPEED", 0, 30),
+                                               ("RTL_ALT", -100, 30), ("WPNAV_RADIUS", 1.0, 5.0)])
+def test_unsafe_values_are_clamped_and_say_so(name, value, stored):
+    store = ParameterStore()
+    result = store.set(name, value)
+    assert result.ok and store.get(name) == stored == result.value
+    assert "clamped" in result.reason and name in result.reason
 
 
 def test_integer_parameters_convert_like_arducopter_and_observers_fire():
@@ -80,9 +103,14 @@ def test_bad_parameter_file_is_a_user_error(tmp_path):
     path.write_text("{not json")
     with pytest.raises(UserError, match="params.json"):
         ParameterStore(path=path)
-    path.write_text(json.dumps({"WPNAV_SPEED": 99999}))
+    path.write_text(json.dumps({"FS_GCS_ENABLE": 2}))          # not implemented
+    with pytest.raises(UserError, match="FS_GCS_ENABLE"):
+        ParameterStore(path=path)
+    path.write_text(json.dumps({"WPNAV_SPEED": "fast"}))
     with pytest.raises(UserError, match="WPNAV_SPEED"):
         ParameterStore(path=path)
+    path.write_text(json.dumps({"WPNAV_SPEED": 1.0}))           # clamped, with a warning
+    assert ParameterStore(path=path).get("WPNAV_SPEED") == 20.0
 
 
 # ----------------------------------------------------------------------------- protocol
@@ -130,12 +158,25 @@ def test_param_read_by_name_and_index_set_and_refuse():
             assert server.params.get("WPNAV_SPEED") == 1500.0
             assert vehicle.params_seen["WPNAV_SPEED"] == 1500.0
 
-            # out of range: the unchanged value comes back, with a STATUSTEXT saying why
-            conn.mav.param_set_send(1, 1, b"WPNAV_SPEED", 99999.0, mavlink2.MAV_PARAM_TYPE_REAL32)
-            msg = wait_for(conn, "PARAM_VALUE", condition=lambda m: m.param_id == "WPNAV_SPEED")
-            assert msg is not None and msg.param_value == 1500.0
+            # beyond the documented range: stored as sent (ArduPilot's ranges are metadata)
+            conn.mav.param_set_send(1, 1, b"WPNAV_SPEED", 2500.0, mavlink2.MAV_PARAM_TYPE_REAL32)
+            msg = wait_for(conn, "PARAM_VALUE", condition=lambda m: m.param_id == "WPNAV_SPEED"
+                           and m.param_value != 1500.0)
+            assert msg is not None and msg.param_value == 2500.0
+            # beyond the safe limit: clamped, and a STATUSTEXT says so
+            conn.mav.param_set_send(1, 1, b"WPNAV_SPEED", 1.0, mavlink2.MAV_PARAM_TYPE_REAL32)
+            msg = wait_for(conn, "PARAM_VALUE", condition=lambda m: m.param_id == "WPNAV_SPEED"
+                           and m.param_value != 2500.0)
+            assert msg is not None and msg.param_value == 20.0
             text = wait_for(conn, "STATUSTEXT", condition=lambda m: "WPNAV_SPEED" in m.text)
-            assert text is not None and "range" in text.text
+            assert text is not None and "clamped to 20" in text.text
+            assert server.stats["param_set_clamped"] == 1
+            # not implemented: the unchanged value comes back, with a STATUSTEXT saying why
+            conn.mav.param_set_send(1, 1, b"FS_GCS_ENABLE", 2.0, mavlink2.MAV_PARAM_TYPE_INT8)
+            msg = wait_for(conn, "PARAM_VALUE", condition=lambda m: m.param_id == "FS_GCS_ENABLE")
+            assert msg is not None and msg.param_value == 0.0
+            text = wait_for(conn, "STATUSTEXT", condition=lambda m: "FS_GCS_ENABLE" in m.text)
+            assert text is not None and "not supported" in text.text
             assert server.stats["param_set_refused"] == 1
 
             # NaN: refused too

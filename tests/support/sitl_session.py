@@ -44,13 +44,19 @@ def enu_to_latlon(x_m: float, y_m: float) -> tuple[float, float]:
 
 
 class SitlSession:
-    """``scenenav sitl`` as a subprocess on a free TCP port (UDP output off); stop() sends SIGINT."""
+    """``scenenav sitl`` as a subprocess on a free TCP port (UDP output off); stop() sends SIGINT.
 
-    def __init__(self, tmp_path: Path, *extra: str) -> None:
+    The parameters it keeps between starts go to ``params_store`` (default: a file in
+    ``tmp_path``), never to the shared ``runs/sitl-params`` of the working copy."""
+
+    def __init__(self, tmp_path: Path, *extra: str, params_store: Path | None = None,
+                 run_name: str = "run") -> None:
         self.port = free_port()
-        self.run_dir = tmp_path / "run"
+        self.run_dir = tmp_path / run_name
+        self.params_store = params_store or tmp_path / "params-store.json"
         cmd = [sys.executable, "-m", "scenenav.app.cli", "--log-level", "INFO", "sitl",
-               "--out", str(self.run_dir), "--tcp-port", str(self.port), "--udp-out", "0", *extra]
+               "--out", str(self.run_dir), "--tcp-port", str(self.port), "--udp-out", "0",
+               "--set", f"autopilot.params_store={self.params_store}", *extra]
         self.out = LineProcess(cmd, name="scenenav sitl", timeout_s=TIMEOUT_S, cwd=REPO,
                                stdin=subprocess.DEVNULL)
         self.proc, self.lines = self.out.proc, self.out.lines

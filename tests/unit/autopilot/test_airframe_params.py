@@ -25,8 +25,9 @@ def test_parameter_changes_rebuild_controller_and_mixer():
     assert store.set("MOT_THST_HOVER", 0.5).ok
     assert core.airframe.hover_thrust_fraction == pytest.approx(0.5)
     assert core.fc.hover_thrust_n == pytest.approx(0.5 * core.airframe.max_thrust_n)
-    assert not store.set("SN_MASS_KG", -1.0).ok          # out of range: refused, model unchanged
-    assert core.airframe.mass_kg == 2.0
+    result = store.set("SN_MASS_KG", -1.0)                # unsafe: clamped to the model's limit
+    assert result.ok and "clamped to 0.05" in result.reason
+    assert core.airframe.mass_kg == pytest.approx(0.05)
 
 
 def test_thrust_curve_and_output_range():
