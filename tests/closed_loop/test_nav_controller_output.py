@@ -1,19 +1,19 @@
 """NAV_CONTROLLER_OUTPUT's data from the flight core (ArduCopter's send_nav_controller_output): the
 attitude target, the bearing and distance to the waypoint, the vertical position error and the
-cross-track error, on the in-process flight (``GroundFlight``)."""
+cross-track error, on the in-process flight (``CoreFlight``: the flight core on the simulator's core)."""
 
 from __future__ import annotations
 
 import math
 
-from support.ground_flight import GroundFlight
+from support.sim_flight import CoreFlight
 
 from autopilot_bridge.modes import CopterMode
 from autopilot_bridge.vehicle_interface import AltFrame
 
 
 def test_nav_controller_output_follows_the_guided_target():
-    f = GroundFlight(3, SN_VIS_TIMEOUT=0)
+    f = CoreFlight(3, gps=True, SN_VIS_TIMEOUT=0)
     c = f.core
     for _ in range(150):
         f.tick()

@@ -1,5 +1,5 @@
 """BRAKE (QGC's Pause) and POSHOLD (MAVSDK's hold / position control) on the in-process flight
-(``GroundFlight``): BRAKE stops at ArduCopter's 7.5 m/s/s, sooner than LOITER's WPNAV_ACCEL stop,
+(``CoreFlight``: the flight core on the simulator's core): BRAKE stops at ArduCopter's 7.5 m/s/s, sooner than LOITER's WPNAV_ACCEL stop,
 then holds; POSHOLD without pilot input holds; arming is allowed in POSHOLD, not in BRAKE."""
 
 from __future__ import annotations
@@ -7,27 +7,19 @@ from __future__ import annotations
 import math
 
 import numpy as np
-from support.ground_flight import GroundFlight
+from support.sim_flight import CoreFlight
 
-from autopilot_bridge.fusion import GpsReading
 from autopilot_bridge.modes import CopterMode
 from autopilot_bridge.vehicle_interface import AltFrame
 
 GPS_EVERY_TICKS = 20          # 5 Hz at the 100 Hz control rate
 
 
-class GpsFlight(GroundFlight):
-    """GroundFlight with a GPS made from the truth (5 Hz, 0.5 m / 0.8 m accuracy claimed)."""
+class GpsFlight(CoreFlight):
+    """CoreFlight navigating on the simulator's GPS (EK3_SRC1_POSXY/VELXY 3), vision failsafe off."""
 
     def __init__(self, seed: int) -> None:
-        super().__init__(seed, SN_VIS_TIMEOUT=0, EK3_SRC1_POSXY=3, EK3_SRC1_VELXY=3)
-
-    def tick(self) -> None:
-        super().tick()
-        if self.k % GPS_EVERY_TICKS == 0:
-            lat, lon = self.core.geo.to_geodetic(float(self.p[0]), float(self.p[1]))
-            self.core.on_gps(GpsReading(self.t, lat, lon, float(self.p[2]),
-                                        tuple(float(a) for a in self.v), 0.5, 0.8, 3, 12))
+        super().__init__(seed, gps=True, SN_VIS_TIMEOUT=0, EK3_SRC1_POSXY=3, EK3_SRC1_VELXY=3)
 
 
 def _cruise_then(mode: CopterMode) -> tuple[float, float]:
