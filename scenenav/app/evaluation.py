@@ -94,13 +94,20 @@ def fix_metrics(fx: dict[str, np.ndarray]) -> dict[str, Any]:
     }
 
 
-def estimate_metrics(run_dir: Path) -> dict[str, Any]:
-    est = read_csv(run_dir / "estimates.csv")
-    truth = read_csv(run_dir / "truth.csv")
+def estimate_errors(run_dir: Path) -> np.ndarray:
+    """Horizontal error of every autopilot estimate against truth (m); empty without an autopilot."""
+    est = read_csv(Path(run_dir) / "estimates.csv")
+    truth = read_csv(Path(run_dir) / "truth.csv")
     if not est or not truth or len(est.get("t_s", [])) == 0 or len(truth.get("t_s", [])) < 2:
-        return {"rms_error_m": None, "max_error_m": None}
+        return np.zeros(0)
     tx, ty = _interp_truth(truth, est["t_s"])
-    e = np.hypot(est["x_m"] - tx, est["y_m"] - ty)
+    return np.hypot(est["x_m"] - tx, est["y_m"] - ty)
+
+
+def estimate_metrics(run_dir: Path) -> dict[str, Any]:
+    e = estimate_errors(run_dir)
+    if len(e) == 0:
+        return {"rms_error_m": None, "max_error_m": None}
     return {"rms_error_m": float(np.sqrt(np.mean(e ** 2))), "max_error_m": float(np.max(e))}
 
 
