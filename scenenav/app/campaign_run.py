@@ -274,9 +274,8 @@ class _IgnoreSigint:
 def _client(workers: int | None, scheduler: str | None):
     from distributed import Client, LocalCluster
     # Dask logs every worker's arrival and departure at INFO: keep them for --log-level INFO/DEBUG.
-    logging.getLogger("distributed").setLevel(max(logging.getLogger().getEffectiveLevel(), logging.ERROR)
-                                              if logging.getLogger().getEffectiveLevel() >= logging.WARNING
-                                              else logging.getLogger().getEffectiveLevel())
+    level = logging.getLogger().getEffectiveLevel()
+    logging.getLogger("distributed").setLevel(logging.ERROR if level >= logging.WARNING else level)
     if scheduler:
         try:
             client = Client(scheduler, timeout="20s")
@@ -302,12 +301,9 @@ def _client(workers: int | None, scheduler: str | None):
     return client, cluster
 
 
-def _stop_on_sigterm(signum, _frame):
-    raise KeyboardInterrupt(f"signal {signum}")
-
-
 def run_campaign(campaign_file: str, out_dir: str, workers: int | None = None, scheduler: str | None = None,
                  extra_sets: tuple[str, ...] = (), retry_failed: bool = False, max_runs: int | None = None,
+                 max_repeat: int | None = None,
                  progress: bool = True, report_dir: str | None = None,
                  command: str | None = None) -> CampaignResult:
     """Expand, fly what is not complete yet, write results.parquet/csv and report.md."""
@@ -317,7 +313,9 @@ def run_campaign(campaign_file: str, out_dir: str, workers: int | None = None, s
     if max_runs is not None and max_runs < 1:
         raise UserError(f"--max-runs {max_runs}: expected an integer >= 1")
     spec = load_campaign(campaign_file, extra_sets)
-    runs = expand(spec)
+    if max_repeat is not None and max_repeat < 1:
+        raise UserError(f"--repeat {max_repeat}: expected an integer >= 1")
+    runs = expand(spec, max_repeat)
     if max_runs is not None:
         runs = runs[:max_runs]
     out = Path(out_dir).resolve()
@@ -338,12 +336,12 @@ def run_campaign(campaign_file: str, out_dir: str, workers: int | None = None, s
     result = CampaignResult(out, len(runs), len(runs) - len(todo))
     print(f"campaign {spec.name}: {len(runs)} runs planned ({out / 'plan.json'}), "
           f"{result.skipped} already complete, {len(todo)} to fly", file=sys.stderr, flush=True)
-    old_term = signal.signal(signal.SIGTERM, _stop_on_sigterm)
+    from scenenav.app.launcher import install_interrupt_handlers
+    install_interrupt_handlers()      # also when started with SIGINT ignored (a background job)
     try:
         if todo:
             _fly_all(spec, todo, out, workers, scheduler, progress, result)
     finally:
-        signal.signal(signal.SIGTERM, old_term)
         write_outputs(out, spec, runs, report_dir, command)
     if result.interrupted:
         raise KeyboardInterrupt
@@ -367,23 +365,25 @@ def _fly_all(spec: CampaignSpec, todo: list[PlannedRun], out: Path, workers: int
                               spec.timeout_s, stop_name, time.time())
             futures.append(client.submit(fly, task, key=f"flight-{r.run_id}-{uuid.uuid4().hex[:6]}",
                                          resources={"flight": 1}, retries=1, pure=False))
+        for fut in as_completed(futures):
+            rid = fut.key.split("-")[1]
+            result.received_unix[rid] = time.time()
+            if fut.status == "error":
+                result.failed += 1
+                log.warning("%s", fut.exception())
+            else:
+                result.flown += 1
+            bar.update(1)
+            bar.set_postfix(done=result.flown, failed=result.failed)
+    except KeyboardInterrupt:
+        result.interrupted = True
+        print("interrupted: stopping the running flights (the next invocation resumes)",
+              file=sys.stderr, flush=True)
+        stop.set()
         try:
-            for fut in as_completed(futures):
-                rid = fut.key.split("-")[1]
-                result.received_unix[rid] = time.time()
-                if fut.status == "error":
-                    result.failed += 1
-                    log.warning("%s", fut.exception())
-                else:
-                    result.flown += 1
-                bar.update(1)
-                bar.set_postfix(done=result.flown, failed=result.failed)
-        except KeyboardInterrupt:
-            result.interrupted = True
-            print("interrupted: stopping the running flights (the next invocation resumes)",
-                  file=sys.stderr, flush=True)
-            stop.set()
             wait(futures, timeout=CANCEL_WAIT_S)
+        except TimeoutError:
+            log.warning("flights still stopping after %.0f s; closing the cluster", CANCEL_WAIT_S)
     finally:
         result.makespan_s = time.time() - t0
         bar.close()

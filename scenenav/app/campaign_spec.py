@@ -272,8 +272,11 @@ def _points(spec: CampaignSpec) -> list[tuple[tuple[tuple[str, Any], ...], tuple
     return out
 
 
-def expand(spec: CampaignSpec) -> list[PlannedRun]:
-    """Every run of the campaign, resolved and checked (a UserError before any flight on a bad one)."""
+def expand(spec: CampaignSpec, max_repeat: int | None = None) -> list[PlannedRun]:
+    """Every run of the campaign, resolved and checked (a UserError before any flight on a bad one).
+
+    ``max_repeat`` flies only the first repetitions of each point (a reduced campaign whose runs are
+    the same runs, same ids, as the full one's)."""
     _resolve(spec, spec.set_overrides, "set")   # the common overrides alone, for a clear message
     runs: list[PlannedRun] = []
     seen: dict[str, int] = {}
@@ -281,7 +284,7 @@ def expand(spec: CampaignSpec) -> list[PlannedRun]:
         overrides = spec.set_overrides + sets
         where = ", ".join(f"{k}={v}" for k, v in point) or "the base scenario"
         scenario = _resolve(spec, overrides, f"run {where}")
-        for rep in range(spec.repeat):
+        for rep in range(min(spec.repeat, max_repeat or spec.repeat)):
             run_point, run_overrides, resolved = point, overrides, scenario
             if spec.repeat > 1:
                 run_overrides = overrides + (override_text("seed", derived_seed(scenario, rep)),)

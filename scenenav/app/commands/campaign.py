@@ -20,7 +20,7 @@ def _cmd(args: argparse.Namespace) -> int:
     from scenenav.app.campaign_run import run_campaign
     result = run_campaign(args.campaign, args.out, workers=args.workers, scheduler=args.scheduler,
                           extra_sets=tuple(args.set or ()), retry_failed=args.retry_failed,
-                          max_runs=args.max_runs, progress=not args.quiet, report_dir=args.report_dir,
+                          max_runs=args.max_runs, max_repeat=args.repeat, progress=not args.quiet, report_dir=args.report_dir,
                           command="scenenav " + " ".join(sys.argv[1:]) if sys.argv[1:2] == ["campaign"] else None)
     print(f"results: {result.out_dir / 'results.parquet'}, {result.out_dir / 'report.md'}")
     return 1 if result.failed else 0
@@ -41,6 +41,8 @@ def register(sub) -> None:
                    help="one more override for every run (changes the run ids: a different campaign)")
     c.add_argument("--max-runs", type=int, metavar="N",
                    help="plan only the first N runs (a reduced campaign; the full one reuses them)")
+    c.add_argument("--repeat", type=int, metavar="N",
+                   help="fly only the first N repetitions of each point (a reduced campaign; same run ids)")
     c.add_argument("--retry-failed", action="store_true",
                    help="fly again the runs an earlier invocation recorded as failed")
     c.add_argument("--report-dir", metavar="DIR2", help="also write report.md and its plots to DIR2")
