@@ -310,13 +310,17 @@ def _plot(out: Path, data: list[RunData], groups: list[dict]) -> None:
     plt.close(fig)
 
 
-def report_markdown(spec: CampaignSpec, data: list[RunData], groups: list[dict], command: str) -> str:
+def report_markdown(spec: CampaignSpec, data: list[RunData], groups: list[dict], command: str,
+                    full_count: int | None = None) -> str:
     status: dict[str, int] = {}
     for d in data:
         status[str(d.row.get("run_status"))] = status.get(str(d.row.get("run_status")), 0) + 1
     lines = [f"# Campaign `{spec.name}`", ""]
     if spec.description:
         lines += [spec.description.strip(), ""]
+    if full_count is not None and full_count > len(data):
+        lines += [f"**Reduced campaign: {len(data)} of the campaign file's {full_count} runs** (the same run "
+                  "ids as the full campaign's; the full command flies the rest and keeps these).", ""]
     lines += [f"Runs: {len(data)} planned — " + ", ".join(f"{n} {s}" for s, n in sorted(status.items())) + ".",
               f"Grouped by: {', '.join(spec.group_by) or '(one group)'}. "
               f"Intervals: {CONFIDENCE:.0%} bootstrap over whole runs ({BOOTSTRAP_RESAMPLES} resamples, "
@@ -350,7 +354,7 @@ def report_markdown(spec: CampaignSpec, data: list[RunData], groups: list[dict],
 
 
 def write_outputs(out: Path, spec: CampaignSpec, runs: list[PlannedRun], report_dir: str | None = None,
-                  command: str | None = None) -> None:
+                  command: str | None = None, full_count: int | None = None) -> None:
     """Tables first (they must survive anything), then the report and its plots."""
     data = collect(out, runs)
     write_tables(out, [d.row for d in data])
@@ -360,7 +364,7 @@ def write_outputs(out: Path, spec: CampaignSpec, runs: list[PlannedRun], report_
     except Exception:   # a plot must never lose the table or the report
         log.exception("could not draw the campaign plots")
     cmd = command or f"scenenav campaign {spec.path.name} --out {out.name}"
-    md = report_markdown(spec, data, groups, cmd)
+    md = report_markdown(spec, data, groups, cmd, full_count)
     _replace_atomic(out / "report.md", lambda p: p.write_text(md, encoding="utf-8"))
     if report_dir:
         dest = Path(report_dir)

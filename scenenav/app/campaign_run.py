@@ -318,6 +318,7 @@ def run_campaign(campaign_file: str, out_dir: str, workers: int | None = None, s
     runs = expand(spec, max_repeat)
     if max_runs is not None:
         runs = runs[:max_runs]
+    full_count = len(expand(spec)) if (max_runs or max_repeat) else len(runs)
     out = Path(out_dir).resolve()
     previous = out / "plan.json"
     if previous.is_file():
@@ -342,7 +343,7 @@ def run_campaign(campaign_file: str, out_dir: str, workers: int | None = None, s
         if todo:
             _fly_all(spec, todo, out, workers, scheduler, progress, result)
     finally:
-        write_outputs(out, spec, runs, report_dir, command)
+        write_outputs(out, spec, runs, report_dir, command, full_count)
     if result.interrupted:
         raise KeyboardInterrupt
     return result
