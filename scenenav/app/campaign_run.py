@@ -178,15 +178,19 @@ def fly(task: FlightTask) -> dict:
     port = free_port()
     cmd = [sys.executable, "-m", "scenenav.app.cli", "run", task.scenario_file, "--out", str(partial),
            "--quiet", "--set", f"autopilot.mavlink_tcp_port={port}", "--set", "autopilot.mavlink_udp_out=none"]
-    with launcher_log.open("wb") as out:
-        proc = subprocess.Popen(cmd, cwd=task.cwd, stdout=out, stderr=subprocess.STDOUT,
-                                stdin=subprocess.DEVNULL, start_new_session=True,
-                                preexec_fn=die_with_parent)
-    launch_unix = time.time()
     rc, cpu_s, why = None, None, ""
+    with launcher_log.open("wb") as out:
+        try:
+            proc = subprocess.Popen(cmd, cwd=task.cwd, stdout=out, stderr=subprocess.STDOUT,
+                                    stdin=subprocess.DEVNULL, start_new_session=True,
+                                    preexec_fn=die_with_parent)
+        except OSError as exc:     # e.g. the client's folder is not on this worker's filesystem
+            out.write(f"error: cannot start {' '.join(cmd)} in {task.cwd}: {exc}\n".encode())
+            proc = None
+    launch_unix = time.time()
     deadline = time.monotonic() + task.timeout_s
     signalled_at = None
-    while rc is None:
+    while proc is not None and rc is None:
         pid, status, usage = os.wait4(proc.pid, os.WNOHANG)
         if pid:
             rc = os.waitstatus_to_exitcode(status)
