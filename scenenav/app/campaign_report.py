@@ -273,7 +273,7 @@ def _plot(out: Path, data: list[RunData], groups: list[dict]) -> None:
     ok = [d for d in data if d.row.get("run_status") == "ok"]
     fig, axes = plt.subplots(1, 2, figsize=(12, 4.5))
     for ax, attr, title in ((axes[0], "fix_errors_m", "accepted scene-matching fixes"),
-                            (axes[1], "est_errors_m", "autopilot estimate (GPS-denied: vision + IMU)")):
+                            (axes[1], "est_errors_m", "autopilot estimate (runs with an autopilot)")):
         by_method: dict[str, list[np.ndarray]] = {}
         for d in ok:
             by_method.setdefault(str(d.row.get("perception_method")), []).append(getattr(d, attr))

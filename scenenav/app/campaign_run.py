@@ -131,6 +131,13 @@ def _kill_nodes(attempt_dir: Path) -> None:
                 pass
 
 
+def _signal_group(pgid: int, sig: int) -> None:
+    try:
+        os.killpg(pgid, sig)
+    except ProcessLookupError:   # it has just exited: wait4 collects it next
+        pass
+
+
 class _Stopper:
     """Reads the campaign's stop Event at most once a second (a scheduler round trip)."""
 
@@ -199,10 +206,10 @@ def fly(task: FlightTask) -> dict:
             break
         if signalled_at is None and (stop() or time.monotonic() > deadline):
             why = "cancelled" if stop.stopped else "timeout"
-            os.killpg(proc.pid, signal.SIGTERM)         # the launcher stops its nodes in order
+            _signal_group(proc.pid, signal.SIGTERM)     # the launcher stops its nodes in order
             signalled_at = time.monotonic()
         elif signalled_at is not None and time.monotonic() - signalled_at > STOP_GRACE_S:
-            os.killpg(proc.pid, signal.SIGKILL)
+            _signal_group(proc.pid, signal.SIGKILL)
             _kill_nodes(partial)
             signalled_at = float("inf")
         time.sleep(POLL_S)

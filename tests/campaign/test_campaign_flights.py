@@ -128,3 +128,15 @@ def test_ctrl_c_leaves_no_orphans_and_a_readable_table_then_resumes(tmp_path):
     assert rc == 0, stderr
     assert f"{done_before} already complete, {4 - done_before} to fly" in stderr
     assert all(r["run_status"] == "ok" for r in _table(out))
+
+
+def test_flight_over_its_time_limit_is_stopped_and_recorded(tmp_path):
+    campaign = write_campaign(tmp_path / "slow.yaml", name="slow", base=str(SCRIPTED), timeout_s=8,
+                              set={"duration_s": 600}, grid={"seed": [1]})
+    out = tmp_path / "out"
+    rc, _stdout, stderr = _finish(start_campaign(campaign, out, "--workers", "1"))
+    assert rc == 1, stderr
+    (row,) = _table(out)
+    assert row["run_status"] == "timeout" and row["run_attempts"] == 2
+    assert row["run_exit_status"] == 130                  # the launcher stopped on the SIGTERM it got
+    assert processes_mentioning(str(out)) == []
