@@ -130,7 +130,7 @@ def evaluate_run(run_dir: Path, cfg, world, wall_time_s: float, interrupted: boo
     summary.update({
         "mission_completed": mission_completed,
         "gps_used": bool(status["gps_used"].max() > 0.5) if status and len(status.get("t_s", [])) else False,
-        "sim_time_s": sim_stats.get("sim_time_s", float(truth["t_s"][-1]) if truth else 0.0),
+        "sim_time_s": sim_stats.get("sim_time_s", float(truth["t_s"][-1]) if truth and len(truth["t_s"]) else 0.0),
         "wall_time_s": round(wall_time_s, 3),
         "real_time_factor": sim_stats.get("real_time_factor"),
         "end_reason": end_reason if not interrupted else "interrupted",

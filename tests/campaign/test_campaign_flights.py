@@ -131,7 +131,7 @@ def test_ctrl_c_leaves_no_orphans_and_a_readable_table_then_resumes(tmp_path):
 
 
 def test_flight_over_its_time_limit_is_stopped_and_recorded(tmp_path):
-    campaign = write_campaign(tmp_path / "slow.yaml", name="slow", base=str(SCRIPTED), timeout_s=8,
+    campaign = write_campaign(tmp_path / "slow.yaml", name="slow", base=str(SCRIPTED), timeout_s=15,
                               set={"duration_s": 600}, grid={"seed": [1]})
     out = tmp_path / "out"
     rc, _stdout, stderr = _finish(start_campaign(campaign, out, "--workers", "1"))
