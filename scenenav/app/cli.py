@@ -212,14 +212,16 @@ def build_parser() -> argparse.ArgumentParser:
 def _register_domain_commands(sub, bsub) -> None:
     """Subcommands and benchmarks of the domain packages (their own modules under app/)."""
     from scenenav.app.bench.autopilot import register_bench as register_autopilot_bench
+    from scenenav.app.bench.campaign import register_bench as register_campaign_bench
     from scenenav.app.bench.e2e import register_bench as register_e2e_bench
     from scenenav.app.bench.plan import register_bench as register_plan_bench
-    from scenenav.app.commands import assistant_map, perception, plan, world
-    for module in (world, plan, perception, assistant_map):
+    from scenenav.app.commands import assistant_map, campaign, perception, plan, world
+    for module in (world, plan, perception, assistant_map, campaign):
         module.register(sub)
     register_plan_bench(bsub)
     register_autopilot_bench(bsub)
     register_e2e_bench(bsub)
+    register_campaign_bench(bsub)
 
 
 _NEGATIVE_LIST = re.compile(r"^-\d[\d.eE+-]*(,\s*[-+]?[\d.eE+-]+)+$")

@@ -94,13 +94,20 @@ def fix_metrics(fx: dict[str, np.ndarray]) -> dict[str, Any]:
     }
 
 
-def estimate_metrics(run_dir: Path) -> dict[str, Any]:
-    est = read_csv(run_dir / "estimates.csv")
-    truth = read_csv(run_dir / "truth.csv")
+def estimate_errors(run_dir: Path) -> np.ndarray:
+    """Horizontal error of every autopilot estimate against truth (m); empty without an autopilot."""
+    est = read_csv(Path(run_dir) / "estimates.csv")
+    truth = read_csv(Path(run_dir) / "truth.csv")
     if not est or not truth or len(est.get("t_s", [])) == 0 or len(truth.get("t_s", [])) < 2:
-        return {"rms_error_m": None, "max_error_m": None}
+        return np.zeros(0)
     tx, ty = _interp_truth(truth, est["t_s"])
-    e = np.hypot(est["x_m"] - tx, est["y_m"] - ty)
+    return np.hypot(est["x_m"] - tx, est["y_m"] - ty)
+
+
+def estimate_metrics(run_dir: Path) -> dict[str, Any]:
+    e = estimate_errors(run_dir)
+    if len(e) == 0:
+        return {"rms_error_m": None, "max_error_m": None}
     return {"rms_error_m": float(np.sqrt(np.mean(e ** 2))), "max_error_m": float(np.max(e))}
 
 
@@ -123,7 +130,7 @@ def evaluate_run(run_dir: Path, cfg, world, wall_time_s: float, interrupted: boo
     summary.update({
         "mission_completed": mission_completed,
         "gps_used": bool(status["gps_used"].max() > 0.5) if status and len(status.get("t_s", [])) else False,
-        "sim_time_s": sim_stats.get("sim_time_s", float(truth["t_s"][-1]) if truth else 0.0),
+        "sim_time_s": sim_stats.get("sim_time_s", float(truth["t_s"][-1]) if truth and len(truth["t_s"]) else 0.0),
         "wall_time_s": round(wall_time_s, 3),
         "real_time_factor": sim_stats.get("real_time_factor"),
         "end_reason": end_reason if not interrupted else "interrupted",

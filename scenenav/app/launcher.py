@@ -31,8 +31,8 @@ GRACE_S = 10.0
 _PR_SET_PDEATHSIG = 1   # linux/prctl.h
 
 
-def _die_with_parent() -> None:
-    """In the child, before exec: get SIGTERM if the launcher dies, even by SIGKILL (Linux)."""
+def die_with_parent() -> None:
+    """In the child, before exec: get SIGTERM if the parent (its thread) dies, even by SIGKILL (Linux)."""
     try:
         import ctypes
         ctypes.CDLL("libc.so.6", use_errno=True).prctl(_PR_SET_PDEATHSIG, signal.SIGTERM)
@@ -61,7 +61,7 @@ class Launch:
         cmd = [sys.executable, "-m", "scenenav.app.cli", "--log-level", "INFO", "node", *args,
                "--namespace", self.namespace, "--hub-port", str(self.hub_port)]
         proc = subprocess.Popen(cmd, stdout=f, stderr=subprocess.STDOUT, stdin=subprocess.DEVNULL,
-                                start_new_session=True, preexec_fn=_die_with_parent)
+                                start_new_session=True, preexec_fn=die_with_parent)
         child = Child(name, proc, f)
         self.children.append(child)
         pids = {c.name: c.proc.pid for c in self.children}
