@@ -1,14 +1,26 @@
 """``scenenav run``: start every node of a scenario as a child process, fly it, write the run folder.
 
+Before any process starts, every input the run will read is checked with the nodes' own readers
+(``scenenav.app.preflight``) and the run's disk must have ``recorder.min_free_disk_mb`` free: a bad
+file or a full disk is one ``error: ...`` line and exit 2, and leaves nothing behind.
+
 Children are started in their own process group so that Ctrl-C reaches only the launcher, which
 then stops them in order (simulator first, recorder last) with SIGINT, escalating to SIGTERM and
-SIGKILL after a grace period: no orphans, and the logs are closed properly.
+SIGKILL after a grace period, and finally kills whatever is left in each child's process group
+(a grandchild such as the camera render worker): no process outlives the run. A child that dies
+on its own is reported once, with the last error line of its log, and lands in the summary
+(``node_failures``); an unfinished ``bus.mcap`` (recorder killed) is recovered from its whole
+chunks. See docs/faults.md.
 """
 
 from __future__ import annotations
 
+import errno
 import json
 import logging
+import os
+import re
+import shutil
 import signal
 import subprocess
 import sys
@@ -19,6 +31,8 @@ from pathlib import Path
 
 import yaml
 
+from scenenav.app.evaluation import NodeFailure, last_sim_time_s
+from scenenav.app.preflight import check_free_space, free_bytes, mount_point, validate_inputs
 from scenenav.app.scenario import FlightMode, ScenarioConfig, load_scenario, scenario_to_dict
 from scenenav.core.bus import free_port
 from scenenav.core.contracts import ClockMode
@@ -44,6 +58,8 @@ class Child:
     name: str
     proc: subprocess.Popen
     log_file: object
+    log_path: Path | None = None
+    stopping: bool = False        # the launcher is stopping it: its exit is not a failure
 
 
 @dataclass
@@ -61,7 +77,7 @@ class Launch:
                "--namespace", self.namespace, "--hub-port", str(self.hub_port)]
         proc = subprocess.Popen(cmd, stdout=f, stderr=subprocess.STDOUT, stdin=subprocess.DEVNULL,
                                 start_new_session=True, preexec_fn=_die_with_parent)
-        child = Child(name, proc, f)
+        child = Child(name, proc, f, logs / f"{name}.log")
         self.children.append(child)
         pids = {c.name: c.proc.pid for c in self.children}
         (self.run_dir / "logs" / "pids.json").write_text(json.dumps(pids))
@@ -77,9 +93,24 @@ class Launch:
         for c in self.children:
             _stop(c)
             c.log_file.close()
+        self.kill_groups()
+
+    def kill_groups(self) -> None:
+        """SIGKILL whatever is left in the children's process groups (each child leads its own)."""
+        for c in self.children:
+            try:
+                os.killpg(c.proc.pid, 0)
+            except (ProcessLookupError, PermissionError):
+                continue
+            log.warning("a process of %s's group outlived it: killed", c.name)
+            try:
+                os.killpg(c.proc.pid, signal.SIGKILL)
+            except (ProcessLookupError, PermissionError):
+                pass
 
 
 def _stop(c: Child) -> None:
+    c.stopping = True
     if c.proc.poll() is not None:
         return
     for sig, wait in ((signal.SIGINT, GRACE_S), (signal.SIGTERM, 5.0), (signal.SIGKILL, 5.0)):
@@ -143,14 +174,42 @@ def prepare_run(cfg: ScenarioConfig, world, run_dir: Path, label: str, prefix: s
     Launch holding the run's own namespace and hub port."""
     if run_dir.exists() and any(run_dir.iterdir()):
         raise UserError(f"{run_dir}: run folder exists and is not empty (choose a new --out)")
-    run_dir.mkdir(parents=True, exist_ok=True)
-    (run_dir / "scenario.yaml").write_text(yaml.safe_dump(scenario_to_dict(cfg), sort_keys=False))
-    launch = Launch(run_dir, f"{prefix}-{uuid.uuid4().hex[:12]}", free_port())
-    meta = {"scenario": label, "namespace": launch.namespace, "hub_port": launch.hub_port,
-            "world": world.manifest.name, "mavlink_tcp_port": cfg.autopilot.mavlink_tcp_port,
-            "started_utc": time.strftime("%Y-%m-%dT%H:%M:%SZ", time.gmtime())}
-    (run_dir / "run.json").write_text(json.dumps(meta, indent=2))
+    check_free_space(run_dir, cfg.recorder.min_free_disk_mb)
+    created = not run_dir.exists()
+    try:
+        run_dir.mkdir(parents=True, exist_ok=True)
+        write_atomic(run_dir / "scenario.yaml", yaml.safe_dump(scenario_to_dict(cfg), sort_keys=False))
+        launch = Launch(run_dir, f"{prefix}-{uuid.uuid4().hex[:12]}", free_port())
+        meta = {"scenario": label, "namespace": launch.namespace, "hub_port": launch.hub_port,
+                "world": world.manifest.name, "mavlink_tcp_port": cfg.autopilot.mavlink_tcp_port,
+                "started_utc": time.strftime("%Y-%m-%dT%H:%M:%SZ", time.gmtime())}
+        write_atomic(run_dir / "run.json", json.dumps(meta, indent=2))
+    except OSError as exc:
+        for name in ("scenario.yaml", "run.json"):
+            (run_dir / name).unlink(missing_ok=True)
+        if created:
+            shutil.rmtree(run_dir, ignore_errors=True)
+        raise UserError(disk_error_line(run_dir, exc)) from None
     return launch
+
+
+def write_atomic(path: Path, text: str) -> None:
+    """Write a file whole or not at all (a temporary file renamed over it; removed on error)."""
+    tmp = path.with_name(path.name + ".tmp")
+    try:
+        tmp.write_text(text)
+        tmp.replace(path)
+    except OSError:
+        tmp.unlink(missing_ok=True)
+        raise
+
+
+def disk_error_line(path: Path, exc: OSError) -> str:
+    """One line for a failed write: the file, the error, the disk and its free space."""
+    where, free = free_bytes(path)
+    what = "no space left" if exc.errno == errno.ENOSPC else (exc.strerror or str(exc))
+    return (f"{path}: cannot write the run folder: {what} ({free / 1e6:.1f} MB free on "
+            f"{mount_point(where)}); free some space or choose another --out")
 
 
 def resolve_world(cfg: ScenarioConfig):
@@ -176,12 +235,14 @@ def run(scenario_path: str | None, out_dir: str, overrides: tuple[str, ...] = ()
     world = resolve_world(cfg)          # fail early, with a one-line error, on a bad world
     cfg = _free_mavlink_port(cfg)
     cfg = _resolve_guidance_map(cfg, progress)
+    validate_inputs(cfg, world)          # every file a node will read, before any node starts
     launch = prepare_run(cfg, world, Path(out_dir), scenario_path or "(defaults)", "run")
     run_dir = launch.run_dir
 
     expect = ["recorder"]
     interrupted = False
     wall0 = time.time()
+    watch = ChildWatch(launch, wall0)
     try:
         launch.spawn("recorder", ["recorder", "--run-dir", str(run_dir)])
         if cfg.perception.enabled:
@@ -199,23 +260,90 @@ def run(scenario_path: str | None, out_dir: str, overrides: tuple[str, ...] = ()
         sim = launch.spawn("sim", ["sim", "--run-dir", str(run_dir), "--expect", ",".join(expect)])
         swap = PerceptionSwap(launch, cfg) if cfg.perception.enabled and cfg.perception.swap_at_s > 0 \
             else None
-        _wait_sim(sim, launch, cfg, progress, swap)
+        _wait_sim(sim, launch, cfg, progress, swap, watch)
     except KeyboardInterrupt:
         interrupted = True
         log.warning("interrupted: stopping every node")
     finally:
+        watch.poll()     # a death seen only now is still a death, not a stop
         launch.stop_all(order=["sim", "guidance", "autopilot", "perception", SWAP_NODE_ID,
                                "recorder"])
     wall = time.time() - wall0
+    return _finish(launch, cfg, world, wall, interrupted, watch)
+
+
+def _finish(launch: Launch, cfg: ScenarioConfig, world, wall: float, interrupted: bool,
+            watch: "ChildWatch") -> dict:
+    """After every child stopped: recover bus.mcap if needed, write the summary and the plot."""
     from scenenav.app.evaluation import evaluate_run
-    summary = evaluate_run(run_dir, cfg, world, wall_time_s=wall, interrupted=interrupted)
-    failed = [c.name for c in launch.children if c.proc.returncode not in (0, None, -2, 130)]
-    if failed:
-        summary["failed_nodes"] = failed
-        (run_dir / "summary.json").write_text(json.dumps(summary, indent=2))
+    from scenenav.app.recorder import recover_mcap
+    run_dir = launch.run_dir
+    recorder_early = watch.failed("recorder")
+    try:
+        kept = recover_mcap(run_dir / "bus.mcap")
+        if kept is not None:
+            log.warning("bus.mcap was not finished (recorder stopped early): recovered %d messages",
+                        kept)
+            recorder_early = True
+        summary = evaluate_run(run_dir, cfg, world, wall_time_s=wall, interrupted=interrupted,
+                               failures=tuple(watch.failures), recorder_stopped_early=recorder_early)
+        failed = [f.node for f in watch.failures]
+        if failed:
+            summary["failed_nodes"] = failed
+            write_atomic(run_dir / "summary.json", json.dumps(summary, indent=2))
+    except OSError as exc:
+        raise UserError(disk_error_line(run_dir, exc)) from None
     if interrupted:
         raise KeyboardInterrupt
     return summary
+
+
+#: Return codes of a child that stopped because it was asked to (SIGINT handled, or killed by it).
+_CLEAN_EXITS = (0, -signal.SIGINT, 130)
+
+
+class ChildWatch:
+    """Sees children die on their own, once each: one log line with the reason (the last error
+    line of the child's log) and a ``NodeFailure`` for the summary."""
+
+    def __init__(self, launch: Launch, wall0: float) -> None:
+        self.launch = launch
+        self.wall0 = wall0
+        self.failures: list[NodeFailure] = []
+        self._seen: set[int] = set()
+
+    def poll(self) -> None:
+        for c in self.launch.children:
+            code = c.proc.poll()
+            if code is None or c.proc.pid in self._seen or c.stopping:
+                continue
+            self._seen.add(c.proc.pid)
+            if code in _CLEAN_EXITS and c.name != "sim":
+                continue
+            if c.name == "sim" and code == 0:
+                continue
+            f = NodeFailure(c.name, int(code), round(time.time() - self.wall0, 3),
+                            last_sim_time_s(self.launch.run_dir),
+                            last_error_line(c.log_path) if c.log_path else "")
+            self.failures.append(f)
+            log.error("%s (see logs/%s.log)", f.describe(), c.name)
+
+    def failed(self, name: str) -> bool:
+        return any(f.node == name for f in self.failures)
+
+
+_ERROR_LINE = re.compile(r"\b(ERROR|CRITICAL|FATAL)\b|^error: |^\w+(Error|Exception): ")
+
+
+def last_error_line(path: Path, n_bytes: int = 64_000) -> str:
+    """The last line of a log that reads as an error (an ERROR record, ``error: ...``, the last
+    line of a traceback); "" if there is none."""
+    lines = _tail(path, n_bytes).decode("utf-8", "replace").splitlines()
+    for line in reversed(lines):
+        line = line.strip()
+        if line and _ERROR_LINE.search(line):
+            return line[:300]
+    return ""
 
 
 SWAP_NODE_ID = "perception-2"
@@ -274,16 +402,15 @@ def _fixes_from(run_dir: Path, node_id: str) -> bool:
 
 
 def _wait_sim(sim: Child, launch: Launch, cfg: ScenarioConfig, progress: bool,
-              swap: PerceptionSwap | None = None) -> None:
+              swap: PerceptionSwap | None = None, watch: ChildWatch | None = None) -> None:
     """Wait for the simulator to end; show progress from its log of simulated time."""
     bar = None
     if progress and sys.stderr.isatty():
         from tqdm import tqdm
         bar = tqdm(total=round(cfg.duration_s), unit="sim s", desc=cfg.name, leave=False)
+    watch = watch or ChildWatch(launch, time.time())
     while sim.proc.poll() is None:
-        for c in launch.children:
-            if c is not sim and c.proc.poll() is not None and c.proc.returncode not in (0, -2, 130):
-                log.error("%s exited with code %s (see logs/%s.log)", c.name, c.proc.returncode, c.name)
+        watch.poll()
         time.sleep(0.25)
         if swap is not None:
             swap.poll(_sim_progress(launch.run_dir))
@@ -294,9 +421,7 @@ def _wait_sim(sim: Child, launch: Launch, cfg: ScenarioConfig, progress: bool,
                 bar.refresh()
     if bar is not None:
         bar.close()
-    if sim.proc.returncode != 0:
-        log.error("simulator exited with code %s (see %s)", sim.proc.returncode,
-                  launch.run_dir / "logs" / "sim.log")
+    watch.poll()        # the simulator's own exit, if it failed
 
 
 def _sim_progress(run_dir: Path) -> float | None:
