@@ -111,7 +111,8 @@ def _check_params_file(cfg: ScenarioConfig) -> None:
     try:
         ParameterStore(PARAM_SPECS, defaults=load_param_file(Path(a.params_file)))
     except UserError as exc:
-        raise UserError(f"{key}: {str(exc).replace('defaults: ', '')}") from None
+        detail = str(exc).removeprefix("defaults: ").removeprefix(f"{a.params_file}: ")
+        raise UserError(f"{key} = {a.params_file!r}: {detail}") from None
 
 
 def _exists(key: str, path: str, expected: str) -> None:
