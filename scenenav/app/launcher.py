@@ -15,6 +15,7 @@ chunks. See docs/faults.md.
 
 from __future__ import annotations
 
+import dataclasses
 import errno
 import json
 import logging
@@ -32,6 +33,7 @@ from pathlib import Path
 import yaml
 
 from scenenav.app.evaluation import NodeFailure, last_sim_time_s
+from scenenav.app.mavlink_claim import DEFAULT_SYSID, SysidClaim, claim_sysid
 from scenenav.app.preflight import check_free_space, free_bytes, mount_point, validate_inputs
 from scenenav.app.scenario import FlightMode, ScenarioConfig, load_scenario, scenario_to_dict
 from scenenav.core.bus import free_port
@@ -125,27 +127,55 @@ def _stop(c: Child) -> None:
             log.warning("%s did not stop on %s", c.name, sig.name)
 
 
-def _port_free(port: int) -> bool:
-    import socket
-    with socket.socket(socket.AF_INET, socket.SOCK_STREAM) as s:
-        s.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)
+def _claim_sysid(cfg: ScenarioConfig, out_dir: Path) -> tuple[ScenarioConfig, SysidClaim | None]:
+    """Claim the run's MAVLink system id on its UDP output (``scenenav.app.mavlink_claim``): a
+    distinct id from every other live run sending there, written to the scenario."""
+    a = cfg.autopilot
+    if cfg.flight.mode != FlightMode.AUTOPILOT or a.udp_target is None:
+        return cfg, None
+    from autopilot_bridge.params import load_param_file
+    file_params = load_param_file(Path(a.params_file)) if a.params_file else {}
+    chosen = "SYSID_THISMAV" in a.params or "SYSID_THISMAV" in file_params
+    wanted = int(a.params.get("SYSID_THISMAV", file_params.get("SYSID_THISMAV", DEFAULT_SYSID)))
+    host, port = a.udp_target
+    claim = claim_sysid(f"{host}:{port}", wanted, chosen, owner=str(Path(out_dir).absolute()))
+    if claim.system_id == wanted:
+        return cfg, claim
+    log.warning("MAVLink system %d is used by another live run sending to UDP %s:%d: this run is "
+                "system %d (SYSID_THISMAV)", wanted, host, port, claim.system_id)
+    params = {**a.params, "SYSID_THISMAV": claim.system_id}
+    return dataclasses.replace(cfg, autopilot=dataclasses.replace(a, params=params)), claim
+
+
+#: Wall seconds the launcher waits for the autopilot to bind its MAVLink endpoints.
+MAVLINK_READY_TIMEOUT_S = 90.0
+
+
+def await_mavlink(launch: Launch, autopilot: Child, timeout_s: float = MAVLINK_READY_TIMEOUT_S
+                  ) -> dict | None:
+    """Wait for the autopilot's ``mavlink.json`` (the ports it bound) and write them into run.json,
+    so that run.json names the true endpoints of this run. None if the autopilot died first."""
+    path = launch.run_dir / "mavlink.json"
+    deadline = time.monotonic() + timeout_s
+    while time.monotonic() < deadline:
         try:
-            s.bind(("127.0.0.1", port))
-        except OSError:
-            return False
-    return True
-
-
-def _free_mavlink_port(cfg: ScenarioConfig) -> ScenarioConfig:
-    """Scenario runs are independent: if the autopilot's MAVLink TCP port is taken (another run,
-    a real SITL), use a free one instead (written to scenario.yaml and run.json)."""
-    import dataclasses
-    port = cfg.autopilot.mavlink_tcp_port
-    if cfg.flight.mode != FlightMode.AUTOPILOT or port == 0 or _port_free(port):
-        return cfg
-    new = free_port()
-    log.warning("MAVLink TCP port %d is in use: this run serves MAVLink on %d", port, new)
-    return dataclasses.replace(cfg, autopilot=dataclasses.replace(cfg.autopilot, mavlink_tcp_port=new))
+            info = json.loads(path.read_text())
+        except (OSError, ValueError):
+            info = None
+        if isinstance(info, dict):
+            meta_path = launch.run_dir / "run.json"
+            meta = json.loads(meta_path.read_text())
+            meta.update({"mavlink_tcp_port": info.get("tcp_port"),
+                         "mavlink_udp_port": info.get("udp_port"),
+                         "mavlink_udp_out": info.get("udp_out"),
+                         "mavlink_system_id": info.get("system_id")})
+            write_atomic(meta_path, json.dumps(meta, indent=2))
+            return info
+        if autopilot.proc.poll() is not None:
+            return None
+        time.sleep(0.05)
+    log.warning("the autopilot did not report its MAVLink ports within %.0f s", timeout_s)
+    return None
 
 
 def _resolve_guidance_map(cfg: ScenarioConfig, progress: bool) -> ScenarioConfig:
@@ -233,9 +263,17 @@ def run(scenario_path: str | None, out_dir: str, overrides: tuple[str, ...] = ()
     install_interrupt_handlers()
     cfg = load_scenario(scenario_path, overrides)
     world = resolve_world(cfg)          # fail early, with a one-line error, on a bad world
-    cfg = _free_mavlink_port(cfg)
     cfg = _resolve_guidance_map(cfg, progress)
     validate_inputs(cfg, world)          # every file a node will read, before any node starts
+    cfg, claim = _claim_sysid(cfg, Path(out_dir))
+    try:
+        return _run(cfg, world, scenario_path, out_dir, progress)
+    finally:
+        if claim is not None:
+            claim.release()
+
+
+def _run(cfg: ScenarioConfig, world, scenario_path: str | None, out_dir: str, progress: bool) -> dict:
     launch = prepare_run(cfg, world, Path(out_dir), scenario_path or "(defaults)", "run")
     run_dir = launch.run_dir
 
@@ -251,8 +289,9 @@ def run(scenario_path: str | None, out_dir: str, overrides: tuple[str, ...] = ()
             if cfg.perception.lockstep:
                 expect.append("camera")
         if cfg.flight.mode == FlightMode.AUTOPILOT:
-            launch.spawn("autopilot", ["autopilot", "--run-dir", str(run_dir)])
+            autopilot = launch.spawn("autopilot", ["autopilot", "--run-dir", str(run_dir)])
             expect.append("tick")
+            await_mavlink(launch, autopilot)     # run.json names the ports it bound
         if cfg.guidance.enabled:
             launch.spawn("guidance", ["guidance", "--run-dir", str(run_dir)])
             if cfg.clock.mode == ClockMode.LOCKSTEP:

@@ -144,6 +144,31 @@ def guidance_config_from_scenario(cfg: ScenarioConfig, mavlink_port: int, lockst
     return node_cfg, planner_cfg
 
 
+def run_mavlink_port(run_dir: Path, timeout_s: float) -> int:
+    """The MAVLink TCP port the autopilot of THIS run bound (``<run>/mavlink.json``, written once
+    it is bound; waited for up to ``timeout_s``), never a port from the configuration that another
+    run may hold."""
+    import time
+    from autopilot_bridge.node import MAVLINK_FILE
+    from scenenav.core.errors import UserError
+    path = run_dir / MAVLINK_FILE
+    deadline = time.monotonic() + timeout_s
+    while True:
+        try:
+            port = json.loads(path.read_text()).get("tcp_port")
+        except (OSError, ValueError, AttributeError):
+            port = None
+        else:
+            if not port:
+                raise UserError(f"{path}: the autopilot of this run serves no MAVLink TCP port; "
+                                "guidance needs autopilot.mavlink_tcp_port != 0")
+            return int(port)
+        if time.monotonic() > deadline:
+            raise UserError(f"{path}: not written within {timeout_s:.0f} s; expected the autopilot "
+                            "of this run to report its MAVLink ports")
+        time.sleep(0.1)
+
+
 def run_guidance(run_dir: Path, bus_cfg: BusConfig) -> int:
     from guidance.node import GuidanceNode
     from scenenav.core.contracts import ClockMode
@@ -152,7 +177,8 @@ def run_guidance(run_dir: Path, bus_cfg: BusConfig) -> int:
     cfg = load_scenario(run_dir / "scenario.yaml")
     world = read_manifest(world_folder(cfg.world))
     node_cfg, planner_cfg = guidance_config_from_scenario(
-        cfg, cfg.autopilot.mavlink_tcp_port, lockstep=cfg.clock.mode == ClockMode.LOCKSTEP)
+        cfg, run_mavlink_port(run_dir, cfg.clock.startup_timeout_s),
+        lockstep=cfg.clock.mode == ClockMode.LOCKSTEP)
     node = GuidanceNode(world, bus_cfg, node_cfg, planner_cfg, out_dir=run_dir)
     stop = _stop_event()
     threading.Thread(target=lambda: (stop.wait(), node.stop()), daemon=True).start()
