@@ -23,7 +23,7 @@ def _run(args: argparse.Namespace) -> int:
     from scenenav.app.evaluation import format_summary
     print(format_summary(summary))
     print(f"run folder: {args.out}")
-    return 0 if not summary.get("failed_nodes") else 1
+    return 0 if not (summary.get("failed_nodes") or summary.get("aborted")) else 1
 
 
 def _node(args: argparse.Namespace) -> int:
@@ -80,7 +80,7 @@ def _sitl(args: argparse.Namespace) -> int:
     summary = run_sitl(opts, announce=lambda text: print(text, flush=True))
     from scenenav.app.evaluation import format_summary
     print(format_summary(summary))
-    return 0 if not summary.get("failed_nodes") else 1
+    return 0 if not (summary.get("failed_nodes") or summary.get("aborted")) else 1
 
 
 def build_parser() -> argparse.ArgumentParser:

@@ -154,7 +154,10 @@ def estimate_metrics(run_dir: Path) -> dict[str, Any]:
     return {"rms_error_m": float(np.sqrt(np.mean(e ** 2))), "max_error_m": float(np.max(e))}
 
 
-def _end_reason(sim_stats: dict, interrupted: bool, failures: tuple[NodeFailure, ...]) -> str | None:
+def _end_reason(sim_stats: dict, interrupted: bool, failures: tuple[NodeFailure, ...],
+                abort_reason: str | None = None) -> str | None:
+    if abort_reason:
+        return abort_reason
     if interrupted:
         return "interrupted"
     reason = sim_stats.get("end_reason")
@@ -167,10 +170,11 @@ def _end_reason(sim_stats: dict, interrupted: bool, failures: tuple[NodeFailure,
 
 
 def evaluate_run(run_dir: Path, cfg, world, wall_time_s: float, interrupted: bool = False,
-                 failures: tuple[NodeFailure, ...] = (), recorder_stopped_early: bool | None = None
-                 ) -> dict:
+                 failures: tuple[NodeFailure, ...] = (), recorder_stopped_early: bool | None = None,
+                 abort_reason: str | None = None) -> dict:
     """Write summary.json and trajectory.png of a run folder. ``failures``: the nodes the launcher
-    saw die; ``recorder_stopped_early``: None = judge from the folder (no recorder_stats.json)."""
+    saw die; ``recorder_stopped_early``: None = judge from the folder (no recorder_stats.json);
+    ``abort_reason``: why the launcher ended the run early (a full disk), else None."""
     run_dir = Path(run_dir)
     fx = fix_table(run_dir, cfg.evaluation.false_fix_threshold_m)
     summary: dict[str, Any] = {"scenario": cfg.name, "world": world.manifest.name}
@@ -190,16 +194,20 @@ def evaluate_run(run_dir: Path, cfg, world, wall_time_s: float, interrupted: boo
         "sim_time_s": sim_stats.get("sim_time_s", float(truth["t_s"][-1]) if truth else 0.0),
         "wall_time_s": round(wall_time_s, 3),
         "real_time_factor": sim_stats.get("real_time_factor"),
-        "end_reason": _end_reason(sim_stats, interrupted, failures),
+        "end_reason": _end_reason(sim_stats, interrupted, failures, abort_reason),
+        "aborted": abort_reason is not None,
         "flight_mode": cfg.flight.mode.value,
         "perception_method": cfg.perception.method if cfg.perception.enabled else None,
         "false_fix_threshold_m": cfg.evaluation.false_fix_threshold_m,
         "distance_flown_m": _distance(truth),
     })
     summary.update(_guidance_metrics(run_dir))
+    rec = _read_json(run_dir / "recorder_stats.json")
     if recorder_stopped_early is None:
-        recorder_stopped_early = not (run_dir / "recorder_stats.json").is_file()
-    summary["recording_ended_early"] = bool(recorder_stopped_early)
+        recorder_stopped_early = not rec
+    summary["recording_ended_early"] = bool(recorder_stopped_early or rec.get("write_failed"))
+    if rec.get("write_failed"):
+        summary["recording_error"] = rec["write_failed"]
     summary["recording_end_s"] = last_sim_time_s(run_dir)
     summary["node_failures"] = [dataclasses.asdict(f) | {"what": f.describe()} for f in failures]
     tmp = run_dir / "summary.json.tmp"

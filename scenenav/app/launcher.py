@@ -43,6 +43,12 @@ from scenenav.core.errors import UserError
 log = logging.getLogger(__name__)
 
 GRACE_S = 10.0
+#: Space set aside in the run folder at start (``.disk_reserve``) and given back when the disk fills,
+#: so the nodes' closing files, the summary and the plot still fit on a full disk.
+DISK_RESERVE_MB = 8.0
+#: Free space below which the launcher ends the run (the disk is full: nothing more is recorded).
+DISK_LOW_WATER_MB = 1.0
+RESERVE_FILE = ".disk_reserve"
 _PR_SET_PDEATHSIG = 1   # linux/prctl.h
 
 
@@ -214,13 +220,46 @@ def prepare_run(cfg: ScenarioConfig, world, run_dir: Path, label: str, prefix: s
                 "world": world.manifest.name, "mavlink_tcp_port": cfg.autopilot.mavlink_tcp_port,
                 "started_utc": time.strftime("%Y-%m-%dT%H:%M:%SZ", time.gmtime())}
         write_atomic(run_dir / "run.json", json.dumps(meta, indent=2))
+        _reserve(run_dir / RESERVE_FILE, DISK_RESERVE_MB)
     except OSError as exc:
-        for name in ("scenario.yaml", "run.json"):
+        for name in ("scenario.yaml", "run.json", RESERVE_FILE):
             (run_dir / name).unlink(missing_ok=True)
         if created:
             shutil.rmtree(run_dir, ignore_errors=True)
         raise UserError(disk_error_line(run_dir, exc)) from None
     return launch
+
+
+def _reserve(path: Path, mb: float) -> None:
+    fd = os.open(path, os.O_WRONLY | os.O_CREAT | os.O_TRUNC, 0o600)
+    try:
+        os.posix_fallocate(fd, 0, int(mb * 1e6))
+    finally:
+        os.close(fd)
+
+
+class DiskFull(Exception):
+    """The run's disk filled during the run: the launcher ends it (message: one line)."""
+
+
+class DiskWatch:
+    """Ends the run when its disk fills, after giving back the reserve (docs/faults.md)."""
+
+    def __init__(self, run_dir: Path) -> None:
+        self.run_dir = run_dir
+
+    def check(self) -> None:
+        try:
+            where, free = free_bytes(self.run_dir)
+        except OSError:
+            return
+        if free < DISK_LOW_WATER_MB * 1e6:
+            self.release()
+            raise DiskFull(f"disk full: {free / 1e6:.1f} MB free on {mount_point(where)} "
+                           f"(run folder {self.run_dir}): run stopped, what was written is kept")
+
+    def release(self) -> None:
+        (self.run_dir / RESERVE_FILE).unlink(missing_ok=True)
 
 
 def write_atomic(path: Path, text: str) -> None:
@@ -279,8 +318,10 @@ def _run(cfg: ScenarioConfig, world, scenario_path: str | None, out_dir: str, pr
 
     expect = ["recorder"]
     interrupted = False
+    abort: str | None = None
     wall0 = time.time()
     watch = ChildWatch(launch, wall0)
+    disk = DiskWatch(run_dir)
     try:
         launch.spawn("recorder", ["recorder", "--run-dir", str(run_dir)])
         if cfg.perception.enabled:
@@ -299,20 +340,24 @@ def _run(cfg: ScenarioConfig, world, scenario_path: str | None, out_dir: str, pr
         sim = launch.spawn("sim", ["sim", "--run-dir", str(run_dir), "--expect", ",".join(expect)])
         swap = PerceptionSwap(launch, cfg) if cfg.perception.enabled and cfg.perception.swap_at_s > 0 \
             else None
-        _wait_sim(sim, launch, cfg, progress, swap, watch)
+        _wait_sim(sim, launch, cfg, progress, swap, watch, disk)
     except KeyboardInterrupt:
         interrupted = True
         log.warning("interrupted: stopping every node")
+    except DiskFull as exc:
+        abort = str(exc)
+        log.error("%s", abort)
     finally:
+        disk.release()
         watch.poll()     # a death seen only now is still a death, not a stop
         launch.stop_all(order=["sim", "guidance", "autopilot", "perception", SWAP_NODE_ID,
                                "recorder"])
     wall = time.time() - wall0
-    return _finish(launch, cfg, world, wall, interrupted, watch)
+    return _finish(launch, cfg, world, wall, interrupted, watch, abort)
 
 
 def _finish(launch: Launch, cfg: ScenarioConfig, world, wall: float, interrupted: bool,
-            watch: "ChildWatch") -> dict:
+            watch: "ChildWatch", abort: str | None = None) -> dict:
     """After every child stopped: recover bus.mcap if needed, write the summary and the plot."""
     from scenenav.app.evaluation import evaluate_run
     from scenenav.app.recorder import recover_mcap
@@ -325,7 +370,8 @@ def _finish(launch: Launch, cfg: ScenarioConfig, world, wall: float, interrupted
                         kept)
             recorder_early = True
         summary = evaluate_run(run_dir, cfg, world, wall_time_s=wall, interrupted=interrupted,
-                               failures=tuple(watch.failures), recorder_stopped_early=recorder_early)
+                               failures=tuple(watch.failures), recorder_stopped_early=recorder_early,
+                               abort_reason=abort)
         failed = [f.node for f in watch.failures]
         if failed:
             summary["failed_nodes"] = failed
@@ -441,7 +487,8 @@ def _fixes_from(run_dir: Path, node_id: str) -> bool:
 
 
 def _wait_sim(sim: Child, launch: Launch, cfg: ScenarioConfig, progress: bool,
-              swap: PerceptionSwap | None = None, watch: ChildWatch | None = None) -> None:
+              swap: PerceptionSwap | None = None, watch: ChildWatch | None = None,
+              disk: DiskWatch | None = None) -> None:
     """Wait for the simulator to end; show progress from its log of simulated time."""
     bar = None
     if progress and sys.stderr.isatty():
@@ -450,6 +497,8 @@ def _wait_sim(sim: Child, launch: Launch, cfg: ScenarioConfig, progress: bool,
     watch = watch or ChildWatch(launch, time.time())
     while sim.proc.poll() is None:
         watch.poll()
+        if disk is not None:
+            disk.check()
         time.sleep(0.25)
         if swap is not None:
             swap.poll(_sim_progress(launch.run_dir))

@@ -33,6 +33,20 @@ def _stop_event() -> threading.Event:
     return ev
 
 
+def write_stats(path: Path, data: dict) -> bool:
+    """Write a node's stats JSON whole (temporary file renamed) or not at all; a full disk is one
+    error line, not a traceback (the summary then says the file is missing)."""
+    tmp = path.with_name(path.name + ".tmp")
+    try:
+        tmp.write_text(json.dumps(data, indent=2, default=str))
+        tmp.replace(path)
+        return True
+    except OSError as exc:
+        tmp.unlink(missing_ok=True)
+        log.error("cannot write %s: %s", path, exc.strerror or exc)
+        return False
+
+
 def load_world_for(cfg: ScenarioConfig):
     from worlds.default import is_generated_spec, load_world_spec
     from worlds.world import load_world
@@ -74,7 +88,7 @@ def run_sim(run_dir: Path, bus_cfg: BusConfig, expect: tuple[str, ...]) -> int:
         stats = node.run()
     finally:
         node.close()
-    (run_dir / "sim_stats.json").write_text(json.dumps(dataclasses.asdict(stats), indent=2, default=str))
+    write_stats(run_dir / "sim_stats.json", dataclasses.asdict(stats))
     return 0
 
 
@@ -85,7 +99,7 @@ def run_recorder(run_dir: Path, bus_cfg: BusConfig) -> int:
     stop = _stop_event()
     stop.wait()
     info = node.close()
-    (run_dir / "recorder_stats.json").write_text(json.dumps(info, indent=2))
+    write_stats(run_dir / "recorder_stats.json", info)
     return 0
 
 
@@ -187,7 +201,7 @@ def run_guidance(run_dir: Path, bus_cfg: BusConfig) -> int:
         stop.wait()          # stay up (liveliness) until the launcher stops the run
     finally:
         stats = node.close()
-        (run_dir / "guidance_stats.json").write_text(json.dumps(stats, indent=2))
+        write_stats(run_dir / "guidance_stats.json", stats)
     return 0
 
 

@@ -6,9 +6,9 @@ Inputs: everything under ``scenenav/<ns>/**`` (it is the one node besides evalua
 * ``bus.mcap`` — every bus message (JSON, with a JSON schema per type); camera frames every
   ``camera_every_n``-th as ``foxglove.RawImage`` so Foxglove shows them. A chunk is closed and
   written to the file when it fills and at least every ``recorder.mcap_chunk_s`` wall seconds, so a
-  recorder killed by SIGKILL loses at most that much; :func:`recover_mcap` (run by the launcher and
-  by ``scenenav summarize``) then rewrites the whole chunks into a file with its summary and
-  footer, which the standard ``mcap`` reader opens.
+  recorder killed by SIGKILL loses at most that much; :func:`recover_mcap` (run by the launcher,
+  by ``scenenav summarize`` and by the recorder itself after a write error) then cuts the file after
+  its last whole record and appends a footer, so the standard ``mcap`` reader opens it.
 * ``truth.csv``, ``fixes.csv``, ``estimates.csv``, ``status.csv``, ``events.csv`` — flushed every
   second of wall time and on exit, so Ctrl-C leaves them readable (rows whole).
 
@@ -30,10 +30,7 @@ import time
 from pathlib import Path
 from typing import Any
 
-from mcap.exceptions import McapError
 from mcap.reader import make_reader
-from mcap.records import Channel, Message, Schema
-from mcap.stream_reader import StreamReader
 from mcap.writer import CompressionType, Writer
 
 from scenenav.app.scenario import RecorderConfig
@@ -326,17 +323,20 @@ class RecorderNode:
         with self._lock:
             if not self._closed:
                 self._closed = True
-                for step in [*(c.flush for c in self._csvs), *(c.close for c in self._csvs),
-                             self._mcap.finish, self._mcap_file.close]:
+                steps = [*(c.close for c in self._csvs)]
+                if self.write_failed is None:
+                    steps.append(self._mcap.finish)
+                for step in steps:
                     try:
                         step()
                     except OSError as exc:
                         self._stop_output(exc)
-                        try:      # the footer could not be written: keep the whole chunks
-                            self._mcap_file.close()
-                        except OSError:
-                            pass
-                        break
+                try:
+                    self._mcap_file.close()
+                except OSError as exc:
+                    self._stop_output(exc)
+                if self.write_failed is not None:       # the footer is missing: cut and finish
+                    recover_mcap(self.out / "bus.mcap")
         return {"counts": dict(self.counts), "dropped": self.dropped,
                 "write_failed": self.write_failed}
 
@@ -358,44 +358,53 @@ def mcap_is_complete(path: Path) -> bool:
         return False
 
 
+_OP_CHUNK = 0x06
+_OP_DATA_END = 0x0F
+_OP_FOOTER = 0x02
+
+
+def _whole_records_end(path: Path) -> int:
+    """File offset just past the last whole record of an MCAP data section (a record whose length
+    prefix says it ends beyond the file was torn by the crash)."""
+    size = path.stat().st_size
+    with path.open("rb") as f:
+        if f.read(len(_MCAP_MAGIC)) != _MCAP_MAGIC:
+            raise ValueError("no MCAP magic")
+        offset = len(_MCAP_MAGIC)
+        while offset + 9 <= size:
+            head = f.read(9)
+            opcode, length = head[0], int.from_bytes(head[1:], "little")
+            if opcode in (_OP_DATA_END, _OP_FOOTER) or offset + 9 + length > size:
+                break
+            f.seek(length, 1)
+            offset += 9 + length
+    return offset
+
+
 def recover_mcap(path: Path) -> int | None:
-    """Rewrite an unfinished ``bus.mcap`` (no footer: its writer was killed) from its whole chunks
-    into a complete file the standard reader opens; the torn tail is dropped. Returns the number of
-    messages kept, or None when the file was already complete (or is not an MCAP file at all)."""
+    """Finish an unfinished ``bus.mcap`` (no footer: its writer was killed or the disk filled) in
+    place: cut it after its last whole record and append a data end and a footer without a summary
+    section, which the standard reader (``mcap.reader.make_reader``) reads record by record. Needs
+    no free space (the cut frees more than the 41 bytes appended). Returns the number of messages
+    the standard reader then returns, or None when the file was complete or is not an MCAP file."""
     path = Path(path)
-    if mcap_is_complete(path) or not path.is_file():
+    if not path.is_file() or mcap_is_complete(path):
         return None
-    tmp = path.with_suffix(".mcap.recovering")
-    kept = 0
-    with path.open("rb") as src, tmp.open("wb") as dst:
-        w = Writer(dst, compression=CompressionType.ZSTD)
-        w.start(profile="", library="scenenav-recorder (recovered)")
-        schemas: dict[int, int] = {}
-        channels: dict[int, int] = {}
-        pending: dict[int, Channel] = {}
-        try:
-            for rec in StreamReader(src, validate_crcs=True).records:
-                if isinstance(rec, Schema):
-                    if rec.id not in schemas:
-                        schemas[rec.id] = w.register_schema(rec.name, rec.encoding, rec.data)
-                elif isinstance(rec, Channel):
-                    pending[rec.id] = rec
-                elif isinstance(rec, Message):
-                    ch = channels.get(rec.channel_id)
-                    if ch is None:
-                        c = pending[rec.channel_id]
-                        ch = w.register_channel(c.topic, c.message_encoding,
-                                                schemas.get(c.schema_id, 0), c.metadata)
-                        channels[rec.channel_id] = ch
-                    w.add_message(ch, rec.log_time, rec.data, rec.publish_time, rec.sequence)
-                    kept += 1
-        except (McapError, EOFError, ValueError, KeyError, OSError) as exc:
-            log.info("%s: torn tail dropped (%s)", path, type(exc).__name__)
-        except Exception as exc:  # noqa: BLE001 - a torn record can fail in any decoder
-            log.info("%s: torn tail dropped (%s)", path, type(exc).__name__)
-        w.finish()
-    tmp.replace(path)
-    return kept
+    try:
+        end = _whole_records_end(path)
+    except (OSError, ValueError):
+        return None
+    with path.open("r+b") as f:
+        f.truncate(end)
+        f.seek(end)
+        f.write(bytes([_OP_DATA_END]) + (4).to_bytes(8, "little") + (0).to_bytes(4, "little"))
+        f.write(bytes([_OP_FOOTER]) + (20).to_bytes(8, "little") + bytes(20))
+        f.write(_MCAP_MAGIC)
+    try:
+        return count_mcap_messages(path)
+    except Exception:  # noqa: BLE001 - a chunk cut inside (bad CRC): say so, keep the file
+        log.warning("%s: recovered, but a chunk is unreadable", path)
+        return 0
 
 
 def count_mcap_messages(path: Path) -> int:
