@@ -169,7 +169,7 @@ def _end_reason(sim_stats: dict, interrupted: bool, failures: tuple[NodeFailure,
     return "unknown: the simulator left no sim_stats.json (it died or was killed)"
 
 
-def evaluate_run(run_dir: Path, cfg, world, wall_time_s: float, interrupted: bool = False,
+def evaluate_run(run_dir: Path, cfg, world, wall_time_s: float | None, interrupted: bool = False,
                  failures: tuple[NodeFailure, ...] = (), recorder_stopped_early: bool | None = None,
                  abort_reason: str | None = None) -> dict:
     """Write summary.json and trajectory.png of a run folder. ``failures``: the nodes the launcher
@@ -192,7 +192,7 @@ def evaluate_run(run_dir: Path, cfg, world, wall_time_s: float, interrupted: boo
         "mission_completed": mission_completed,
         "gps_used": bool(status["gps_used"].max() > 0.5) if status and len(status.get("t_s", [])) else False,
         "sim_time_s": sim_stats.get("sim_time_s", float(truth["t_s"][-1]) if truth else 0.0),
-        "wall_time_s": round(wall_time_s, 3),
+        "wall_time_s": round(wall_time_s, 3) if wall_time_s is not None else None,
         "real_time_factor": sim_stats.get("real_time_factor"),
         "end_reason": _end_reason(sim_stats, interrupted, failures, abort_reason),
         "aborted": abort_reason is not None,
@@ -217,6 +217,46 @@ def evaluate_run(run_dir: Path, cfg, world, wall_time_s: float, interrupted: boo
         plot_run(run_dir, world, fx)
     except Exception:  # a plot must never lose the summary
         log.exception("could not draw trajectory.png")
+    return summary
+
+
+#: Files of a complete run folder, what each holds (``scenenav summarize`` marks those missing).
+RUN_FILES = {
+    "truth.csv": "recorder: true pose", "fixes.csv": "recorder: vision fixes",
+    "estimates.csv": "recorder: autopilot estimate", "status.csv": "recorder: autopilot status",
+    "events.csv": "recorder: events", "bus.mcap": "recorder: every bus message",
+    "sim_stats.json": "simulator: end reason and timing", "recorder_stats.json": "recorder: counts",
+    "run.json": "launcher: namespace and ports",
+}
+
+
+def summarize_run(run_dir: Path) -> dict:
+    """``scenenav summarize``: rebuild summary.json and trajectory.png of any run folder (complete,
+    interrupted, or left by a killed launcher) from what was recorded; an unfinished bus.mcap is
+    finished in place first. The summary's ``missing`` lists the files the run did not leave and
+    ``rebuilt`` is true."""
+    from scenenav.app.nodes import load_world_for
+    from scenenav.app.recorder import mcap_is_complete, recover_mcap
+    from scenenav.app.scenario import load_scenario
+    run_dir = Path(run_dir)
+    if not (run_dir / "scenario.yaml").is_file():
+        raise UserError(f"{run_dir}: no scenario.yaml; expected a run folder written by "
+                        "`scenenav run` or `scenenav sitl`")
+    cfg = load_scenario(run_dir / "scenario.yaml")
+    world = load_world_for(cfg)
+    (run_dir / ".disk_reserve").unlink(missing_ok=True)   # left by a killed launcher
+    notes = []
+    mcap_path = run_dir / "bus.mcap"
+    if mcap_path.is_file() and not mcap_is_complete(mcap_path):
+        kept = recover_mcap(mcap_path)
+        notes.append(f"bus.mcap had no footer: finished in place ({kept} messages kept)")
+    missing = [f"{name} ({what})" for name, what in RUN_FILES.items() if not (run_dir / name).is_file()]
+    sim_stats = _read_json(run_dir / "sim_stats.json")
+    summary = evaluate_run(run_dir, cfg, world, wall_time_s=sim_stats.get("wall_time_s"))
+    summary.update({"rebuilt": True, "missing": missing, "notes": notes})
+    tmp = run_dir / "summary.json.tmp"
+    tmp.write_text(json.dumps(summary, indent=2))
+    tmp.replace(run_dir / "summary.json")
     return summary
 
 
@@ -338,4 +378,8 @@ def format_summary(summary: dict) -> str:
         lines.append(f"  failed_nodes               {summary['failed_nodes']}")
     for f in summary.get("node_failures") or ():
         lines.append(f"  node failure               {f['what']}")
+    for m in summary.get("missing") or ():
+        lines.append(f"  missing                    {m}")
+    for n in summary.get("notes") or ():
+        lines.append(f"  note                       {n}")
     return "\n".join(lines)

@@ -10,8 +10,10 @@ from __future__ import annotations
 import dataclasses
 import json
 import logging
+import os
 import signal
 import threading
+import time
 from pathlib import Path
 from types import SimpleNamespace
 
@@ -22,11 +24,27 @@ from scenenav.core.contracts import LockstepRole
 log = logging.getLogger(__name__)
 
 
+#: Wall seconds a node may take to stop after SIGINT/SIGTERM before it exits regardless: when the
+#: launcher itself was killed (PDEATHSIG), nobody else would escalate, and a node stuck closing
+#: (a bus whose router is gone, a wedged worker) must still not outlive its run.
+STOP_DEADLINE_S = 30.0
+
+
+def _exit_late() -> None:
+    log.error("did not stop within %.0f s of the stop signal: exiting now", STOP_DEADLINE_S)
+    logging.shutdown()
+    os._exit(3)
+
+
 def _stop_event() -> threading.Event:
     ev = threading.Event()
 
     def handler(signum, _frame):
         log.info("signal %d: stopping", signum)
+        if not ev.is_set():
+            timer = threading.Timer(STOP_DEADLINE_S, _exit_late)
+            timer.daemon = True
+            timer.start()
         ev.set()
     signal.signal(signal.SIGINT, handler)
     signal.signal(signal.SIGTERM, handler)
@@ -162,7 +180,6 @@ def run_mavlink_port(run_dir: Path, timeout_s: float) -> int:
     """The MAVLink TCP port the autopilot of THIS run bound (``<run>/mavlink.json``, written once
     it is bound; waited for up to ``timeout_s``), never a port from the configuration that another
     run may hold."""
-    import time
     from autopilot_bridge.node import MAVLINK_FILE
     from scenenav.core.errors import UserError
     path = run_dir / MAVLINK_FILE

@@ -123,3 +123,15 @@ def wait_gone(pids: set[int], timeout_s: float = 10.0) -> set[int]:
         time.sleep(0.1)
         left = {p for p in left if alive(p)}
     return left
+
+
+def describe(pids: set[int]) -> str:
+    """Command lines of ``pids`` (for assertion messages)."""
+    out = []
+    for pid in sorted(pids):
+        try:
+            cmd = Path(f"/proc/{pid}/cmdline").read_bytes().replace(b"\0", b" ").decode()[:200]
+        except OSError:
+            cmd = "?"
+        out.append(f"{pid}: {cmd}")
+    return "; ".join(out)
