@@ -205,9 +205,11 @@ def _resolve_guidance_map(cfg: ScenarioConfig, progress: bool) -> ScenarioConfig
     return dataclasses.replace(cfg, guidance=dataclasses.replace(g, assistant_map=str(path)))
 
 
-def prepare_run(cfg: ScenarioConfig, world, run_dir: Path, label: str, prefix: str) -> Launch:
+def prepare_run(cfg: ScenarioConfig, world, run_dir: Path, label: str, prefix: str,
+                reserve_mb: float = 0.0) -> Launch:
     """Create the run folder (must be new or empty) with scenario.yaml and run.json, and the
-    Launch holding the run's own namespace and hub port."""
+    Launch holding the run's own namespace and hub port. ``reserve_mb`` > 0: also set that much
+    disk aside (``.disk_reserve``; the caller gives it back with ``DiskWatch.release``)."""
     if run_dir.exists() and any(run_dir.iterdir()):
         raise UserError(f"{run_dir}: run folder exists and is not empty (choose a new --out)")
     check_free_space(run_dir, cfg.recorder.min_free_disk_mb)
@@ -220,7 +222,8 @@ def prepare_run(cfg: ScenarioConfig, world, run_dir: Path, label: str, prefix: s
                 "world": world.manifest.name, "mavlink_tcp_port": cfg.autopilot.mavlink_tcp_port,
                 "started_utc": time.strftime("%Y-%m-%dT%H:%M:%SZ", time.gmtime())}
         write_atomic(run_dir / "run.json", json.dumps(meta, indent=2))
-        _reserve(run_dir / RESERVE_FILE, DISK_RESERVE_MB)
+        if reserve_mb > 0:
+            _reserve(run_dir / RESERVE_FILE, reserve_mb)
     except OSError as exc:
         for name in ("scenario.yaml", "run.json", RESERVE_FILE):
             (run_dir / name).unlink(missing_ok=True)
@@ -313,7 +316,8 @@ def run(scenario_path: str | None, out_dir: str, overrides: tuple[str, ...] = ()
 
 
 def _run(cfg: ScenarioConfig, world, scenario_path: str | None, out_dir: str, progress: bool) -> dict:
-    launch = prepare_run(cfg, world, Path(out_dir), scenario_path or "(defaults)", "run")
+    launch = prepare_run(cfg, world, Path(out_dir), scenario_path or "(defaults)", "run",
+                         reserve_mb=DISK_RESERVE_MB)
     run_dir = launch.run_dir
 
     expect = ["recorder"]
