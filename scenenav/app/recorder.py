@@ -105,8 +105,14 @@ class _Csv:
         self._w.writerow(columns)
         self.flush()
 
+    #: Rows go to the file once this many characters are pending (as often as a buffered file
+    #: would write them, so readers following the file see rows as soon as before).
+    FLUSH_CHARS = 8192
+
     def row(self, values) -> None:
         self._w.writerow([_fmt(v) for v in values])
+        if self._buf.tell() >= self.FLUSH_CHARS:
+            self.flush()
 
     def flush(self) -> None:
         data = self._buf.getvalue().encode("utf-8")
