@@ -223,14 +223,22 @@ class AutopilotNode:
         try:
             server = MavlinkServer(self.core, self.params, cfg)
         except UserError as exc:
-            log.error("%s; MAVLink TCP server disabled for this run", exc)
-            self.stats["mavlink_tcp_unavailable"] += 1
-            server = MavlinkServer(self.core, self.params,
-                                   dataclasses.replace(cfg, tcp_enabled=False))
+            # Taken (another run, a real SITL): bind a free port instead and report the bound one
+            # in mavlink.json, so there is no race between choosing a port and binding it.
+            log.warning("%s; serving MAVLink TCP on a free port instead (see mavlink.json)", exc)
+            self.stats["mavlink_tcp_port_taken"] += 1
+            try:
+                server = MavlinkServer(self.core, self.params, dataclasses.replace(cfg, tcp_port=0))
+            except UserError as exc2:
+                log.error("%s; MAVLink TCP server disabled for this run", exc2)
+                self.stats["mavlink_tcp_unavailable"] += 1
+                server = MavlinkServer(self.core, self.params,
+                                       dataclasses.replace(cfg, tcp_enabled=False))
         if self.run_dir is not None:
             info = {"tcp_host": cfg.tcp_host if server.tcp_port else None,
                     "tcp_port": server.tcp_port, "udp_port": server.udp_port,
-                    "udp_out": f"{cfg.udp_target_host}:{cfg.udp_target_port}" if udp else None}
+                    "udp_out": f"{cfg.udp_target_host}:{cfg.udp_target_port}" if udp else None,
+                    "system_id": server.system_id}
             tmp = self.run_dir / (MAVLINK_FILE + ".tmp")
             tmp.write_text(json.dumps(info, indent=2))
             tmp.replace(self.run_dir / MAVLINK_FILE)

@@ -7,14 +7,19 @@ work (about 8 ms a frame) overlaps the physics and the bus on the second core. T
 only on the capture pose, so lockstep runs stay deterministic.
 
 With ``render_in_worker`` the renderer lives in a forked child process that owns its own pybullet
-client; otherwise it renders in-process at request time. The child exits when the pipe closes,
-so it never outlives the simulator.
+client; otherwise it renders in-process at request time. The child never outlives the simulator,
+even one killed by SIGKILL: it closes its inherited copy of the simulator's end of the pipe (so the
+simulator's death closes the pipe and the child sees EOF), and it asks the kernel for SIGKILL when
+its parent dies (``PR_SET_PDEATHSIG``, which ``fork()`` does not inherit from the simulator).
 """
 
 from __future__ import annotations
 
+import ctypes
 import logging
 import multiprocessing as mp
+import os
+import signal
 from collections import OrderedDict
 
 import numpy as np
@@ -23,9 +28,25 @@ from sitl.config import CameraConfig
 
 log = logging.getLogger(__name__)
 
+_PR_SET_PDEATHSIG = 1   # linux/prctl.h
 
-def _serve(conn, orthophoto: np.ndarray, m_per_px: float, cfg: CameraConfig) -> None:
+
+def die_with_parent(parent_pid: int, sig: int = signal.SIGKILL) -> None:
+    """In a forked child: get ``sig`` when the parent dies (Linux ``prctl(PR_SET_PDEATHSIG)``), and
+    exit at once if the parent already died before the call (the race prctl's man page names)."""
+    try:
+        ctypes.CDLL(None, use_errno=True).prctl(_PR_SET_PDEATHSIG, int(sig))
+    except (OSError, AttributeError):
+        pass   # not Linux: the closed pipe still ends the child
+    if os.getppid() != parent_pid:
+        os._exit(0)
+
+
+def _serve(conn, parent_conn, parent_pid: int, orthophoto: np.ndarray, m_per_px: float,
+           cfg: CameraConfig) -> None:
     from sitl.camera import GroundCamera
+    die_with_parent(parent_pid)
+    parent_conn.close()   # else this copy keeps the pipe open after the simulator died: no EOF
     camera = GroundCamera(-1, orthophoto, m_per_px, cfg)
     try:
         while True:
@@ -51,7 +72,8 @@ class CameraPipeline:
         if cfg.render_in_worker:
             ctx = mp.get_context("fork")   # the child inherits the orthophoto without a copy
             self._conn, child = ctx.Pipe()
-            self._proc = ctx.Process(target=_serve, args=(child, orthophoto, m_per_px, cfg),
+            self._proc = ctx.Process(target=_serve,
+                                     args=(child, self._conn, os.getpid(), orthophoto, m_per_px, cfg),
                                      name="camera-render", daemon=True)
             self._proc.start()
             child.close()

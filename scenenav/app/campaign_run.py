@@ -348,11 +348,11 @@ def run_campaign(campaign_file: str, out_dir: str, workers: int | None = None, s
     result = CampaignResult(out, len(runs), len(runs) - len(todo))
     print(f"campaign {spec.name}: {len(runs)} runs planned ({out / 'plan.json'}), "
           f"{result.skipped} already complete, {len(todo)} to fly", file=sys.stderr, flush=True)
-    from scenenav.app.launcher import install_interrupt_handlers
-    install_interrupt_handlers()      # also when started with SIGINT ignored (a background job)
+    from scenenav.app.signals import interrupt_on_stop_signals
     try:
-        if todo:
-            _fly_all(spec, todo, out, workers, scheduler, progress, result)
+        with interrupt_on_stop_signals():   # also when started with SIGINT ignored (a background job)
+            if todo:
+                _fly_all(spec, todo, out, workers, scheduler, progress, result)
     finally:
         write_outputs(out, spec, runs, report_dir, command, full_count)
     if result.interrupted:

@@ -23,7 +23,15 @@ def _run(args: argparse.Namespace) -> int:
     from scenenav.app.evaluation import format_summary
     print(format_summary(summary))
     print(f"run folder: {args.out}")
-    return 0 if not summary.get("failed_nodes") else 1
+    return 0 if not (summary.get("failed_nodes") or summary.get("aborted")) else 1
+
+
+def _summarize(args: argparse.Namespace) -> int:
+    from scenenav.app.evaluation import format_summary, summarize_run
+    summary = summarize_run(Path(args.run_dir))
+    print(format_summary(summary))
+    print(f"rebuilt: {Path(args.run_dir) / 'summary.json'}, {Path(args.run_dir) / 'trajectory.png'}")
+    return 0
 
 
 def _node(args: argparse.Namespace) -> int:
@@ -83,7 +91,7 @@ def _sitl(args: argparse.Namespace) -> int:
     summary = run_sitl(opts, announce=lambda text: print(text, flush=True))
     from scenenav.app.evaluation import format_summary
     print(format_summary(summary))
-    return 0 if not summary.get("failed_nodes") else 1
+    return 0 if not (summary.get("failed_nodes") or summary.get("aborted")) else 1
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -109,6 +117,15 @@ def build_parser() -> argparse.ArgumentParser:
                    help="override a scenario key, e.g. --set duration_s=30 --set perception.method=statistical")
     r.add_argument("--quiet", action="store_true", help="no progress bar")
     r.set_defaults(func=_run)
+
+    sm = sub.add_parser("summarize", help="rebuild summary.json and trajectory.png of a run folder",
+                        description="Rebuild summary.json and trajectory.png of any run folder from what "
+                                    "was recorded: a complete run, an interrupted one, or one whose "
+                                    "launcher was killed. An unfinished bus.mcap (recorder killed) is "
+                                    "finished in place first. The summary lists the files the run did "
+                                    "not leave (missing) and says it was rebuilt.")
+    sm.add_argument("run_dir", metavar="RUN_DIR", help="run folder (holds scenario.yaml)")
+    sm.set_defaults(func=_summarize)
 
     n = sub.add_parser("node", help="run one node of a run (the launcher uses this)",
                        description="Run a single bus node. Normally started by `scenenav run` or "

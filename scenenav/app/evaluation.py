@@ -9,14 +9,22 @@ works on a run that was interrupted. Definitions:
   (default 5 m); an invalid fix (no match computed) is neither true nor false;
 * ``rms_error_m`` / ``max_error_m`` are of the autopilot's own estimate against truth (horizontal),
   null when the run had no autopilot; ``fix_rms_error_accepted_m`` is over accepted fixes.
+
+Faults (docs/faults.md): ``end_reason`` says when the simulator died instead of finishing (its
+``sim_stats.json`` is missing); ``node_failures`` lists every node that exited on its own with a
+non-zero code, when, and the last error line of its log; ``recording_ended_early`` is true when
+the recorder stopped before the simulator (its files end at ``recording_end_s``).
 """
 
 from __future__ import annotations
 
 import csv
+import dataclasses
 import json
 import logging
 import math
+import signal
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
@@ -45,6 +53,48 @@ def read_csv(path: Path) -> dict[str, np.ndarray]:
         except ValueError:
             cols[name] = np.array(vals, dtype=object)
     return cols
+
+
+def exit_description(code: int) -> str:
+    """``exit code 2`` or ``killed by SIGKILL`` for a Popen return code."""
+    if code < 0:
+        try:
+            return f"killed by {signal.Signals(-code).name}"
+        except ValueError:
+            return f"killed by signal {-code}"
+    return f"exit code {code}"
+
+
+@dataclass(frozen=True)
+class NodeFailure:
+    """A node of the run that exited on its own with a non-zero code (seen by the launcher)."""
+
+    node: str
+    exit_code: int
+    wall_time_s: float            # since the launch
+    sim_time_s: float | None      # newest simulated time in truth.csv when it was seen
+    last_error: str               # the last error line of its log ("" if none)
+
+    def describe(self) -> str:
+        at = f" at t={self.sim_time_s:.1f} s" if self.sim_time_s is not None else ""
+        why = f": {self.last_error}" if self.last_error else ""
+        return f"{self.node} {exit_description(self.exit_code)}{at}{why}"
+
+
+def last_sim_time_s(run_dir: Path) -> float | None:
+    """The newest simulated time of truth.csv (read from its end), None if it has no row."""
+    try:
+        with (Path(run_dir) / "truth.csv").open("rb") as f:
+            f.seek(max(0, f.seek(0, 2) - 2000))
+            lines = [ln for ln in f.read().splitlines() if ln.strip()]
+    except OSError:
+        return None
+    for line in reversed(lines):
+        try:
+            return float(line.split(b",")[0])
+        except ValueError:
+            continue
+    return None
 
 
 def _interp_truth(truth: dict, t: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -111,16 +161,34 @@ def estimate_metrics(run_dir: Path) -> dict[str, Any]:
     return {"rms_error_m": float(np.sqrt(np.mean(e ** 2))), "max_error_m": float(np.max(e))}
 
 
-def evaluate_run(run_dir: Path, cfg, world, wall_time_s: float, interrupted: bool = False) -> dict:
+def _end_reason(sim_stats: dict, interrupted: bool, failures: tuple[NodeFailure, ...],
+                abort_reason: str | None = None) -> str | None:
+    if abort_reason:
+        return abort_reason
+    if interrupted:
+        return "interrupted"
+    reason = sim_stats.get("end_reason")
+    if reason:
+        return reason
+    for f in failures:
+        if f.node == "sim":
+            return f"simulator died: {f.describe().removeprefix('sim ')}"
+    return "unknown: the simulator left no sim_stats.json (it died or was killed)"
+
+
+def evaluate_run(run_dir: Path, cfg, world, wall_time_s: float | None, interrupted: bool = False,
+                 failures: tuple[NodeFailure, ...] = (), recorder_stopped_early: bool | None = None,
+                 abort_reason: str | None = None) -> dict:
+    """Write summary.json and trajectory.png of a run folder. ``failures``: the nodes the launcher
+    saw die; ``recorder_stopped_early``: None = judge from the folder (no recorder_stats.json);
+    ``abort_reason``: why the launcher ended the run early (a full disk), else None."""
     run_dir = Path(run_dir)
     fx = fix_table(run_dir, cfg.evaluation.false_fix_threshold_m)
     summary: dict[str, Any] = {"scenario": cfg.name, "world": world.manifest.name}
     summary.update(estimate_metrics(run_dir))
     summary.update(fix_metrics(fx))
     status = read_csv(run_dir / "status.csv")
-    sim_stats = {}
-    if (run_dir / "sim_stats.json").is_file():
-        sim_stats = json.loads((run_dir / "sim_stats.json").read_text())
+    sim_stats = _read_json(run_dir / "sim_stats.json")
     end_reason = sim_stats.get("end_reason")
     if status and len(status.get("t_s", [])):
         mission_completed = bool(status["mission_complete"][-1] > 0.5)
@@ -131,21 +199,81 @@ def evaluate_run(run_dir: Path, cfg, world, wall_time_s: float, interrupted: boo
         "mission_completed": mission_completed,
         "gps_used": bool(status["gps_used"].max() > 0.5) if status and len(status.get("t_s", [])) else False,
         "sim_time_s": sim_stats.get("sim_time_s", float(truth["t_s"][-1]) if truth and len(truth["t_s"]) else 0.0),
-        "wall_time_s": round(wall_time_s, 3),
+        "wall_time_s": round(wall_time_s, 3) if wall_time_s is not None else None,
         "real_time_factor": sim_stats.get("real_time_factor"),
-        "end_reason": end_reason if not interrupted else "interrupted",
+        "end_reason": _end_reason(sim_stats, interrupted, failures, abort_reason),
+        "aborted": abort_reason is not None,
         "flight_mode": cfg.flight.mode.value,
         "perception_method": cfg.perception.method if cfg.perception.enabled else None,
         "false_fix_threshold_m": cfg.evaluation.false_fix_threshold_m,
         "distance_flown_m": _distance(truth),
     })
     summary.update(_guidance_metrics(run_dir))
-    (run_dir / "summary.json").write_text(json.dumps(summary, indent=2))
+    rec = _read_json(run_dir / "recorder_stats.json")
+    if recorder_stopped_early is None:
+        recorder_stopped_early = not rec
+    summary["recording_ended_early"] = bool(recorder_stopped_early or rec.get("write_failed"))
+    if rec.get("write_failed"):
+        summary["recording_error"] = rec["write_failed"]
+    summary["recording_end_s"] = last_sim_time_s(run_dir)
+    summary["node_failures"] = [dataclasses.asdict(f) | {"what": f.describe()} for f in failures]
+    tmp = run_dir / "summary.json.tmp"
+    tmp.write_text(json.dumps(summary, indent=2))
+    tmp.replace(run_dir / "summary.json")
     try:
         plot_run(run_dir, world, fx)
     except Exception:  # a plot must never lose the summary
         log.exception("could not draw trajectory.png")
     return summary
+
+
+#: Files of a complete run folder, what each holds (``scenenav summarize`` marks those missing).
+RUN_FILES = {
+    "truth.csv": "recorder: true pose", "fixes.csv": "recorder: vision fixes",
+    "estimates.csv": "recorder: autopilot estimate", "status.csv": "recorder: autopilot status",
+    "events.csv": "recorder: events", "bus.mcap": "recorder: every bus message",
+    "sim_stats.json": "simulator: end reason and timing", "recorder_stats.json": "recorder: counts",
+    "run.json": "launcher: namespace and ports",
+}
+
+
+def summarize_run(run_dir: Path) -> dict:
+    """``scenenav summarize``: rebuild summary.json and trajectory.png of any run folder (complete,
+    interrupted, or left by a killed launcher) from what was recorded; an unfinished bus.mcap is
+    finished in place first. The summary's ``missing`` lists the files the run did not leave and
+    ``rebuilt`` is true."""
+    from scenenav.app.nodes import load_world_for
+    from scenenav.app.recorder import mcap_is_complete, recover_mcap
+    from scenenav.app.scenario import load_scenario
+    run_dir = Path(run_dir)
+    if not (run_dir / "scenario.yaml").is_file():
+        raise UserError(f"{run_dir}: no scenario.yaml; expected a run folder written by "
+                        "`scenenav run` or `scenenav sitl`")
+    cfg = load_scenario(run_dir / "scenario.yaml")
+    world = load_world_for(cfg)
+    (run_dir / ".disk_reserve").unlink(missing_ok=True)   # left by a killed launcher
+    notes = []
+    mcap_path = run_dir / "bus.mcap"
+    if mcap_path.is_file() and not mcap_is_complete(mcap_path):
+        kept = recover_mcap(mcap_path)
+        notes.append(f"bus.mcap had no footer: finished in place ({kept} messages kept)")
+    missing = [f"{name} ({what})" for name, what in RUN_FILES.items() if not (run_dir / name).is_file()]
+    sim_stats = _read_json(run_dir / "sim_stats.json")
+    summary = evaluate_run(run_dir, cfg, world, wall_time_s=sim_stats.get("wall_time_s"))
+    summary.update({"rebuilt": True, "missing": missing, "notes": notes})
+    tmp = run_dir / "summary.json.tmp"
+    tmp.write_text(json.dumps(summary, indent=2))
+    tmp.replace(run_dir / "summary.json")
+    return summary
+
+
+def _read_json(path: Path) -> dict:
+    """A JSON object file, {} when missing or unreadable (a crashed writer may leave it torn)."""
+    try:
+        data = json.loads(path.read_text())
+    except (OSError, ValueError):
+        return {}
+    return data if isinstance(data, dict) else {}
 
 
 def _routes(run_dir: Path) -> list[RouteFile]:
@@ -246,7 +374,7 @@ def format_summary(summary: dict) -> str:
             "real_time_factor", "distance_flown_m", "fixes_total", "fixes_accepted", "false_fixes",
             "false_fixes_rejected", "true_fixes_rejected", "fix_rms_error_accepted_m",
             "fix_time_ms_median", "rms_error_m", "max_error_m", "mission_completed", "gps_used",
-            "end_reason"]
+            "end_reason", "recording_ended_early"]
     lines = ["summary:"]
     for k in keys:
         v = summary.get(k)
@@ -255,4 +383,10 @@ def format_summary(summary: dict) -> str:
         lines.append(f"  {k:26s} {v}")
     if summary.get("failed_nodes"):
         lines.append(f"  failed_nodes               {summary['failed_nodes']}")
+    for f in summary.get("node_failures") or ():
+        lines.append(f"  node failure               {f['what']}")
+    for m in summary.get("missing") or ():
+        lines.append(f"  missing                    {m}")
+    for n in summary.get("notes") or ():
+        lines.append(f"  note                       {n}")
     return "\n".join(lines)

@@ -1,14 +1,27 @@
 """``scenenav run``: start every node of a scenario as a child process, fly it, write the run folder.
 
+Before any process starts, every input the run will read is checked with the nodes' own readers
+(``scenenav.app.preflight``) and the run's disk must have ``recorder.min_free_disk_mb`` free: a bad
+file or a full disk is one ``error: ...`` line and exit 2, and leaves nothing behind.
+
 Children are started in their own process group so that Ctrl-C reaches only the launcher, which
 then stops them in order (simulator first, recorder last) with SIGINT, escalating to SIGTERM and
-SIGKILL after a grace period: no orphans, and the logs are closed properly.
+SIGKILL after a grace period, and finally kills whatever is left in each child's process group
+(a grandchild such as the camera render worker): no process outlives the run. A child that dies
+on its own is reported once, with the last error line of its log, and lands in the summary
+(``node_failures``); an unfinished ``bus.mcap`` (recorder killed) is recovered from its whole
+chunks. See docs/faults.md.
 """
 
 from __future__ import annotations
 
+import dataclasses
+import errno
 import json
 import logging
+import os
+import re
+import shutil
 import signal
 import subprocess
 import sys
@@ -19,6 +32,9 @@ from pathlib import Path
 
 import yaml
 
+from scenenav.app.evaluation import NodeFailure, last_sim_time_s
+from scenenav.app.mavlink_claim import DEFAULT_SYSID, SysidClaim, claim_sysid
+from scenenav.app.preflight import check_free_space, free_bytes, mount_point, validate_inputs
 from scenenav.app.scenario import FlightMode, ScenarioConfig, load_scenario, scenario_to_dict
 from scenenav.app.signals import interrupt_on_stop_signals
 from scenenav.core.bus import free_port
@@ -28,6 +44,12 @@ from scenenav.core.errors import UserError
 log = logging.getLogger(__name__)
 
 GRACE_S = 10.0
+#: Space set aside in the run folder at start (``.disk_reserve``) and given back when the disk fills,
+#: so the nodes' closing files, the summary and the plot still fit on a full disk.
+DISK_RESERVE_MB = 8.0
+#: Free space below which the launcher ends the run (the disk is full: nothing more is recorded).
+DISK_LOW_WATER_MB = 1.0
+RESERVE_FILE = ".disk_reserve"
 _PR_SET_PDEATHSIG = 1   # linux/prctl.h
 
 
@@ -45,6 +67,8 @@ class Child:
     name: str
     proc: subprocess.Popen
     log_file: object
+    log_path: Path | None = None
+    stopping: bool = False        # the launcher is stopping it: its exit is not a failure
 
 
 @dataclass
@@ -62,7 +86,7 @@ class Launch:
                "--namespace", self.namespace, "--hub-port", str(self.hub_port)]
         proc = subprocess.Popen(cmd, stdout=f, stderr=subprocess.STDOUT, stdin=subprocess.DEVNULL,
                                 start_new_session=True, preexec_fn=die_with_parent)
-        child = Child(name, proc, f)
+        child = Child(name, proc, f, logs / f"{name}.log")
         self.children.append(child)
         pids = {c.name: c.proc.pid for c in self.children}
         (self.run_dir / "logs" / "pids.json").write_text(json.dumps(pids))
@@ -78,9 +102,24 @@ class Launch:
         for c in self.children:
             _stop(c)
             c.log_file.close()
+        self.kill_groups()
+
+    def kill_groups(self) -> None:
+        """SIGKILL whatever is left in the children's process groups (each child leads its own)."""
+        for c in self.children:
+            try:
+                os.killpg(c.proc.pid, 0)
+            except (ProcessLookupError, PermissionError):
+                continue
+            log.warning("a process of %s's group outlived it: killed", c.name)
+            try:
+                os.killpg(c.proc.pid, signal.SIGKILL)
+            except (ProcessLookupError, PermissionError):
+                pass
 
 
 def _stop(c: Child) -> None:
+    c.stopping = True
     if c.proc.poll() is not None:
         return
     for sig, wait in ((signal.SIGINT, GRACE_S), (signal.SIGTERM, 5.0), (signal.SIGKILL, 5.0)):
@@ -95,27 +134,55 @@ def _stop(c: Child) -> None:
             log.warning("%s did not stop on %s", c.name, sig.name)
 
 
-def _port_free(port: int) -> bool:
-    import socket
-    with socket.socket(socket.AF_INET, socket.SOCK_STREAM) as s:
-        s.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)
+def _claim_sysid(cfg: ScenarioConfig, out_dir: Path) -> tuple[ScenarioConfig, SysidClaim | None]:
+    """Claim the run's MAVLink system id on its UDP output (``scenenav.app.mavlink_claim``): a
+    distinct id from every other live run sending there, written to the scenario."""
+    a = cfg.autopilot
+    if cfg.flight.mode != FlightMode.AUTOPILOT or a.udp_target is None:
+        return cfg, None
+    from autopilot_bridge.params import load_param_file
+    file_params = load_param_file(Path(a.params_file)) if a.params_file else {}
+    chosen = "SYSID_THISMAV" in a.params or "SYSID_THISMAV" in file_params
+    wanted = int(a.params.get("SYSID_THISMAV", file_params.get("SYSID_THISMAV", DEFAULT_SYSID)))
+    host, port = a.udp_target
+    claim = claim_sysid(f"{host}:{port}", wanted, chosen, owner=str(Path(out_dir).absolute()))
+    if claim.system_id == wanted:
+        return cfg, claim
+    log.warning("MAVLink system %d is used by another live run sending to UDP %s:%d: this run is "
+                "system %d (SYSID_THISMAV)", wanted, host, port, claim.system_id)
+    params = {**a.params, "SYSID_THISMAV": claim.system_id}
+    return dataclasses.replace(cfg, autopilot=dataclasses.replace(a, params=params)), claim
+
+
+#: Wall seconds the launcher waits for the autopilot to bind its MAVLink endpoints.
+MAVLINK_READY_TIMEOUT_S = 90.0
+
+
+def await_mavlink(launch: Launch, autopilot: Child, timeout_s: float = MAVLINK_READY_TIMEOUT_S
+                  ) -> dict | None:
+    """Wait for the autopilot's ``mavlink.json`` (the ports it bound) and write them into run.json,
+    so that run.json names the true endpoints of this run. None if the autopilot died first."""
+    path = launch.run_dir / "mavlink.json"
+    deadline = time.monotonic() + timeout_s
+    while time.monotonic() < deadline:
         try:
-            s.bind(("127.0.0.1", port))
-        except OSError:
-            return False
-    return True
-
-
-def _free_mavlink_port(cfg: ScenarioConfig) -> ScenarioConfig:
-    """Scenario runs are independent: if the autopilot's MAVLink TCP port is taken (another run,
-    a real SITL), use a free one instead (written to scenario.yaml and run.json)."""
-    import dataclasses
-    port = cfg.autopilot.mavlink_tcp_port
-    if cfg.flight.mode != FlightMode.AUTOPILOT or port == 0 or _port_free(port):
-        return cfg
-    new = free_port()
-    log.warning("MAVLink TCP port %d is in use: this run serves MAVLink on %d", port, new)
-    return dataclasses.replace(cfg, autopilot=dataclasses.replace(cfg.autopilot, mavlink_tcp_port=new))
+            info = json.loads(path.read_text())
+        except (OSError, ValueError):
+            info = None
+        if isinstance(info, dict):
+            meta_path = launch.run_dir / "run.json"
+            meta = json.loads(meta_path.read_text())
+            meta.update({"mavlink_tcp_port": info.get("tcp_port"),
+                         "mavlink_udp_port": info.get("udp_port"),
+                         "mavlink_udp_out": info.get("udp_out"),
+                         "mavlink_system_id": info.get("system_id")})
+            write_atomic(meta_path, json.dumps(meta, indent=2))
+            return info
+        if autopilot.proc.poll() is not None:
+            return None
+        time.sleep(0.05)
+    log.warning("the autopilot did not report its MAVLink ports within %.0f s", timeout_s)
+    return None
 
 
 def _resolve_guidance_map(cfg: ScenarioConfig, progress: bool) -> ScenarioConfig:
@@ -149,19 +216,83 @@ def spawn_recorder_and_perception(launch: Launch, cfg: ScenarioConfig) -> list[s
     return ["camera"] if cfg.perception.lockstep else []
 
 
-def prepare_run(cfg: ScenarioConfig, world, run_dir: Path, label: str, prefix: str) -> Launch:
+def prepare_run(cfg: ScenarioConfig, world, run_dir: Path, label: str, prefix: str,
+                reserve_mb: float = 0.0) -> Launch:
     """Create the run folder (must be new or empty) with scenario.yaml and run.json, and the
-    Launch holding the run's own namespace and hub port."""
+    Launch holding the run's own namespace and hub port. ``reserve_mb`` > 0: also set that much
+    disk aside (``.disk_reserve``; the caller gives it back with ``DiskWatch.release``)."""
     if run_dir.exists() and any(run_dir.iterdir()):
         raise UserError(f"{run_dir}: run folder exists and is not empty (choose a new --out)")
-    run_dir.mkdir(parents=True, exist_ok=True)
-    (run_dir / "scenario.yaml").write_text(yaml.safe_dump(scenario_to_dict(cfg), sort_keys=False))
-    launch = Launch(run_dir, f"{prefix}-{uuid.uuid4().hex[:12]}", free_port())
-    meta = {"scenario": label, "namespace": launch.namespace, "hub_port": launch.hub_port,
-            "world": world.manifest.name, "mavlink_tcp_port": cfg.autopilot.mavlink_tcp_port,
-            "started_utc": time.strftime("%Y-%m-%dT%H:%M:%SZ", time.gmtime())}
-    (run_dir / "run.json").write_text(json.dumps(meta, indent=2))
+    check_free_space(run_dir, cfg.recorder.min_free_disk_mb)
+    created = not run_dir.exists()
+    try:
+        run_dir.mkdir(parents=True, exist_ok=True)
+        write_atomic(run_dir / "scenario.yaml", yaml.safe_dump(scenario_to_dict(cfg), sort_keys=False))
+        launch = Launch(run_dir, f"{prefix}-{uuid.uuid4().hex[:12]}", free_port())
+        meta = {"scenario": label, "namespace": launch.namespace, "hub_port": launch.hub_port,
+                "world": world.manifest.name, "mavlink_tcp_port": cfg.autopilot.mavlink_tcp_port,
+                "started_utc": time.strftime("%Y-%m-%dT%H:%M:%SZ", time.gmtime())}
+        write_atomic(run_dir / "run.json", json.dumps(meta, indent=2))
+        if reserve_mb > 0:
+            _reserve(run_dir / RESERVE_FILE, reserve_mb)
+    except OSError as exc:
+        for name in ("scenario.yaml", "run.json", RESERVE_FILE):
+            (run_dir / name).unlink(missing_ok=True)
+        if created:
+            shutil.rmtree(run_dir, ignore_errors=True)
+        raise UserError(disk_error_line(run_dir, exc)) from None
     return launch
+
+
+def _reserve(path: Path, mb: float) -> None:
+    fd = os.open(path, os.O_WRONLY | os.O_CREAT | os.O_TRUNC, 0o600)
+    try:
+        os.posix_fallocate(fd, 0, int(mb * 1e6))
+    finally:
+        os.close(fd)
+
+
+class DiskFull(Exception):
+    """The run's disk filled during the run: the launcher ends it (message: one line)."""
+
+
+class DiskWatch:
+    """Ends the run when its disk fills, after giving back the reserve (docs/faults.md)."""
+
+    def __init__(self, run_dir: Path) -> None:
+        self.run_dir = run_dir
+
+    def check(self) -> None:
+        try:
+            where, free = free_bytes(self.run_dir)
+        except OSError:
+            return
+        if free < DISK_LOW_WATER_MB * 1e6:
+            self.release()
+            raise DiskFull(f"disk full: {free / 1e6:.1f} MB free on {mount_point(where)} "
+                           f"(run folder {self.run_dir}): run stopped, what was written is kept")
+
+    def release(self) -> None:
+        (self.run_dir / RESERVE_FILE).unlink(missing_ok=True)
+
+
+def write_atomic(path: Path, text: str) -> None:
+    """Write a file whole or not at all (a temporary file renamed over it; removed on error)."""
+    tmp = path.with_name(path.name + ".tmp")
+    try:
+        tmp.write_text(text)
+        tmp.replace(path)
+    except OSError:
+        tmp.unlink(missing_ok=True)
+        raise
+
+
+def disk_error_line(path: Path, exc: OSError) -> str:
+    """One line for a failed write: the file, the error, the disk and its free space."""
+    where, free = free_bytes(path)
+    what = "no space left" if exc.errno == errno.ENOSPC else (exc.strerror or str(exc))
+    return (f"{path}: cannot write the run folder: {what} ({free / 1e6:.1f} MB free on "
+            f"{mount_point(where)}); free some space or choose another --out")
 
 
 def resolve_world(cfg: ScenarioConfig):
@@ -174,25 +305,40 @@ def run(scenario_path: str | None, out_dir: str, overrides: tuple[str, ...] = ()
     """Fly one scenario into ``out_dir``; Ctrl-C and SIGTERM stop every node cleanly (the summary is
     still written, then KeyboardInterrupt is raised again)."""
     with interrupt_on_stop_signals():
-        return _run(scenario_path, out_dir, overrides, progress)
+        return _prepare_and_fly(scenario_path, out_dir, overrides, progress)
 
 
-def _run(scenario_path: str | None, out_dir: str, overrides: tuple[str, ...], progress: bool) -> dict:
+def _prepare_and_fly(scenario_path: str | None, out_dir: str, overrides: tuple[str, ...],
+                     progress: bool) -> dict:
     cfg = load_scenario(scenario_path, overrides)
     world = resolve_world(cfg)          # fail early, with a one-line error, on a bad world
-    cfg = _free_mavlink_port(cfg)
     cfg = _resolve_guidance_map(cfg, progress)
-    launch = prepare_run(cfg, world, Path(out_dir), scenario_path or "(defaults)", "run")
+    validate_inputs(cfg, world)          # every file a node will read, before any node starts
+    cfg, claim = _claim_sysid(cfg, Path(out_dir))
+    try:
+        return _fly(cfg, world, scenario_path, out_dir, progress)
+    finally:
+        if claim is not None:
+            claim.release()
+
+
+def _fly(cfg: ScenarioConfig, world, scenario_path: str | None, out_dir: str, progress: bool) -> dict:
+    launch = prepare_run(cfg, world, Path(out_dir), scenario_path or "(defaults)", "run",
+                         reserve_mb=DISK_RESERVE_MB)
     run_dir = launch.run_dir
 
     expect = ["recorder"]
     interrupted = False
+    abort: str | None = None
     wall0 = time.time()
+    watch = ChildWatch(launch, wall0)
+    disk = DiskWatch(run_dir)
     try:
         expect += spawn_recorder_and_perception(launch, cfg)
         if cfg.flight.mode == FlightMode.AUTOPILOT:
-            launch.spawn("autopilot", ["autopilot", "--run-dir", str(run_dir)])
+            autopilot = launch.spawn("autopilot", ["autopilot", "--run-dir", str(run_dir)])
             expect.append("tick")
+            await_mavlink(launch, autopilot)     # run.json names the ports it bound
         if cfg.guidance.enabled:
             launch.spawn("guidance", ["guidance", "--run-dir", str(run_dir)])
             if cfg.clock.mode == ClockMode.LOCKSTEP:
@@ -200,23 +346,95 @@ def _run(scenario_path: str | None, out_dir: str, overrides: tuple[str, ...], pr
         sim = launch.spawn("sim", ["sim", "--run-dir", str(run_dir), "--expect", ",".join(expect)])
         swap = PerceptionSwap(launch, cfg) if cfg.perception.enabled and cfg.perception.swap_at_s > 0 \
             else None
-        _wait_sim(sim, launch, cfg, progress, swap)
+        _wait_sim(sim, launch, cfg, progress, swap, watch, disk)
     except KeyboardInterrupt:
         interrupted = True
         log.warning("interrupted: stopping every node")
+    except DiskFull as exc:
+        abort = str(exc)
+        log.error("%s", abort)
     finally:
+        disk.release()
+        watch.poll()     # a death seen only now is still a death, not a stop
         launch.stop_all(order=["sim", "guidance", "autopilot", "perception", SWAP_NODE_ID,
                                "recorder"])
     wall = time.time() - wall0
+    return _finish(launch, cfg, world, wall, interrupted, watch, abort)
+
+
+def _finish(launch: Launch, cfg: ScenarioConfig, world, wall: float, interrupted: bool,
+            watch: "ChildWatch", abort: str | None = None) -> dict:
+    """After every child stopped: recover bus.mcap if needed, write the summary and the plot."""
     from scenenav.app.evaluation import evaluate_run
-    summary = evaluate_run(run_dir, cfg, world, wall_time_s=wall, interrupted=interrupted)
-    failed = [c.name for c in launch.children if c.proc.returncode not in (0, None, -2, 130)]
-    if failed:
-        summary["failed_nodes"] = failed
-        (run_dir / "summary.json").write_text(json.dumps(summary, indent=2))
+    from scenenav.app.recorder import recover_mcap
+    run_dir = launch.run_dir
+    recorder_early = watch.failed("recorder")
+    try:
+        kept = recover_mcap(run_dir / "bus.mcap")
+        if kept is not None:
+            log.warning("bus.mcap was not finished (recorder stopped early): recovered %d messages",
+                        kept)
+            recorder_early = True
+        summary = evaluate_run(run_dir, cfg, world, wall_time_s=wall, interrupted=interrupted,
+                               failures=tuple(watch.failures), recorder_stopped_early=recorder_early,
+                               abort_reason=abort)
+        failed = [f.node for f in watch.failures]
+        if failed:
+            summary["failed_nodes"] = failed
+            write_atomic(run_dir / "summary.json", json.dumps(summary, indent=2))
+    except OSError as exc:
+        raise UserError(disk_error_line(run_dir, exc)) from None
     if interrupted:
         raise KeyboardInterrupt
     return summary
+
+
+#: Return codes of a child that stopped because it was asked to (SIGINT handled, or killed by it).
+_CLEAN_EXITS = (0, -signal.SIGINT, 130)
+
+
+class ChildWatch:
+    """Sees children die on their own, once each: one log line with the reason (the last error
+    line of the child's log) and a ``NodeFailure`` for the summary."""
+
+    def __init__(self, launch: Launch, wall0: float) -> None:
+        self.launch = launch
+        self.wall0 = wall0
+        self.failures: list[NodeFailure] = []
+        self._seen: set[int] = set()
+
+    def poll(self) -> None:
+        for c in self.launch.children:
+            code = c.proc.poll()
+            if code is None or c.proc.pid in self._seen or c.stopping:
+                continue
+            self._seen.add(c.proc.pid)
+            if code in _CLEAN_EXITS and c.name != "sim":
+                continue
+            if c.name == "sim" and code == 0:
+                continue
+            f = NodeFailure(c.name, int(code), round(time.time() - self.wall0, 3),
+                            last_sim_time_s(self.launch.run_dir),
+                            last_error_line(c.log_path) if c.log_path else "")
+            self.failures.append(f)
+            log.error("%s (see logs/%s.log)", f.describe(), c.name)
+
+    def failed(self, name: str) -> bool:
+        return any(f.node == name for f in self.failures)
+
+
+_ERROR_LINE = re.compile(r"\b(ERROR|CRITICAL|FATAL)\b|^error: |^\w+(Error|Exception): ")
+
+
+def last_error_line(path: Path, n_bytes: int = 64_000) -> str:
+    """The last line of a log that reads as an error (an ERROR record, ``error: ...``, the last
+    line of a traceback); "" if there is none."""
+    lines = _tail(path, n_bytes).decode("utf-8", "replace").splitlines()
+    for line in reversed(lines):
+        line = line.strip()
+        if line and _ERROR_LINE.search(line):
+            return line[:300]
+    return ""
 
 
 SWAP_NODE_ID = "perception-2"
@@ -275,16 +493,18 @@ def _fixes_from(run_dir: Path, node_id: str) -> bool:
 
 
 def _wait_sim(sim: Child, launch: Launch, cfg: ScenarioConfig, progress: bool,
-              swap: PerceptionSwap | None = None) -> None:
+              swap: PerceptionSwap | None = None, watch: ChildWatch | None = None,
+              disk: DiskWatch | None = None) -> None:
     """Wait for the simulator to end; show progress from its log of simulated time."""
     bar = None
     if progress and sys.stderr.isatty():
         from tqdm import tqdm
         bar = tqdm(total=round(cfg.duration_s), unit="sim s", desc=cfg.name, leave=False)
+    watch = watch or ChildWatch(launch, time.time())
     while sim.proc.poll() is None:
-        for c in launch.children:
-            if c is not sim and c.proc.poll() is not None and c.proc.returncode not in (0, -2, 130):
-                log.error("%s exited with code %s (see logs/%s.log)", c.name, c.proc.returncode, c.name)
+        watch.poll()
+        if disk is not None:
+            disk.check()
         time.sleep(0.25)
         if swap is not None:
             swap.poll(_sim_progress(launch.run_dir))
@@ -295,9 +515,7 @@ def _wait_sim(sim: Child, launch: Launch, cfg: ScenarioConfig, progress: bool,
                 bar.refresh()
     if bar is not None:
         bar.close()
-    if sim.proc.returncode != 0:
-        log.error("simulator exited with code %s (see %s)", sim.proc.returncode,
-                  launch.run_dir / "logs" / "sim.log")
+    watch.poll()        # the simulator's own exit, if it failed
 
 
 def _sim_progress(run_dir: Path) -> float | None:

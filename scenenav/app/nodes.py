@@ -11,6 +11,7 @@ import dataclasses
 import json
 import logging
 import threading
+import time
 from pathlib import Path
 from types import SimpleNamespace
 
@@ -20,6 +21,20 @@ from scenenav.core.bus import BusConfig
 from scenenav.core.contracts import LockstepRole
 
 log = logging.getLogger(__name__)
+
+
+def write_stats(path: Path, data: dict) -> bool:
+    """Write a node's stats JSON whole (temporary file renamed) or not at all; a full disk is one
+    error line, not a traceback (the summary then says the file is missing)."""
+    tmp = path.with_name(path.name + ".tmp")
+    try:
+        tmp.write_text(json.dumps(data, indent=2, default=str))
+        tmp.replace(path)
+        return True
+    except OSError as exc:
+        tmp.unlink(missing_ok=True)
+        log.error("cannot write %s: %s", path, exc.strerror or exc)
+        return False
 
 
 def load_world_for(cfg: ScenarioConfig):
@@ -63,7 +78,7 @@ def run_sim(run_dir: Path, bus_cfg: BusConfig, expect: tuple[str, ...]) -> int:
         stats = node.run()
     finally:
         node.close()
-    (run_dir / "sim_stats.json").write_text(json.dumps(dataclasses.asdict(stats), indent=2, default=str))
+    write_stats(run_dir / "sim_stats.json", dataclasses.asdict(stats))
     return 0
 
 
@@ -74,7 +89,7 @@ def run_recorder(run_dir: Path, bus_cfg: BusConfig) -> int:
     stop = stop_event()
     stop.wait()
     info = node.close()
-    (run_dir / "recorder_stats.json").write_text(json.dumps(info, indent=2))
+    write_stats(run_dir / "recorder_stats.json", info)
     return 0
 
 
@@ -133,6 +148,30 @@ def guidance_config_from_scenario(cfg: ScenarioConfig, mavlink_port: int, lockst
     return node_cfg, planner_cfg
 
 
+def run_mavlink_port(run_dir: Path, timeout_s: float) -> int:
+    """The MAVLink TCP port the autopilot of THIS run bound (``<run>/mavlink.json``, written once
+    it is bound; waited for up to ``timeout_s``), never a port from the configuration that another
+    run may hold."""
+    from autopilot_bridge.node import MAVLINK_FILE
+    from scenenav.core.errors import UserError
+    path = run_dir / MAVLINK_FILE
+    deadline = time.monotonic() + timeout_s
+    while True:
+        try:
+            port = json.loads(path.read_text()).get("tcp_port")
+        except (OSError, ValueError, AttributeError):
+            port = None
+        else:
+            if not port:
+                raise UserError(f"{path}: the autopilot of this run serves no MAVLink TCP port; "
+                                "guidance needs autopilot.mavlink_tcp_port != 0")
+            return int(port)
+        if time.monotonic() > deadline:
+            raise UserError(f"{path}: not written within {timeout_s:.0f} s; expected the autopilot "
+                            "of this run to report its MAVLink ports")
+        time.sleep(0.1)
+
+
 def run_guidance(run_dir: Path, bus_cfg: BusConfig) -> int:
     from guidance.node import GuidanceNode
     from scenenav.core.contracts import ClockMode
@@ -141,7 +180,8 @@ def run_guidance(run_dir: Path, bus_cfg: BusConfig) -> int:
     cfg = load_scenario(run_dir / "scenario.yaml")
     world = read_manifest(world_folder(cfg.world))
     node_cfg, planner_cfg = guidance_config_from_scenario(
-        cfg, cfg.autopilot.mavlink_tcp_port, lockstep=cfg.clock.mode == ClockMode.LOCKSTEP)
+        cfg, run_mavlink_port(run_dir, cfg.clock.startup_timeout_s),
+        lockstep=cfg.clock.mode == ClockMode.LOCKSTEP)
     node = GuidanceNode(world, bus_cfg, node_cfg, planner_cfg, out_dir=run_dir)
     stop = stop_event()
     threading.Thread(target=lambda: (stop.wait(), node.stop()), daemon=True).start()
@@ -150,7 +190,7 @@ def run_guidance(run_dir: Path, bus_cfg: BusConfig) -> int:
         stop.wait()          # stay up (liveliness) until the launcher stops the run
     finally:
         stats = node.close()
-        (run_dir / "guidance_stats.json").write_text(json.dumps(stats, indent=2))
+        write_stats(run_dir / "guidance_stats.json", stats)
     return 0
 
 

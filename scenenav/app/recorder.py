@@ -4,16 +4,24 @@ Inputs: everything under ``scenenav/<ns>/**`` (it is the one node besides evalua
 ``truth/``). Outputs (files in the run folder):
 
 * ``bus.mcap`` — every bus message (JSON, with a JSON schema per type); camera frames every
-  ``camera_every_n``-th as ``foxglove.RawImage`` so Foxglove shows them. Chunks are flushed as they
-  fill; after a crash the file is still readable up to the last chunk (``mcap recover``).
+  ``camera_every_n``-th as ``foxglove.RawImage`` so Foxglove shows them. A chunk is closed and
+  written to the file when it fills and at least every ``recorder.mcap_chunk_s`` wall seconds, so a
+  recorder killed by SIGKILL loses at most that much; :func:`recover_mcap` (run by the launcher,
+  by ``scenenav summarize`` and by the recorder itself after a write error) then cuts the file after
+  its last whole record and appends a footer, so the standard ``mcap`` reader opens it.
 * ``truth.csv``, ``fixes.csv``, ``estimates.csv``, ``status.csv``, ``events.csv`` — flushed every
-  second of wall time and on exit, so Ctrl-C leaves them readable.
+  second of wall time and on exit, so Ctrl-C leaves them readable (rows whole).
+
+A full disk (ENOSPC, or any write error) stops all output once: the files keep what was written,
+the recorder logs one line naming the disk and its free space, publishes that as an event and keeps
+draining the bus until it is stopped.
 """
 
 from __future__ import annotations
 
 import base64
 import csv
+import io
 import json
 import logging
 import math
@@ -22,6 +30,7 @@ import time
 from pathlib import Path
 from typing import Any
 
+from mcap.reader import make_reader
 from mcap.writer import CompressionType, Writer
 
 from scenenav.app.scenario import RecorderConfig
@@ -32,6 +41,7 @@ from scenenav.core.contracts import (
     DecodeError,
     Event,
     NavEstimate,
+    Severity,
     TruthPose,
     VisionFix,
     decode,
@@ -85,19 +95,39 @@ def _fmt(v: float) -> str:
 
 
 class _Csv:
+    """A CSV file written in whole rows: rows collect in memory and go to the file in one
+    ``write`` call per flush, so a killed recorder never leaves half a row behind."""
+
     def __init__(self, path: Path, columns: list[str]):
-        self._f = path.open("w", newline="", encoding="utf-8")
-        self._w = csv.writer(self._f)
+        self._f = path.open("wb", buffering=0)
+        self._buf = io.StringIO()
+        self._w = csv.writer(self._buf)
         self._w.writerow(columns)
+        self.flush()
+
+    #: Rows go to the file once this many characters are pending (as often as a buffered file
+    #: would write them, so readers following the file see rows as soon as before).
+    FLUSH_CHARS = 8192
 
     def row(self, values) -> None:
         self._w.writerow([_fmt(v) for v in values])
+        if self._buf.tell() >= self.FLUSH_CHARS:
+            self.flush()
 
     def flush(self) -> None:
-        self._f.flush()
+        data = self._buf.getvalue().encode("utf-8")
+        if data:
+            self._buf.seek(0)
+            self._buf.truncate()
+            view = memoryview(data)
+            while view:
+                view = view[self._f.write(view):]
 
     def close(self) -> None:
-        self._f.close()
+        try:
+            self.flush()
+        finally:
+            self._f.close()
 
 
 class RecorderNode:
@@ -123,7 +153,9 @@ class RecorderNode:
         self.events = _Csv(self.out / "events.csv", EVENT_COLUMNS)
         self._csvs = [self.truth, self.fixes, self.estimates, self.status, self.events]
         self._last_flush = time.monotonic()
+        self._last_chunk = time.monotonic()
         self._closed = False
+        self.write_failed: str | None = None     # why output stopped (disk full), once
         self._last_fix: tuple[str, int] | None = None     # (node id, timestamp_us) of the newest fix
         self._perception_live: list[str] = []             # live perception nodes, newest last
         self._sim_time_us = 0
@@ -136,8 +168,11 @@ class RecorderNode:
         """An event the recorder itself observed (written to events.csv and the log)."""
         log.info("%s", text)
         with self._lock:
-            if not self._closed:
-                self.events.row([t_us * 1e-6, NODE_ID, severity, text])
+            if not self._closed and self.write_failed is None:
+                try:
+                    self.events.row([t_us * 1e-6, NODE_ID, severity, text])
+                except OSError as exc:
+                    self._stop_output(exc)
 
     def _on_node(self, key: str, alive: bool) -> None:
         parts = key.split("/")
@@ -199,8 +234,6 @@ class RecorderNode:
                 return
             self.counts[type_name] = self.counts.get(type_name, 0) + 1
             self._sim_time_us = max(self._sim_time_us, int(msg.timestamp_us))
-            if isinstance(msg, VisionFix):
-                self._track_fix_source(msg)
             t_ns = int(msg.timestamp_us) * 1000
             if isinstance(msg, CameraFrame):
                 n = self.cfg.camera_every_n
@@ -208,14 +241,48 @@ class RecorderNode:
                     payload = self._raw_image(msg)
                 else:
                     payload = b""
-            if payload:
-                self._seq += 1
-                self._mcap.add_message(self._channel(key, type_name), t_ns, payload, t_ns, self._seq)
-            self._to_csv(msg)
-            now = time.monotonic()
-            if now - self._last_flush > 1.0:
-                self._flush_csv()
-                self._last_flush = now
+            announce = False
+            try:
+                self._write(key, type_name, msg, payload, t_ns)
+            except OSError as exc:
+                announce = self._stop_output(exc)
+        if announce:        # outside the lock: the recorder hears its own event
+            self._announce_write_failure()
+
+    def _write(self, key: str, type_name: str, msg: Any, payload: bytes, t_ns: int) -> None:
+        if self.write_failed is not None:
+            return
+        if isinstance(msg, VisionFix):
+            self._track_fix_source(msg)
+        if payload:
+            self._seq += 1
+            self._mcap.add_message(self._channel(key, type_name), t_ns, payload, t_ns, self._seq)
+        self._to_csv(msg)
+        now = time.monotonic()
+        if now - self._last_flush > 1.0:
+            self._flush_csv()
+            self._last_flush = now
+        if now - self._last_chunk > self.cfg.mcap_chunk_s:
+            self._mcap.flush()          # close the chunk: a crash now loses at most this chunk
+            self._last_chunk = now
+
+    def _stop_output(self, exc: OSError) -> bool:
+        """A write failed (disk full): stop writing and log it; True the first time only."""
+        if self.write_failed is not None:
+            return False
+        from scenenav.app.preflight import free_bytes, mount_point
+        where, free = free_bytes(self.out)
+        self.write_failed = (f"recorder stopped writing {self.out}: {exc.strerror or exc} "
+                             f"({free / 1e6:.1f} MB free on {mount_point(where)})")
+        log.error("%s", self.write_failed)
+        return True
+
+    def _announce_write_failure(self) -> None:
+        try:
+            self.bus.publish(self.keys.events(NODE_ID), Event(self._sim_time_us, NODE_ID,
+                                                              int(Severity.ERROR), self.write_failed))
+        except Exception:  # noqa: BLE001 - the bus may be closing; the log has it
+            log.debug("could not publish the disk-full event", exc_info=True)
 
     @staticmethod
     def _raw_image(msg: CameraFrame) -> bytes:
@@ -262,9 +329,91 @@ class RecorderNode:
         with self._lock:
             if not self._closed:
                 self._closed = True
-                self._flush_csv()
-                for c in self._csvs:
-                    c.close()
-                self._mcap.finish()
-                self._mcap_file.close()
-        return {"counts": dict(self.counts), "dropped": self.dropped}
+                steps = [*(c.close for c in self._csvs)]
+                if self.write_failed is None:
+                    steps.append(self._mcap.finish)
+                for step in steps:
+                    try:
+                        step()
+                    except OSError as exc:
+                        self._stop_output(exc)
+                try:
+                    self._mcap_file.close()
+                except OSError as exc:
+                    self._stop_output(exc)
+                if self.write_failed is not None:       # the footer is missing: cut and finish
+                    recover_mcap(self.out / "bus.mcap")
+        return {"counts": dict(self.counts), "dropped": self.dropped,
+                "write_failed": self.write_failed}
+
+
+# ------------------------------------------------------------------------------ mcap recovery
+_MCAP_MAGIC = b"\x89MCAP0\r\n"
+
+
+def mcap_is_complete(path: Path) -> bool:
+    """Does the file end with the MCAP footer magic (what the standard reader needs)?"""
+    try:
+        with Path(path).open("rb") as f:
+            size = f.seek(0, 2)
+            if size < 2 * len(_MCAP_MAGIC):
+                return False
+            f.seek(size - len(_MCAP_MAGIC))
+            return f.read() == _MCAP_MAGIC
+    except OSError:
+        return False
+
+
+_OP_CHUNK = 0x06
+_OP_DATA_END = 0x0F
+_OP_FOOTER = 0x02
+
+
+def _whole_records_end(path: Path) -> int:
+    """File offset just past the last whole record of an MCAP data section (a record whose length
+    prefix says it ends beyond the file was torn by the crash)."""
+    size = path.stat().st_size
+    with path.open("rb") as f:
+        if f.read(len(_MCAP_MAGIC)) != _MCAP_MAGIC:
+            raise ValueError("no MCAP magic")
+        offset = len(_MCAP_MAGIC)
+        while offset + 9 <= size:
+            head = f.read(9)
+            opcode, length = head[0], int.from_bytes(head[1:], "little")
+            if opcode in (_OP_DATA_END, _OP_FOOTER) or offset + 9 + length > size:
+                break
+            f.seek(length, 1)
+            offset += 9 + length
+    return offset
+
+
+def recover_mcap(path: Path) -> int | None:
+    """Finish an unfinished ``bus.mcap`` (no footer: its writer was killed or the disk filled) in
+    place: cut it after its last whole record and append a data end and a footer without a summary
+    section, which the standard reader (``mcap.reader.make_reader``) reads record by record. Needs
+    no free space (the cut frees more than the 41 bytes appended). Returns the number of messages
+    the standard reader then returns, or None when the file was complete or is not an MCAP file."""
+    path = Path(path)
+    if not path.is_file() or mcap_is_complete(path):
+        return None
+    try:
+        end = _whole_records_end(path)
+    except (OSError, ValueError):
+        return None
+    with path.open("r+b") as f:
+        f.truncate(end)
+        f.seek(end)
+        f.write(bytes([_OP_DATA_END]) + (4).to_bytes(8, "little") + (0).to_bytes(4, "little"))
+        f.write(bytes([_OP_FOOTER]) + (20).to_bytes(8, "little") + bytes(20))
+        f.write(_MCAP_MAGIC)
+    try:
+        return count_mcap_messages(path)
+    except Exception:  # noqa: BLE001 - a chunk cut inside (bad CRC): say so, keep the file
+        log.warning("%s: recovered, but a chunk is unreadable", path)
+        return 0
+
+
+def count_mcap_messages(path: Path) -> int:
+    """Messages the standard (indexed) reader returns."""
+    with Path(path).open("rb") as f:
+        return sum(1 for _ in make_reader(f).iter_messages())

@@ -49,9 +49,13 @@ class FlightConfig:
 class RecorderConfig:
     camera_every_n: int = 10           # every n-th camera frame goes to the MCAP log (0: none)
     truth_every_n_ticks: int = 5       # truth.csv decimation (1: every control tick)
+    min_free_disk_mb: float = 200.0    # the launcher refuses to start with less free on the run's disk
+    mcap_chunk_s: float = 2.0          # bus.mcap chunks close every this many wall seconds (crash loss)
 
     def __post_init__(self) -> None:
         check(self.camera_every_n >= 0, "camera_every_n", self.camera_every_n, ">= 0")
+        check(self.min_free_disk_mb >= 0, "min_free_disk_mb", self.min_free_disk_mb, ">= 0 MB")
+        check(self.mcap_chunk_s > 0, "mcap_chunk_s", self.mcap_chunk_s, "> 0 s")
         check(self.truth_every_n_ticks >= 1, "truth_every_n_ticks",
               self.truth_every_n_ticks, ">= 1")
 

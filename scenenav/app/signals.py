@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import contextlib
 import logging
+import os
 import signal
 import threading
 from collections.abc import Iterator
@@ -18,13 +19,29 @@ log = logging.getLogger(__name__)
 
 STOP_SIGNALS = (signal.SIGINT, signal.SIGTERM)
 
+#: Wall seconds a node may take to stop after SIGINT/SIGTERM before it exits regardless: when the
+#: launcher itself was killed (PDEATHSIG), nobody else would escalate, and a node stuck closing
+#: (a bus whose router is gone, a wedged worker) must still not outlive its run.
+STOP_DEADLINE_S = 30.0
+
+
+def _exit_late() -> None:
+    log.error("did not stop within %.0f s of the stop signal: exiting now", STOP_DEADLINE_S)
+    logging.shutdown()
+    os._exit(3)
+
 
 def stop_event() -> threading.Event:
-    """An event that SIGINT or SIGTERM sets (for node processes)."""
+    """An event that SIGINT or SIGTERM sets (for node processes); the process exits anyway
+    ``STOP_DEADLINE_S`` after the first stop signal."""
     ev = threading.Event()
 
     def handler(signum, _frame) -> None:
         log.info("signal %d: stopping", signum)
+        if not ev.is_set():
+            timer = threading.Timer(STOP_DEADLINE_S, _exit_late)
+            timer.daemon = True
+            timer.start()
         ev.set()
     for sig in STOP_SIGNALS:
         signal.signal(sig, handler)

@@ -1,0 +1,107 @@
+"""Fault injection into short real runs: a node killed mid-flight (docs/faults.md).
+
+* SIGKILL of the simulator: no process of the run survives (the camera render worker included),
+  the summary says the simulator died and when.
+* SIGKILL of perception: said once on the terminal, with the reason, and in the summary.
+* SIGKILL of the recorder: bus.mcap opens with the standard mcap reader (recovered from its whole
+  chunks), CSV rows are whole, the summary says the recording ended early.
+"""
+
+from __future__ import annotations
+
+import csv
+import signal
+
+import pytest
+from support.fault_run import FaultRun, wait_gone
+
+SHORT = ["--set", "duration_s=15", "--set", "perception.method=statistical"]
+
+
+@pytest.fixture
+def runs():
+    started: list[FaultRun] = []
+    yield started
+    for r in started:
+        r.kill()
+
+
+def _start(runs, tmp_path, name: str, *extra: str) -> FaultRun:
+    r = FaultRun(tmp_path / name, *SHORT, *extra, scenario="scenarios/demo.yaml")
+    runs.append(r)
+    return r
+
+
+def test_sigkill_of_the_simulator_leaves_no_process(runs, tmp_path):
+    r = _start(runs, tmp_path, "sim")
+    r.wait_sim_time(4.0)
+    pids = r.group_pids()
+    sim = r.pids()["sim"]
+    # the render worker is a grandchild in the simulator's process group
+    assert len({p for p in pids if p != sim and p not in r.pids().values() and p != r.proc.pid}) >= 1
+    r.kill_node("sim", signal.SIGKILL)
+    code = r.finish()
+    assert code == 1, r.stderr[-2000:]
+    assert wait_gone(pids) == set(), "processes of the run outlived it"
+    s = r.summary()
+    assert s["end_reason"].startswith("simulator died: killed by SIGKILL at t=")
+    t = float(s["end_reason"].split("t=")[1].split(" s")[0])
+    assert 4.0 <= t < 15.0
+    assert [f["node"] for f in s["node_failures"]] == ["sim"]
+    assert r.stderr.count("sim killed by SIGKILL") == 1
+    assert "Traceback" not in r.stderr
+
+
+def test_a_dying_child_is_reported_once_with_its_reason(runs, tmp_path):
+    r = _start(runs, tmp_path, "perception")
+    r.wait_sim_time(3.0)
+    r.kill_node("perception", signal.SIGKILL)
+    code = r.finish()
+    assert code == 1
+    lines = [ln for ln in r.stderr.splitlines() if "perception killed by SIGKILL" in ln]
+    assert len(lines) == 1, r.stderr[-3000:]
+    assert "logs/perception.log" in lines[0]
+    s = r.summary()
+    assert s["end_reason"] == "duration reached"      # the flight itself went on
+    (failure,) = s["node_failures"]
+    assert failure["node"] == "perception" and failure["exit_code"] == -signal.SIGKILL
+    assert failure["sim_time_s"] is not None and failure["sim_time_s"] >= 3.0
+    assert s["failed_nodes"] == ["perception"]
+
+
+def test_reason_is_the_last_error_line_of_the_log(tmp_path):
+    from scenenav.app.launcher import last_error_line
+    log = tmp_path / "x.log"
+    log.write_text("INFO a: up\nERROR scenenav.x: first\nTraceback (most recent call last):\n"
+                   '  File "x.py", line 1\nValueError: bad frame\nINFO a: bye\n')
+    assert last_error_line(log) == "ValueError: bad frame"
+    log.write_text("INFO only\n")
+    assert last_error_line(log) == ""
+
+
+def test_sigkill_of_the_recorder_leaves_a_readable_run(runs, tmp_path):
+    from scenenav.app.recorder import count_mcap_messages
+    r = _start(runs, tmp_path, "recorder")
+    r.wait_sim_time(8.0)
+    pids = r.group_pids()
+    r.kill_node("recorder", signal.SIGKILL)
+    code = r.finish()
+    assert code == 1
+    assert wait_gone(pids) == set()
+    out = r.run_dir
+    n = count_mcap_messages(out / "bus.mcap")       # the standard, indexed reader
+    assert n > 1000, n
+    from mcap.reader import make_reader
+    with (out / "bus.mcap").open("rb") as f:
+        last_ns = max(m.log_time for _s, _c, m in make_reader(f).iter_messages())
+    s = r.summary()
+    assert s["recording_ended_early"] is True
+    # at most the last few seconds before the kill are lost
+    assert s["recording_end_s"] is not None and s["recording_end_s"] >= 7.0
+    assert last_ns * 1e-9 >= s["recording_end_s"] - 4.0
+    assert s["end_reason"] == "duration reached"
+    for name in ("truth.csv", "fixes.csv", "events.csv"):
+        with (out / name).open(newline="") as f:
+            rows = list(csv.reader(f))
+        assert len(rows) > 1 and all(len(row) == len(rows[0]) for row in rows), name
+    assert "recorder killed by SIGKILL" in r.stderr
