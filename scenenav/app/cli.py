@@ -11,6 +11,7 @@ import re
 import sys
 from pathlib import Path
 
+from scenenav.app.arg_types import positive_int
 from scenenav.app.json_output import emit_json, run_json_aware
 from scenenav.core.errors import UserError
 
@@ -217,7 +218,7 @@ def build_parser() -> argparse.ArgumentParser:
                                      "time; per-fix time as the map grows. One thread (one core).")
     bp.add_argument("--json", action="store_true", help="print only the results as JSON on stdout")
     bp.add_argument("--frames", type=int, default=60, help="camera frames per method (default 60)")
-    bp.add_argument("--stride-px", type=_positive_int, default=5,
+    bp.add_argument("--stride-px", type=positive_int, default=5,
                     help="stride of the whole assistant-map build, px (default 5)")
     bp.add_argument("--map-sizes", type=_side_list, default=(1000, 4000, 8000), metavar="N,N,...",
                     help="square map sides for the per-fix time vs map size, px (default 1000,4000,8000)")
@@ -259,16 +260,6 @@ def glue_negative_values(argv: list[str]) -> list[str]:
         out.append(a)
         i += 1
     return out
-
-
-def _positive_int(text: str) -> int:
-    try:
-        value = int(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"{text!r}: expected a positive integer") from None
-    if value < 1:
-        raise argparse.ArgumentTypeError(f"{text!r}: expected a positive integer")
-    return value
 
 
 def _side_list(text: str) -> tuple[int, ...]:

@@ -12,28 +12,9 @@ import shlex
 import sys
 from pathlib import Path
 
+from scenenav.app.arg_types import nonneg_int, positive_int
 from scenenav.app.json_output import emit_json, run_json_aware
 from scenenav.core.errors import UserError
-
-
-def _positive_int(text: str) -> int:
-    try:
-        v = int(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"{text!r}: expected a positive integer") from None
-    if v < 1:
-        raise argparse.ArgumentTypeError(f"{text!r}: expected a positive integer")
-    return v
-
-
-def _nonneg_int(text: str) -> int:
-    try:
-        v = int(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"{text!r}: expected an integer >= 0") from None
-    if v < 0:
-        raise argparse.ArgumentTypeError(f"{text!r}: expected an integer >= 0")
-    return v
 
 
 def _size(text: str) -> tuple[int, int]:
@@ -200,14 +181,14 @@ def register(subparsers) -> None:
                     "simulated NCC success (BAD when < 50 % of noisy captures match within 5 m; see "
                     "docs/cnn.md). World seeds 9001, 9002 are reserved for evaluation.")
     d.add_argument("--out", required=True, metavar="DIR", help="dataset folder to create (new or empty)")
-    d.add_argument("--worlds", type=_positive_int, default=dc.n_worlds, help=f"number of worlds (default {dc.n_worlds})")
-    d.add_argument("--seed", type=_nonneg_int, default=dc.seed,
+    d.add_argument("--worlds", type=positive_int, default=dc.n_worlds, help=f"number of worlds (default {dc.n_worlds})")
+    d.add_argument("--seed", type=nonneg_int, default=dc.seed,
                    help="dataset seed; world seeds are 1 + 1000*seed + i (default 0)")
     d.add_argument("--labelling", choices=["paper", "matchability"], default=dc.labelling.value,
                    help="paper: junction arms / bad land cover; matchability: simulated NCC success (default paper)")
-    d.add_argument("--base-crops", type=_positive_int, default=dc.base_crops,
+    d.add_argument("--base-crops", type=positive_int, default=dc.base_crops,
                    help=f"base crops before augmentation (default {dc.base_crops}, the paper's 1500)")
-    d.add_argument("--augment-to", type=_positive_int, default=dc.augment_to,
+    d.add_argument("--augment-to", type=positive_int, default=dc.augment_to,
                    help=f"total images after augmentation (default {dc.augment_to}, the paper's 3920)")
     d.add_argument("--world-size", type=_size, default=(dc.world_width_px, dc.world_height_px), metavar="WxH",
                    help=f"world size in px (default {dc.world_width_px}x{dc.world_height_px})")
@@ -223,12 +204,12 @@ def register(subparsers) -> None:
                     "unless it is default.pt).")
     t.add_argument("--data", required=True, metavar="DIR", help="dataset folder written by `scenenav dataset`")
     t.add_argument("--out", required=True, metavar="WEIGHTS.pt", help="weights file to write")
-    t.add_argument("--epochs", type=_positive_int, default=tc.epochs, help=f"epochs (default {tc.epochs})")
-    t.add_argument("--seed", type=_nonneg_int, default=tc.seed, help="seed of split, init and order (default 0)")
-    t.add_argument("--input-px", type=_positive_int, default=tc.input_px,
+    t.add_argument("--epochs", type=positive_int, default=tc.epochs, help=f"epochs (default {tc.epochs})")
+    t.add_argument("--seed", type=nonneg_int, default=tc.seed, help="seed of split, init and order (default 0)")
+    t.add_argument("--input-px", type=positive_int, default=tc.input_px,
                    help=f"network input side in px (default {DEFAULT_INPUT_PX}; the paper: 200)")
-    t.add_argument("--batch-size", type=_positive_int, default=tc.batch_size, help=f"default {tc.batch_size}")
-    t.add_argument("--threads", type=_positive_int, default=tc.num_threads, help="torch threads, 1 or 2 (default 2)")
+    t.add_argument("--batch-size", type=positive_int, default=tc.batch_size, help=f"default {tc.batch_size}")
+    t.add_argument("--threads", type=positive_int, default=tc.num_threads, help="torch threads, 1 or 2 (default 2)")
     t.add_argument("--split", choices=["grouped", "random"], default=tc.split,
                    help="grouped: whole spatial tiles (default, no augmented copy on both sides); random: "
                         "image-level like a plain Keras validation split")
@@ -253,14 +234,14 @@ def register(subparsers) -> None:
     cp.add_argument("--out", default="runs/cnn_compare", metavar="DIR", help="report folder (default runs/cnn_compare)")
     cp.add_argument("--paper-weights", metavar="PT", help="use these weights instead of training on DIR1")
     cp.add_argument("--matchability-weights", metavar="PT", help="use these weights instead of training on DIR2")
-    cp.add_argument("--epochs", type=_positive_int, default=cc.epochs, help=f"epochs when training (default {cc.epochs})")
-    cp.add_argument("--input-px", type=_positive_int, default=cc.input_px, help="input px when training")
-    cp.add_argument("--positions", type=_positive_int, default=cc.uniform_positions_per_world,
+    cp.add_argument("--epochs", type=positive_int, default=cc.epochs, help=f"epochs when training (default {cc.epochs})")
+    cp.add_argument("--input-px", type=positive_int, default=cc.input_px, help="input px when training")
+    cp.add_argument("--positions", type=positive_int, default=cc.uniform_positions_per_world,
                     help=f"uniform positions per world (default {cc.uniform_positions_per_world})")
-    cp.add_argument("--captures", type=_positive_int, default=cc.captures_per_position,
+    cp.add_argument("--captures", type=positive_int, default=cc.captures_per_position,
                     help=f"simulated captures per position (default {cc.captures_per_position})")
-    cp.add_argument("--seed", type=_nonneg_int, default=cc.seed, help="evaluation seed (default 0)")
-    cp.add_argument("--threads", type=_positive_int, default=cc.num_threads, help="torch threads (default 2)")
+    cp.add_argument("--seed", type=nonneg_int, default=cc.seed, help="evaluation seed (default 0)")
+    cp.add_argument("--threads", type=positive_int, default=cc.num_threads, help="torch threads (default 2)")
     cp.add_argument("--quiet", action="store_true", help="no progress bars")
     cp.set_defaults(func=_compare)
 
@@ -273,10 +254,10 @@ def register(subparsers) -> None:
     cb = csub.add_parser("bench", help="CNN inference speed (one image and a batch)",
                          description="Time one-image and batched inference (random crops resized inside).")
     cb.add_argument("weights", nargs="?", metavar="WEIGHTS", help="weights file (default: the shipped weights)")
-    cb.add_argument("--threads", type=_positive_int, default=1, help="torch threads (default 1)")
-    cb.add_argument("--n", type=_positive_int, default=1000, help="crops per timed batch (default 1000)")
-    cb.add_argument("--repeats", type=_positive_int, default=3, help="timed passes, best and median reported (default 3)")
-    cb.add_argument("--crop-px", type=_positive_int, default=217, help="crop side in px (default 217)")
+    cb.add_argument("--threads", type=positive_int, default=1, help="torch threads (default 1)")
+    cb.add_argument("--n", type=positive_int, default=1000, help="crops per timed batch (default 1000)")
+    cb.add_argument("--repeats", type=positive_int, default=3, help="timed passes, best and median reported (default 3)")
+    cb.add_argument("--crop-px", type=positive_int, default=217, help="crop side in px (default 217)")
     cb.add_argument("--json", action="store_true", help="print only JSON on stdout")
     cb.set_defaults(func=_bench)
 
