@@ -18,6 +18,7 @@ COMMANDS = {
     ("bench", "plan"): (["--size", "64x64"], "results"),
     ("bench", "autopilot"): (["--hold-s", "0.2", "--settle-s", "0", "--leg-m", "10"], "hold_rms_m"),
     ("bench", "e2e"): (["--duration-s", "3", "--quiet"], "real_time_factor"),
+    ("bench", "campaign"): (["--flights", "1", "--duration-s", "2"], "runs"),
     ("cnn", "bench"): (["--n", "2", "--repeats", "1", "--crop-px", "64"], "single_image_ms"),
 }
 

@@ -81,7 +81,9 @@ def test_reason_is_the_last_error_line_of_the_log(tmp_path):
 
 def test_sigkill_of_the_recorder_leaves_a_readable_run(runs, tmp_path):
     from scenenav.app.recorder import count_mcap_messages
-    r = _start(runs, tmp_path, "recorder")
+    # a longer flight than the others: on a quiet machine a 15 s scripted flight can end before the
+    # kill lands, and then the recorder was stopped, not killed
+    r = _start(runs, tmp_path, "recorder", "--set", "duration_s=60")
     r.wait_sim_time(8.0)
     pids = r.group_pids()
     r.kill_node("recorder", signal.SIGKILL)

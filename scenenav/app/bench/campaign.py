@@ -11,7 +11,6 @@ client): everything that is not the flight itself.
 from __future__ import annotations
 
 import argparse
-import json
 import sys
 import tempfile
 from pathlib import Path
@@ -76,7 +75,8 @@ def _cmd(args: argparse.Namespace) -> int:
         raise UserError("bench campaign: --flights must be >= 1 and --duration-s > 0")
     result = run_campaign_bench(args.flights, args.duration_s, progress=not args.json)
     if args.json:
-        print(json.dumps(result, indent=2))
+        from scenenav.app.json_output import emit_json
+        emit_json(result)
         return 0
     print(f"campaign benchmark: {result['flights']} scripted flights of {result['flight_duration_sim_s']:g} "
           "simulated s each")
