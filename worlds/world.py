@@ -7,6 +7,10 @@ Layout of a world folder (see docs/worlds.md)::
     reference.png    (H, W, 3) 8-bit RGB: the reference map, same area "on another day"
     landcover.png    (H, W) 8-bit grey, LandCover values (only when has_landcover)
     junctions.json   list of {u_px, v_px, arms, kind} (only when has_junctions)
+    dsm.png          (H, W) 16-bit grey: surface height above the ground at each pixel centre, in
+                     units of DSM_UNIT_M (1 cm) (only when has_dsm; otherwise the world is flat)
+    facade.png       (H, W, 3) 8-bit RGB: base colour of the walls of the building (or tree) at
+                     each pixel, black where there is none (only when has_dsm)
 
 Loading raises :class:`scenenav.core.errors.UserError` with a one-line message for anything missing or
 malformed.
@@ -25,6 +29,9 @@ import numpy as np
 from scenenav.core import frames
 from scenenav.core.errors import UserError
 from scenenav.core.formats.world_manifest import (
+    DSM_FILE,
+    DSM_UNIT_M,
+    FACADE_FILE,
     JUNCTIONS_FILE,
     LANDCOVER_FILE,
     MANIFEST_FILE,
@@ -40,13 +47,20 @@ log = logging.getLogger(__name__)
 
 @dataclass(eq=False)
 class World:
-    """An orthophoto, its reference map and (for generated worlds) ground truth."""
+    """An orthophoto, its reference map, its surface model and (for generated worlds) ground truth.
+
+    ``dsm_m`` is float32 (H, W) metres above the ground (None: a flat world, every height 0);
+    ``facade_rgb`` (H, W, 3) uint8 the wall colour of each raised pixel (None: derived from the
+    orthophoto by whoever renders walls). Both are present exactly when ``manifest.has_dsm``.
+    """
 
     manifest: WorldManifest
     orthophoto: np.ndarray
     reference: np.ndarray
     landcover: np.ndarray | None = None
     junctions: tuple[Junction, ...] | None = None
+    dsm_m: np.ndarray | None = None
+    facade_rgb: np.ndarray | None = None
 
     def __post_init__(self) -> None:
         shape = (self.manifest.height_px, self.manifest.width_px)
@@ -59,6 +73,25 @@ class World:
                              f"{self.landcover.dtype} {self.landcover.shape}")
         if self.junctions is not None:
             self.junctions = tuple(self.junctions)
+        if (self.dsm_m is not None) != self.manifest.has_dsm:
+            raise ValueError(f"dsm_m is {'given' if self.dsm_m is not None else 'None'} but the manifest "
+                             f"says has_dsm = {self.manifest.has_dsm}")
+        if self.dsm_m is not None:
+            if self.dsm_m.dtype != np.float32 or self.dsm_m.shape != shape:
+                raise ValueError(f"dsm_m: expected float32 {shape}, got {self.dsm_m.dtype} {self.dsm_m.shape}")
+            if not np.all(np.isfinite(self.dsm_m)) or float(self.dsm_m.min()) < 0.0:
+                raise ValueError("dsm_m: expected finite heights >= 0 m above the ground")
+        if self.facade_rgb is not None and (self.facade_rgb.dtype != np.uint8
+                                            or self.facade_rgb.shape != shape + (3,)):
+            raise ValueError(f"facade_rgb: expected uint8 {shape + (3,)}, got "
+                             f"{self.facade_rgb.dtype} {self.facade_rgb.shape}")
+
+    @property
+    def heights_m(self) -> np.ndarray:
+        """The surface heights above the ground (float32 (H, W)); zeros for a flat world."""
+        if self.dsm_m is not None:
+            return self.dsm_m
+        return np.zeros((self.height_px, self.width_px), dtype=np.float32)
 
     @property
     def width_px(self) -> int:
@@ -98,6 +131,14 @@ class World:
             _write_text(d / JUNCTIONS_FILE, text)
         else:
             _remove_stale(d / JUNCTIONS_FILE)
+        if self.dsm_m is not None:
+            _write_png(d / DSM_FILE, encode_dsm(self.dsm_m))
+        else:
+            _remove_stale(d / DSM_FILE)
+        if self.facade_rgb is not None:
+            _write_rgb(d / FACADE_FILE, self.facade_rgb)
+        else:
+            _remove_stale(d / FACADE_FILE)
         # The manifest goes last: a folder with a manifest is complete.
         _write_text(d / MANIFEST_FILE, self.manifest.to_json())
         log.info("saved world %r (%dx%d px) to %s", self.manifest.name, self.width_px,
@@ -127,8 +168,23 @@ class World:
         junctions = None
         if manifest.has_junctions:
             junctions = _read_junctions(d / JUNCTIONS_FILE)
+        dsm = facade = None
+        if manifest.has_dsm:
+            dsm = _read_dsm(d / DSM_FILE, shape)
+            if (d / FACADE_FILE).is_file():
+                facade = _read_rgb(d / FACADE_FILE, shape)
         return cls(manifest=manifest, orthophoto=ortho, reference=ref, landcover=landcover,
-                   junctions=junctions)
+                   junctions=junctions, dsm_m=dsm, facade_rgb=facade)
+
+
+def encode_dsm(dsm_m: np.ndarray) -> np.ndarray:
+    """Heights in metres -> the uint16 array of ``dsm.png`` (units of DSM_UNIT_M, clipped to 655.35 m)."""
+    return np.clip(np.rint(np.asarray(dsm_m, dtype=np.float64) / DSM_UNIT_M), 0, 65535).astype(np.uint16)
+
+
+def decode_dsm(raw: np.ndarray) -> np.ndarray:
+    """The uint16 array of ``dsm.png`` -> float32 heights in metres."""
+    return (raw.astype(np.float32) * np.float32(DSM_UNIT_M)).astype(np.float32)
 
 
 def load_world(directory) -> World:
@@ -196,6 +252,17 @@ def _read_landcover(path: Path, shape: tuple[int, int]) -> np.ndarray:
     if int(img.max()) > top:
         raise UserError(f"{path}: value {int(img.max())} is not a LandCover class (expected 0..{top})")
     return img
+
+
+def _read_dsm(path: Path, shape: tuple[int, int]) -> np.ndarray:
+    img = _imread(path, cv2.IMREAD_UNCHANGED)
+    if img.ndim != 2 or img.dtype != np.uint16:
+        raise UserError(f"{path}: expected a single-channel 16-bit PNG of heights in centimetres "
+                        f"(the manifest says has_dsm = true)")
+    if img.shape != shape:
+        raise UserError(f"{path}: size {img.shape[1]}x{img.shape[0]} px does not match the "
+                        f"manifest ({shape[1]}x{shape[0]} px)")
+    return decode_dsm(img)
 
 
 def _read_junctions(path: Path) -> tuple[Junction, ...]:
