@@ -4,7 +4,10 @@ Layout of a world folder (see docs/worlds.md)::
 
     manifest.json    WorldManifest (format version, size, resolution, geodetic origin, provenance)
     orthophoto.png   (H, W, 3) 8-bit RGB: the ground the drone camera sees
-    reference.png    (H, W, 3) 8-bit RGB: the reference map, same area "on another day"
+    reference.png    (H, W, 3) 8-bit RGB: the reference map, same area "on another day", as a
+                     true orthophoto
+    reference_perspective.png  the same day seen in perspective from manifest.reference.camera_height_m
+                     above the map centre, resampled to the map grid (only when that height is set)
     landcover.png    (H, W) 8-bit grey, LandCover values (only when has_landcover)
     junctions.json   list of {u_px, v_px, arms, kind} (only when has_junctions)
     dsm.png          (H, W) 16-bit grey: surface height above the ground at each pixel centre, in
@@ -36,8 +39,10 @@ from scenenav.core.formats.world_manifest import (
     LANDCOVER_FILE,
     MANIFEST_FILE,
     ORTHOPHOTO_FILE,
+    PERSPECTIVE_REFERENCE_FILE,
     PNG_COMPRESSION_LEVEL,
     REFERENCE_FILE,
+    ReferenceKind,
     WorldManifest,
 )
 from worlds.landcover import Junction, LandCover
@@ -61,6 +66,7 @@ class World:
     junctions: tuple[Junction, ...] | None = None
     dsm_m: np.ndarray | None = None
     facade_rgb: np.ndarray | None = None
+    reference_perspective: np.ndarray | None = None
 
     def __post_init__(self) -> None:
         shape = (self.manifest.height_px, self.manifest.width_px)
@@ -81,10 +87,29 @@ class World:
                 raise ValueError(f"dsm_m: expected float32 {shape}, got {self.dsm_m.dtype} {self.dsm_m.shape}")
             if not np.all(np.isfinite(self.dsm_m)) or float(self.dsm_m.min()) < 0.0:
                 raise ValueError("dsm_m: expected finite heights >= 0 m above the ground")
+        has_persp = self.manifest.reference.camera_height_m is not None
+        if (self.reference_perspective is not None) != has_persp:
+            raise ValueError(f"reference_perspective is {'given' if self.reference_perspective is not None else 'None'}"
+                             f" but the manifest's reference.camera_height_m is "
+                             f"{self.manifest.reference.camera_height_m}")
+        if self.reference_perspective is not None and (self.reference_perspective.dtype != np.uint8
+                                                       or self.reference_perspective.shape != shape + (3,)):
+            raise ValueError(f"reference_perspective: expected uint8 {shape + (3,)}")
         if self.facade_rgb is not None and (self.facade_rgb.dtype != np.uint8
                                             or self.facade_rgb.shape != shape + (3,)):
             raise ValueError(f"facade_rgb: expected uint8 {shape + (3,)}, got "
                              f"{self.facade_rgb.dtype} {self.facade_rgb.shape}")
+
+    def reference_map(self, kind: ReferenceKind | str | None = None) -> np.ndarray:
+        """The reference map of ``kind`` (default: the manifest's ``reference.kind``)."""
+        k = ReferenceKind(kind) if kind is not None else self.manifest.reference.kind
+        if k is ReferenceKind.PERSPECTIVE:
+            if self.reference_perspective is None:
+                raise UserError(f"world {self.manifest.name!r} has no perspective reference "
+                                f"({PERSPECTIVE_REFERENCE_FILE}); generate it with a reference height, or "
+                                f"use the orthophoto reference")
+            return self.reference_perspective
+        return self.reference
 
     @property
     def heights_m(self) -> np.ndarray:
@@ -122,6 +147,10 @@ class World:
             raise UserError(f"{d}: cannot create the world folder ({exc.strerror})") from None
         _write_rgb(d / ORTHOPHOTO_FILE, self.orthophoto)
         _write_rgb(d / REFERENCE_FILE, self.reference)
+        if self.reference_perspective is not None:
+            _write_rgb(d / PERSPECTIVE_REFERENCE_FILE, self.reference_perspective)
+        else:
+            _remove_stale(d / PERSPECTIVE_REFERENCE_FILE)
         if self.landcover is not None:
             _write_png(d / LANDCOVER_FILE, self.landcover)
         else:
@@ -168,13 +197,15 @@ class World:
         junctions = None
         if manifest.has_junctions:
             junctions = _read_junctions(d / JUNCTIONS_FILE)
-        dsm = facade = None
+        dsm = facade = persp = None
+        if manifest.reference.camera_height_m is not None:
+            persp = _read_rgb(d / PERSPECTIVE_REFERENCE_FILE, shape)
         if manifest.has_dsm:
             dsm = _read_dsm(d / DSM_FILE, shape)
             if (d / FACADE_FILE).is_file():
                 facade = _read_rgb(d / FACADE_FILE, shape)
         return cls(manifest=manifest, orthophoto=ortho, reference=ref, landcover=landcover,
-                   junctions=junctions, dsm_m=dsm, facade_rgb=facade)
+                   junctions=junctions, dsm_m=dsm, facade_rgb=facade, reference_perspective=persp)
 
 
 def encode_dsm(dsm_m: np.ndarray) -> np.ndarray:

@@ -2,8 +2,9 @@
 
 A world folder (docs/worlds.md) holds ``manifest.json`` (this), ``orthophoto.png`` (the ground the
 camera sees, seen from straight above: a true orthophoto, roofs where their footprints are),
-``reference.png`` (the reference map "of another day", see :class:`ReferenceInfo`), and optionally
-``landcover.png``, ``junctions.json``, ``dsm.png`` (the surface model: heights above the ground) and
+``reference.png`` (the reference map "of another day" as a true orthophoto, see
+:class:`ReferenceInfo`), and optionally ``reference_perspective.png`` (the same day seen in perspective
+from ``ReferenceInfo.camera_height_m`` above the map centre), ``landcover.png``, ``junctions.json``, ``dsm.png`` (the surface model: heights above the ground) and
 ``facade.png`` (the base colour of the walls of each building pixel). Parsing raises :class:`scenenav.core.errors.UserError` with one line naming
 the file and the key.
 """
@@ -30,6 +31,7 @@ REFERENCE_FILE = "reference.png"
 LANDCOVER_FILE = "landcover.png"
 JUNCTIONS_FILE = "junctions.json"
 DSM_FILE = "dsm.png"
+PERSPECTIVE_REFERENCE_FILE = "reference_perspective.png"
 FACADE_FILE = "facade.png"
 
 #: ``dsm.png`` is a 16-bit grey PNG of heights above the ground in units of this many metres
@@ -96,7 +98,12 @@ class WarpTerm:
 
 @dataclass(frozen=True)
 class ReferenceInfo:
-    """How ``reference.png`` relates to the world (the ``reference`` object of the manifest).
+    """How the reference maps relate to the world (the ``reference`` object of the manifest).
+
+    ``reference.png`` is always the other day as a true orthophoto; ``reference_perspective.png``
+    exists when ``camera_height_m`` is set (the same day, same misregistration, taken in perspective
+    from that height above the map centre). ``kind`` is the one perception uses unless its
+    configuration names the other.
 
     The misregistration is the reference's georeferencing error: a ground point at world ``(x, y)``
     is drawn in the reference map at ``(x, y) + offset_m(x, y)``, where the offset is a global
@@ -105,7 +112,7 @@ class ReferenceInfo:
     """
 
     kind: ReferenceKind = ReferenceKind.ORTHOPHOTO
-    camera_height_m: float | None = None       # perspective only: height above the map centre
+    camera_height_m: float | None = None       # of reference_perspective.png; None: no such file
     shift_east_m: float = 0.0
     shift_north_m: float = 0.0
     warp: tuple[WarpTerm, ...] = ()
@@ -158,8 +165,8 @@ class ReferenceInfo:
         if h is not None and (isinstance(h, bool) or not isinstance(h, (int, float)) or not h > 0):
             raise UserError(f"{where}: reference.camera_height_m = {h!r}: expected a height > 0 m or null")
         if kind is ReferenceKind.PERSPECTIVE and h is None:
-            raise UserError(f"{where}: reference.camera_height_m: missing (a perspective reference needs "
-                            f"the height it was taken from)")
+            raise UserError(f"{where}: reference.camera_height_m: missing (reference.kind = 'perspective' "
+                            f"needs {PERSPECTIVE_REFERENCE_FILE} and the height it was taken from)")
         terms = data.get("warp", [])
         if not isinstance(terms, list):
             raise UserError(f"{where}: reference.warp: expected a list of terms")
