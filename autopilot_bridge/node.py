@@ -173,6 +173,8 @@ class AutopilotNode:
         self._followed: str | None = None
         self._fix_buffer: list[VisionFix] = []
         self._answered_seq: dict[str, int] = {}     # newest frame a node fixed, acked or gave up
+        # nodes whose fix did not come within vision_wait_s: not waited for until they answer again
+        self._hung: set[str] = set()
         self._last_fix_t_s: dict[str, float] = {}
         self._swap_gap_from: tuple[str, float] | None = None
         # the run's own mission (None: a ground station or the guidance node sends one over MAVLink)
@@ -292,9 +294,11 @@ class AutopilotNode:
             if not self._parked_fix_ready():
                 self.stats["vision_wait_timeouts"] += 1
                 self._mark_answered(self._followed or "", self._parked.camera_seq_acked)
+                self._hung.add(self._followed or "")
                 self._event(Severity.WARNING, f"no fix from {self._followed} for frame "
                                               f"{self._parked.camera_seq_acked} within "
-                                              f"{self.acfg.vision_wait_s:.1f} s; stepping without it")
+                                              f"{self.acfg.vision_wait_s:.1f} s; stepping without its "
+                                              f"fixes until it answers again")
             self._unpark()
             return
         item = self._next_item(IDLE_POLL_S)
@@ -340,6 +344,7 @@ class AutopilotNode:
             ack: LockstepAck = item.msg
             if ack.role == LockstepRole.CAMERA.value:
                 self._mark_answered(item.node_id, ack.seq)
+                self._answers_again(item.node_id)
         elif kind == ItemKind.PERCEPTION:
             self._on_perception_live(item.node_id, item.alive)
         elif kind == ItemKind.CAMERA_MEMBER:
@@ -372,9 +377,16 @@ class AutopilotNode:
         node = self._followed
         if node is None or tick.camera_seq_acked < 0 or node not in self._camera_members:
             return False
+        if node in self._hung:
+            return False
         if node not in self._live_before_start and node not in self._answered_seq:
             return False
         return self._answered_seq.get(node, -1) < tick.camera_seq_acked
+
+    def _answers_again(self, node_id: str) -> None:
+        if node_id in self._hung:
+            self._hung.discard(node_id)
+            self._event(Severity.INFO, f"{node_id} answers again; waiting for its fixes again")
 
     def _mark_answered(self, node_id: str, seq: int) -> None:
         self._answered_seq[node_id] = max(self._answered_seq.get(node_id, -1), seq)
@@ -483,6 +495,7 @@ class AutopilotNode:
 
     def _on_fix_item(self, node_id: str, fix: VisionFix) -> None:
         self._mark_answered(node_id, fix.frame_seq)
+        self._answers_again(node_id)
         if node_id != self._followed:
             self._last_fix_t_s[node_id] = fix.timestamp_us * 1e-6
             self.stats["fixes_not_followed"] += 1

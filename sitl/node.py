@@ -230,8 +230,12 @@ class SimulatorNode:
                 camera_acked = camera_seq
             if late and lockstep:
                 self.stats.ack_timeouts += 1
-                self.event(Severity.WARNING, f"t={t_s:.2f}s: no lockstep answer from {late} "
-                                             f"within {answer_timeout:.1f} s", t_us)
+                self.event(Severity.WARNING, f"t={t_s:.2f}s: no lockstep answer from "
+                                             f"{', '.join(late)} within {answer_timeout:.1f} s; "
+                                             f"going on without it until it answers again", t_us)
+            for node_id in self.barrier.take_rejoined():
+                self.event(Severity.INFO, f"t={t_s:.2f}s: {node_id} answers again; waiting for it "
+                                          f"again", t_us)
             self.stats.time_bus_wait_s += time.perf_counter() - tw
 
             tphys = time.perf_counter()

@@ -17,6 +17,7 @@ from perception.config import PerceptionNodeConfig
 from scenenav.core.camera_geometry import ground_footprint_m
 from scenenav.core.clock import ClockConfig
 from scenenav.core.config import apply_overrides, check, load_config, load_yaml, to_dict
+from scenenav.core.contracts import ClockMode
 from scenenav.core.errors import UserError
 from sitl.config import SimConfig
 
@@ -90,6 +91,16 @@ class ScenarioConfig:
               "guidance.enabled", self.guidance.enabled,
               "false unless flight.mode is autopilot (the guidance node flies through the autopilot)")
         check(self.seed >= 0, "seed", self.seed, "a non-negative integer")
+        # In lockstep the simulator waits up to clock.member_timeout_s for the autopilot's answer,
+        # and the autopilot may itself wait up to autopilot.vision_wait_s for perception's fix
+        # first: a member timeout not longer than that wait gives up on a healthy autopilot and
+        # steps physics on stale motor commands (docs/faults.md).
+        check(self.clock.mode != ClockMode.LOCKSTEP or self.flight.mode != FlightMode.AUTOPILOT
+              or self.clock.member_timeout_s > self.autopilot.vision_wait_s,
+              "clock.member_timeout_s", self.clock.member_timeout_s,
+              f"more than autopilot.vision_wait_s = {self.autopilot.vision_wait_s} s (the simulator "
+              f"must wait longer for the autopilot than the autopilot waits for a vision fix); raise "
+              f"clock.member_timeout_s or lower autopilot.vision_wait_s")
 
 
 def bowtie_route(world, altitude_m: float = 100.0, fov_deg: float = 60.0,

@@ -5,7 +5,9 @@ Members announce themselves with a Zenoh liveliness token
 subscribers are up, and answer with ``LockstepAck`` on ``lockstep/ack/<node_id>`` after publishing
 their outputs. A member is waited for only for ticks/frames published after its token was seen; a
 member whose token disappears (stopped, crashed, swapped out) is no longer waited for. A member that
-does not answer within ``timeout_s`` wall seconds is reported and skipped for that tick.
+does not answer within ``timeout_s`` wall seconds is reported and *suspended*: it is not waited for
+again (so one hung member costs the run one timeout, not one per tick) until it answers any later
+sequence number, when it rejoins (``take_rejoined()`` names it once) and is waited for again.
 Pure threading, no Zenoh: the node feeds it liveliness changes and acks.
 
 ``answer_times()`` reports, per member, how long its answers took: wall seconds from ``published``
@@ -30,6 +32,7 @@ class _Member:
     role: LockstepRole
     joined_after_seq: int          # the member answers only seqs greater than this
     last_ack: int = -1
+    suspended: bool = False        # timed out: not waited for until it answers again
 
 
 class LockstepBarrier:
@@ -42,6 +45,7 @@ class LockstepBarrier:
         self._published_at: dict[LockstepRole, float] = {}
         self._answer_s: dict[str, float] = {}
         self._answers: dict[str, int] = {}
+        self._rejoined: list[str] = []
         self.timeouts = 0
 
     # called from Zenoh threads ---------------------------------------------------------------
@@ -60,6 +64,10 @@ class LockstepBarrier:
             m = self._members.get(node_id)
             if m is not None and m.role == role and seq > m.last_ack:
                 m.last_ack = seq
+                if m.suspended:
+                    m.suspended = False
+                    self._rejoined.append(node_id)
+                    log.info("lockstep member answers again: %s (%s)", node_id, role.value)
                 if seq == self._published[role] and role in self._published_at:
                     self._answer_s[node_id] = self._answer_s.get(node_id, 0.0) + \
                         time.perf_counter() - self._published_at[role]
@@ -77,6 +85,17 @@ class LockstepBarrier:
         """Per member that ever answered: (answers timed, their summed answer time in wall s)."""
         with self._cond:
             return {n: (self._answers[n], self._answer_s[n]) for n in sorted(self._answers)}
+
+    def take_rejoined(self) -> list[str]:
+        """Members that answered again after being suspended, since the last call (each once)."""
+        with self._cond:
+            out, self._rejoined = self._rejoined, []
+            return out
+
+    def suspended(self) -> list[str]:
+        """Members currently suspended (timed out and not answered since)."""
+        with self._cond:
+            return sorted(n for n, m in self._members.items() if m.suspended)
 
     def members(self, role: LockstepRole | None = None) -> list[str]:
         with self._cond:
@@ -97,18 +116,24 @@ class LockstepBarrier:
                 self._cond.wait(min(left, 0.5))
 
     def wait(self, role: LockstepRole, seq: int, timeout_s: float) -> list[str]:
-        """Block until every live member of ``role`` that must answer ``seq`` has; return laggards."""
+        """Block until every live, unsuspended member of ``role`` that must answer ``seq`` has.
+
+        Returns the members that did not answer within ``timeout_s``; they are suspended (skipped
+        from now on) until they answer a later sequence number.
+        """
         deadline = time.monotonic() + timeout_s
         with self._cond:
             while True:
                 pending = [n for n, m in self._members.items()
-                           if m.role == role and m.joined_after_seq < seq and m.last_ack < seq]
+                           if m.role == role and not m.suspended and m.joined_after_seq < seq
+                           and m.last_ack < seq]
                 if not pending:
                     return []
                 left = deadline - time.monotonic()
                 if left <= 0:
                     self.timeouts += 1
-                    for n in pending:   # skip this seq for them, keep waiting on later ones
+                    for n in pending:
                         self._members[n].last_ack = seq
+                        self._members[n].suspended = True
                     return pending
                 self._cond.wait(left)

@@ -79,3 +79,26 @@ def test_answer_times_count_each_members_answers_to_the_current_seq():
     assert all(total >= 0.0 for _, total in times.values())
     b.member_changed(T, "ap", False)      # a member that left keeps its figures
     assert b.answer_times()["ap"][0] == 3
+
+
+def test_a_member_that_times_out_is_suspended_until_it_answers_again():
+    b = LockstepBarrier()
+    b.member_changed(T, "ap", True)
+    b.member_changed(C, "cam", True)
+    b.published(C, 0)
+    assert b.wait(C, 0, 0.05) == ["cam"]          # reported once ...
+    assert b.suspended() == ["cam"]
+    for seq in (1, 2, 3):                          # ... then skipped without waiting
+        b.published(C, seq)
+        t0 = time.monotonic()
+        assert b.wait(C, seq, 5.0) == []
+        assert time.monotonic() - t0 < 1.0
+    assert b.timeouts == 1 and b.take_rejoined() == []
+    b.ack("cam", C, 2)                             # a late answer: it rejoins, named once
+    assert b.take_rejoined() == ["cam"] and b.take_rejoined() == []
+    assert b.suspended() == []
+    b.published(C, 4)
+    assert b.wait(C, 4, 0.05) == ["cam"]           # waited for again
+    b.ack("cam", C, 5)
+    b.published(C, 5)
+    assert b.wait(C, 5, 0.05) == []
