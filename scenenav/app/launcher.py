@@ -34,10 +34,11 @@ import yaml
 
 from scenenav.app.evaluation import NodeFailure, last_sim_time_s
 from scenenav.app.mavlink_claim import DEFAULT_SYSID, SysidClaim, claim_sysid
+from scenenav.app.nodes import HUB_FILE
 from scenenav.app.preflight import check_free_space, free_bytes, mount_point, validate_inputs
 from scenenav.app.scenario import FlightMode, ScenarioConfig, load_scenario, scenario_to_dict
 from scenenav.app.signals import interrupt_on_stop_signals
-from scenenav.core.bus import free_port
+from scenenav.core.bus import EXIT_HUB_PORT_TAKEN, free_port
 from scenenav.core.contracts import ClockMode
 from scenenav.core.errors import UserError
 
@@ -183,6 +184,49 @@ def await_mavlink(launch: Launch, autopilot: Child, timeout_s: float = MAVLINK_R
         time.sleep(0.05)
     log.warning("the autopilot did not report its MAVLink ports within %.0f s", timeout_s)
     return None
+
+
+#: Starts of a run whose hub port another process took meanwhile, before giving up.
+HUB_ATTEMPTS = 5
+
+
+def await_hub(launch: Launch, sim: Child, timeout_s: float = MAVLINK_READY_TIMEOUT_S) -> bool:
+    """Wait until the simulator's Zenoh hub listens (its ``hub.json``), then write the bound port
+    into run.json. False when the simulator exited because the port was taken meanwhile (the port
+    was chosen free, but another process may bind it before the simulator does): the caller starts
+    the run again on another port. True otherwise (a simulator that dies of something else is
+    reported by the ChildWatch as usual)."""
+    path = launch.run_dir / HUB_FILE
+    deadline = time.monotonic() + timeout_s
+    while time.monotonic() < deadline:
+        if path.is_file():
+            meta_path = launch.run_dir / "run.json"
+            meta = json.loads(meta_path.read_text())
+            meta["hub_port"] = launch.hub_port
+            write_atomic(meta_path, json.dumps(meta, indent=2))
+            return True
+        code = sim.proc.poll()
+        if code is not None:
+            return code != EXIT_HUB_PORT_TAKEN
+        time.sleep(0.05)
+    log.warning("the simulator did not report its Zenoh hub within %.0f s", timeout_s)
+    return True
+
+
+def restart_on_new_hub_port(launch: Launch) -> None:
+    """Stop every child of a start whose hub port was taken, and choose a new port."""
+    old = launch.hub_port
+    launch.stop_all()
+    launch.children.clear()
+    for name in ("mavlink.json", HUB_FILE):
+        (launch.run_dir / name).unlink(missing_ok=True)
+    launch.hub_port = free_port()
+    meta_path = launch.run_dir / "run.json"
+    meta = json.loads(meta_path.read_text())
+    meta["hub_port"] = launch.hub_port
+    write_atomic(meta_path, json.dumps(meta, indent=2))
+    log.warning("the Zenoh hub port %d was taken before the simulator could listen on it: starting "
+                "the run again on port %d", old, launch.hub_port)
 
 
 def _resolve_guidance_map(cfg: ScenarioConfig, progress: bool) -> ScenarioConfig:
@@ -334,16 +378,20 @@ def _fly(cfg: ScenarioConfig, world, scenario_path: str | None, out_dir: str, pr
     watch = ChildWatch(launch, wall0)
     disk = DiskWatch(run_dir)
     try:
-        expect += spawn_recorder_and_perception(launch, cfg)
-        if cfg.flight.mode == FlightMode.AUTOPILOT:
-            autopilot = launch.spawn("autopilot", ["autopilot", "--run-dir", str(run_dir)])
-            expect.append("tick")
-            await_mavlink(launch, autopilot)     # run.json names the ports it bound
-        if cfg.guidance.enabled:
-            launch.spawn("guidance", ["guidance", "--run-dir", str(run_dir)])
-            if cfg.clock.mode == ClockMode.LOCKSTEP:
+        for attempt in range(HUB_ATTEMPTS):
+            expect = ["recorder"] + spawn_recorder_and_perception(launch, cfg)
+            if cfg.flight.mode == FlightMode.AUTOPILOT:
+                autopilot = launch.spawn("autopilot", ["autopilot", "--run-dir", str(run_dir)])
                 expect.append("tick")
-        sim = launch.spawn("sim", ["sim", "--run-dir", str(run_dir), "--expect", ",".join(expect)])
+                await_mavlink(launch, autopilot)     # run.json names the ports it bound
+            if cfg.guidance.enabled:
+                launch.spawn("guidance", ["guidance", "--run-dir", str(run_dir)])
+                if cfg.clock.mode == ClockMode.LOCKSTEP:
+                    expect.append("tick")
+            sim = launch.spawn("sim", ["sim", "--run-dir", str(run_dir), "--expect", ",".join(expect)])
+            if await_hub(launch, sim) or attempt == HUB_ATTEMPTS - 1:
+                break
+            restart_on_new_hub_port(launch)
         swap = PerceptionSwap(launch, cfg) if cfg.perception.enabled and cfg.perception.swap_at_s > 0 \
             else None
         _wait_sim(sim, launch, cfg, progress, swap, watch, disk)

@@ -17,7 +17,7 @@ from types import SimpleNamespace
 
 from scenenav.app.scenario import FlightMode, ScenarioConfig, load_scenario, route_for
 from scenenav.app.signals import stop_event
-from scenenav.core.bus import BusConfig
+from scenenav.core.bus import EXIT_HUB_PORT_TAKEN, BusConfig, HubPortTaken
 from scenenav.core.contracts import LockstepRole
 
 log = logging.getLogger(__name__)
@@ -61,11 +61,21 @@ def sim_node_config(cfg: ScenarioConfig, world, expect: tuple[str, ...] = ()):
         expected_camera_members=sum(1 for item in expect if item == LockstepRole.CAMERA.value))
 
 
+#: Written by the simulator once its Zenoh hub endpoint listens (``{"hub_port": N}``).
+HUB_FILE = "hub.json"
+
+
 def run_sim(run_dir: Path, bus_cfg: BusConfig, expect: tuple[str, ...]) -> int:
     from sitl.node import SimulatorNode
     cfg = load_scenario(run_dir / "scenario.yaml")
     world = load_world_for(cfg)
-    node = SimulatorNode(sim_node_config(cfg, world, expect), world, bus_cfg)
+    try:
+        node = SimulatorNode(sim_node_config(cfg, world, expect), world, bus_cfg)
+    except HubPortTaken as exc:
+        log.error("%s; the launcher starts the run again on another port", exc)
+        return EXIT_HUB_PORT_TAKEN
+    # the hub listens: say so (the launcher waits for this file before it trusts the port)
+    write_stats(run_dir / HUB_FILE, {"hub_port": bus_cfg.hub_port})
     stop = stop_event()
     threading.Thread(target=lambda: (stop.wait(), node.stop()), daemon=True).start()
     if "recorder" in expect:

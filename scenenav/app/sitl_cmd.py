@@ -24,7 +24,15 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Callable
 
-from scenenav.app.launcher import Launch, prepare_run, resolve_world, spawn_recorder_and_perception
+from scenenav.app.launcher import (
+    HUB_ATTEMPTS,
+    Launch,
+    await_hub,
+    prepare_run,
+    resolve_world,
+    restart_on_new_hub_port,
+    spawn_recorder_and_perception,
+)
 from scenenav.app.scenario import ScenarioConfig
 from scenenav.app.signals import interrupt_on_stop_signals
 from scenenav.core.config import apply_overrides, load_config, load_yaml, set_dotted
@@ -166,16 +174,20 @@ def _run_sitl(opts: SitlOptions, announce: Callable[[str], None]) -> dict:
         _check_params_store(store, wipe=opts.wipe)
     run_dir = Path(opts.out) if opts.out else Path("runs") / time.strftime("sitl-%Y%m%d-%H%M%S")
     launch = prepare_run(cfg, world, run_dir, opts.scenario or "(sitl)", "sitl")
-    meta = json.loads((run_dir / "run.json").read_text())
 
     interrupted = False
     reason = "stopped"
     wall0 = time.time()
     try:
-        expect = ["recorder", "tick", *spawn_recorder_and_perception(launch, cfg)]
-        autopilot = launch.spawn("autopilot", ["autopilot", "--run-dir", str(run_dir)])
-        launch.spawn("sim", ["sim", "--run-dir", str(run_dir), "--expect", ",".join(expect)])
+        for attempt in range(HUB_ATTEMPTS):
+            expect = ["recorder", "tick", *spawn_recorder_and_perception(launch, cfg)]
+            autopilot = launch.spawn("autopilot", ["autopilot", "--run-dir", str(run_dir)])
+            sim = launch.spawn("sim", ["sim", "--run-dir", str(run_dir), "--expect", ",".join(expect)])
+            if await_hub(launch, sim) or attempt == HUB_ATTEMPTS - 1:
+                break
+            restart_on_new_hub_port(launch)
         mavlink = _wait_ready(run_dir, autopilot)
+        meta = json.loads((run_dir / "run.json").read_text())
         meta["mavlink"] = mavlink
         (run_dir / "run.json").write_text(json.dumps(meta, indent=2))
         announce(_connect_text(cfg, run_dir, mavlink))

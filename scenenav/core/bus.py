@@ -53,6 +53,19 @@ class BusConfig:
         return cfg
 
 
+class HubPortTaken(RuntimeError):
+    """The hub endpoint could not be bound: another process listens on that port."""
+
+    def __init__(self, port: int) -> None:
+        super().__init__(f"cannot listen on the run's Zenoh hub port {port}: address already in use")
+        self.port = port
+
+
+#: Exit code of the simulator node when its hub port was taken (``EX_TEMPFAIL``): the launcher
+#: then starts the run again on another port.
+EXIT_HUB_PORT_TAKEN = 75
+
+
 def free_port(host: str = "127.0.0.1") -> int:
     """An unused TCP port on loopback (for tests and the launcher)."""
     with socket.socket(socket.AF_INET, socket.SOCK_STREAM) as s:
@@ -70,7 +83,12 @@ class Bus:
 
     def __init__(self, cfg: BusConfig):
         self.cfg = cfg
-        self.session = zenoh.open(cfg.zenoh_config())
+        try:
+            self.session = zenoh.open(cfg.zenoh_config())
+        except zenoh.ZError as exc:
+            if cfg.listen_hub and "already in use" in str(exc):
+                raise HubPortTaken(cfg.hub_port) from None
+            raise
         self._publishers: dict[str, Any] = {}
         self._subscribers: list[Any] = []
         self._tokens: list[Any] = []

@@ -97,3 +97,30 @@ def test_a_chosen_sysid_in_use_is_refused(tmp_path):
         held.release()
     again = claim_sysid(udp, 7, True, "/runs/fourth")          # released with its holder
     again.release()
+
+
+def test_a_hub_port_taken_before_the_simulator_binds_it_starts_the_run_again(tmp_path, monkeypatch):
+    """The launcher picks a free hub port, but another process may bind it first: the simulator
+    then exits with EXIT_HUB_PORT_TAKEN and the launcher starts the run again on a new port, and
+    run.json names the port the hub really listens on."""
+    from scenenav.app import launcher
+    blocker = socket.socket(socket.AF_INET, socket.SOCK_STREAM)
+    blocker.bind(("127.0.0.1", 0))
+    blocker.listen()
+    taken = blocker.getsockname()[1]
+    real = launcher.free_port
+    handed = iter([taken])
+    monkeypatch.setattr(launcher, "free_port", lambda: next(handed, None) or real())
+    out = tmp_path / "run"
+    try:
+        summary = launcher.run("scenarios/demo.yaml", str(out),
+                               ("duration_s=4", "perception.method=statistical"), progress=False)
+    finally:
+        blocker.close()
+    meta = json.loads((out / "run.json").read_text())
+    assert meta["hub_port"] != taken
+    assert json.loads((out / "hub.json").read_text())["hub_port"] == meta["hub_port"]
+    assert summary["end_reason"] == "duration reached"
+    assert "address already in use" in (out / "logs" / "sim.log").read_text()
+    with (out / "truth.csv").open(newline="") as f:
+        assert len(list(csv.reader(f))) > 10
