@@ -91,7 +91,7 @@ def describe(world: World) -> str:
         f"{m.height_px * m.m_per_px:.0f} m at {m.m_per_px} m/px",
         f"origin:      {m.origin_lat_deg:.6f}, {m.origin_lon_deg:.6f} deg (map centre)",
         f"missing:     {', '.join(m.missing_ground_truth) or 'none'}",
-        f"surface:     " + ("DSM (dsm.png), heights above the ground" if m.has_dsm
+        "surface:     " + ("DSM (dsm.png), heights above the ground" if m.has_dsm
                             else "flat (no DSM; every height 0)"),
     ]
     if m.source_crs is not None:
