@@ -26,6 +26,7 @@ from pathlib import Path
 
 import cv2
 import numpy as np
+from tqdm import tqdm
 
 from scenenav.core.errors import UserError
 from scenenav.core.formats.world_manifest import CONVENTIONS, FORMAT_VERSION, GroundTruth, WorldManifest, WorldSource
@@ -100,7 +101,7 @@ def import_world(image: Path, m_per_px: float | None, out_dir: Path, reference: 
                  origin_lat_lon: tuple[float, float] | None = None,
                  name: str | None = None, dsm: Path | None = None,
                  dsm_kind: DsmKind | str = DsmKind.NDSM, dtm: Path | None = None,
-                 ground_window_m: float = DEFAULT_GROUND_WINDOW_M) -> World:
+                 ground_window_m: float = DEFAULT_GROUND_WINDOW_M, progress: bool = False) -> World:
     """Build a world folder in ``out_dir`` from an orthophoto and return the world.
 
     ``m_per_px`` is the ground resolution of the world (metres per pixel, > 0); for a georeferenced
@@ -109,7 +110,8 @@ def import_world(image: Path, m_per_px: float | None, out_dir: Path, reference: 
     ``origin_lat_lon`` the geodetic position of a plain image's centre in degrees (a georeferenced
     image knows its own). ``dsm`` is an optional surface model of ``dsm_kind`` (``dtm`` the ground
     under a DSM; without one the ground is estimated with a ``ground_window_m`` opening, see
-    worlds/ground.py). Every input is checked before anything is written.
+    worlds/ground.py). Every input is checked before anything is written. ``progress``: a progress
+    bar of the reprojection steps on stderr (when it is a terminal).
     """
     image = Path(image)
     _check_m_per_px(m_per_px)
@@ -127,7 +129,7 @@ def import_world(image: Path, m_per_px: float | None, out_dir: Path, reference: 
             raise UserError(f"--origin: not used with the georeferenced {image} (its geodetic origin is "
                             f"its centre, from its CRS); drop --origin")
         return _import_georeferenced(image, info, m_per_px, out_dir, reference, name, dsm, kind, dtm,
-                                     ground_window_m)
+                                     ground_window_m, progress)
     if m_per_px is None:
         where = "has no CRS" if info is not None else "is a plain image"
         raise UserError(f"{image}: {where}, so its scale is unknown; pass --m-per-px M (it is then "
@@ -247,7 +249,8 @@ def _companion(path: Path, label: str, image_info: "georaster.RasterInfo",
 
 def _import_georeferenced(image: Path, info: "georaster.RasterInfo", m_per_px: float | None,
                           out_dir: Path, reference: Path | None, name: str | None, dsm: Path | None,
-                          kind: DsmKind, dtm: Path | None, ground_window_m: float) -> World:
+                          kind: DsmKind, dtm: Path | None, ground_window_m: float,
+                          progress: bool = False) -> World:
     assert info.crs is not None
     grid, source_res = georaster.grid_for(info, m_per_px)
     _check_size(image, grid.width_px, grid.height_px,
@@ -255,16 +258,32 @@ def _import_georeferenced(image: Path, info: "georaster.RasterInfo", m_per_px: f
     ref_info = _companion(Path(reference), "reference image", info, grid) if reference is not None else None
     dsm_info = _companion(Path(dsm), "DSM", info, grid) if dsm is not None else None
     dtm_info = _companion(Path(dtm), "DTM", info, grid) if dtm is not None else None
+    steps = 2 + sum(x is not None for x in (ref_info, dsm_info, dtm_info))
+    with tqdm(total=steps, desc=f"import {image.name}", unit="step", leave=False,
+              disable=None if progress else True) as bar:
+        world = _reproject_all(image, info, grid, source_res, out_dir, reference, name, dsm, kind, dtm,
+                               ground_window_m, ref_info, dsm_info, dtm_info, bar)
+    return world
+
+
+def _reproject_all(image: Path, info: "georaster.RasterInfo", grid: "georaster.LocalGrid", source_res: float,
+                   out_dir: Path, reference: Path | None, name: str | None, dsm: Path | None,
+                   kind: DsmKind, dtm: Path | None, ground_window_m: float,
+                   ref_info: "georaster.RasterInfo | None", dsm_info: "georaster.RasterInfo | None",
+                   dtm_info: "georaster.RasterInfo | None", bar) -> World:
+    assert info.crs is not None
 
     resampling = georaster.image_resampling(source_res, grid.m_per_px)
     ortho_f = georaster.reproject_onto(georaster.read_rgb(image, "image"), info, grid, resampling)
     ortho, nodata_share = _to_rgb8(ortho_f)
+    bar.update()
     if nodata_share >= 1.0:
         raise UserError(f"{image}: no valid pixel (everything is nodata or masked)")
     if ref_info is not None:
         ref_f = georaster.reproject_onto(georaster.read_rgb(ref_info.path, "reference image"), ref_info,
                                          grid, resampling)
         ref, ref_nodata = _to_rgb8(ref_f)
+        bar.update()
         if ref_nodata >= 1.0:
             raise UserError(f"{reference}: the reference image has no valid pixel over {image}")
     else:
@@ -276,6 +295,7 @@ def _import_georeferenced(image: Path, info: "georaster.RasterInfo", m_per_px: f
         values = georaster.reproject_onto(georaster.read_heights(dsm_info.path, "DSM"), dsm_info, grid,
                                           bilinear)
         dsm_coverage = float(np.mean(np.isfinite(values)))
+        bar.update()
         if dsm_coverage == 0.0:
             raise UserError(f"{dsm}: the DSM has no valid height over {image} (does not overlap it, or "
                             f"nodata there)")
@@ -285,6 +305,7 @@ def _import_georeferenced(image: Path, info: "georaster.RasterInfo", m_per_px: f
                                               bilinear)
             if not np.any(np.isfinite(ground)):
                 raise UserError(f"{dtm}: the DTM has no valid height over {image}")
+            bar.update()
         heights = _heights(values, kind, grid.m_per_px, ground, ground_window_m, Path(dsm_info.path))
         if dsm_coverage < 0.5:
             log.warning("%s: the DSM covers only %.0f %% of the world; the rest is flat", dsm,
@@ -312,6 +333,7 @@ def _import_georeferenced(image: Path, info: "georaster.RasterInfo", m_per_px: f
         source_crs=georaster.crs_label(info.crs), local_projection=grid.proj)
     world = World(manifest=manifest, orthophoto=ortho, reference=ref, dsm_m=heights)
     world.save(out_dir)
+    bar.update()
     return world
 
 

@@ -66,7 +66,7 @@ def _import(args: argparse.Namespace) -> int:
                          origin_lat_lon=origin, name=args.name,
                          dsm=Path(args.dsm) if args.dsm else None, dsm_kind=args.dsm_kind,
                          dtm=Path(args.dtm) if args.dtm else None,
-                         ground_window_m=args.ground_window_m)
+                         ground_window_m=args.ground_window_m, progress=not args.quiet)
     m = world.manifest
     if m.source_crs is not None:
         crs = m.source_crs if len(m.source_crs) <= 40 else m.source_crs[:37] + "..."
@@ -226,6 +226,7 @@ def register(subparsers) -> None:
                    help=f"window of the ground estimate of a DSM without --dtm: objects narrower than this "
                         f"are raised above the ground (default {DEFAULT_GROUND_WINDOW_M:g} m)")
     i.add_argument("--name", default=None, help="world name (default: the image file name)")
+    i.add_argument("--quiet", action="store_true", help="no progress bar")
     i.set_defaults(func=_import)
 
     n = sub.add_parser("info", help="print a world's manifest, land-cover shares and junction counts",

@@ -253,3 +253,17 @@ def test_geotiff_without_crs_imports_as_a_plain_image(tmp_path, caplog):
     m = world.manifest
     assert m.source_crs is None and "geodetic_origin" in m.missing_ground_truth and m.has_dsm
     assert float(world.dsm_m[120, 230]) == pytest.approx(9.0) and float(world.dsm_m[0, 0]) == 0.0
+
+
+def test_manifest_geo_fields_are_optional_and_checked():
+    from scenenav.core.formats.world_manifest import WorldManifest
+    base = {"format_version": 2, "name": "x", "width_px": 300, "height_px": 300, "m_per_px": 0.5,
+            "origin_lat_deg": 48.0, "origin_lon_deg": 11.0, "source": "imported", "seed": None,
+            "has_landcover": False, "has_junctions": False}
+    old = WorldManifest.from_dict(dict(base), "m.json")              # a manifest written before
+    assert old.source_crs is None and old.local_projection is None
+    new = WorldManifest.from_dict(dict(base, source_crs=UTM, local_projection="+proj=aeqd"), "m.json")
+    assert WorldManifest.from_json(new.to_json()).source_crs == UTM
+    for key, bad in (("source_crs", 32632), ("local_projection", "  ")):
+        with pytest.raises(UserError, match=f"m.json: {key}"):
+            WorldManifest.from_dict(dict(base, **{key: bad}), "m.json")
