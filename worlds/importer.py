@@ -114,6 +114,8 @@ def import_world(image: Path, m_per_px: float | None, out_dir: Path, reference: 
     bar of the reprojection steps on stderr (when it is a terminal).
     """
     image = Path(image)
+    if not image.is_file():
+        raise UserError(f"{image}: no such image file (expected a GeoTIFF, PNG, JPEG or TIFF image)")
     _check_m_per_px(m_per_px)
     kind = DsmKind(dsm_kind)
     if dtm is not None and dsm is None:

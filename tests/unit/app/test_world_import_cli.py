@@ -33,18 +33,20 @@ def rasters(tmp_path):
     return tmp_path
 
 
-def test_import_geotiff_with_dsm_and_info(rasters):
+def test_import_geotiff_with_dsm_and_info(rasters, capsys):
+    from scenenav.app.cli import main
     out = rasters / "w"
-    r = scenenav("world", "import", str(rasters / "ortho.tif"), "--dsm", str(rasters / "ndsm.tif"),
-                 "--out", str(out))
-    assert r.returncode == 0, r.stderr
-    assert "EPSG:32632" in r.stdout and "DSM up to 12.0 m" in r.stdout and "48.000000, 11.200000" in r.stdout
+    assert main(["world", "import", str(rasters / "ortho.tif"), "--dsm", str(rasters / "ndsm.tif"),
+                 "--out", str(out)]) == 0
+    text = capsys.readouterr().out
+    assert "EPSG:32632" in text and "DSM up to 12.0 m" in text and "48.000000, 11.200000" in text
     manifest = json.loads((out / "manifest.json").read_text())
     assert manifest["source_crs"] == UTM and manifest["has_dsm"] is True
     assert manifest["local_projection"].startswith("+proj=aeqd +lat_0=48.0")
     assert (out / "dsm.png").is_file()
-    info = scenenav("world", "info", str(out))
-    assert info.returncode == 0 and "source crs:  EPSG:32632" in info.stdout and "surface:     DSM" in info.stdout
+    assert main(["world", "info", str(out)]) == 0
+    text = capsys.readouterr().out
+    assert "source crs:  EPSG:32632" in text and "surface:     DSM" in text
 
 
 def test_bad_import_is_one_line_exit_2(rasters):
