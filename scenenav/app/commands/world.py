@@ -11,6 +11,7 @@ import cv2
 import numpy as np
 
 from scenenav.core.errors import UserError
+from worlds.ground import DEFAULT_GROUND_WINDOW_M, DsmKind
 from worlds.landcover import LANDCOVER_COLOURS_RGB, JunctionKind, LandCover, colourise, cover_shares
 from worlds.world import World, load_world
 
@@ -62,9 +63,21 @@ def _import(args: argparse.Namespace) -> int:
     origin = parse_origin(args.origin) if args.origin is not None else None
     world = import_world(Path(args.image), args.m_per_px, Path(args.out),
                          reference=Path(args.reference) if args.reference else None,
-                         origin_lat_lon=origin, name=args.name)
-    print(f"wrote {args.out}: {world.width_px}x{world.height_px} px at {world.m_per_px} m/px; "
-          f"missing ground truth: {', '.join(world.manifest.missing_ground_truth) or 'none'}")
+                         origin_lat_lon=origin, name=args.name,
+                         dsm=Path(args.dsm) if args.dsm else None, dsm_kind=args.dsm_kind,
+                         dtm=Path(args.dtm) if args.dtm else None,
+                         ground_window_m=args.ground_window_m, progress=not args.quiet)
+    m = world.manifest
+    if m.source_crs is not None:
+        crs = m.source_crs if len(m.source_crs) <= 40 else m.source_crs[:37] + "..."
+        geo = (f"from {crs} onto a local grid centred on {m.origin_lat_deg:.6f}, "
+               f"{m.origin_lon_deg:.6f} (north up)")
+    else:
+        geo = "not georeferenced: a plain image, north up"
+    heights = (f"DSM up to {float(world.dsm_m.max()):.1f} m" if world.dsm_m is not None
+               else "no DSM: the world is flat")
+    print(f"wrote {args.out}: {world.width_px}x{world.height_px} px at {world.m_per_px:.4g} m/px, {geo}; "
+          f"{heights}; missing ground truth: {', '.join(m.missing_ground_truth) or 'none'}")
     return 0
 
 
@@ -78,7 +91,12 @@ def describe(world: World) -> str:
         f"{m.height_px * m.m_per_px:.0f} m at {m.m_per_px} m/px",
         f"origin:      {m.origin_lat_deg:.6f}, {m.origin_lon_deg:.6f} deg (map centre)",
         f"missing:     {', '.join(m.missing_ground_truth) or 'none'}",
+        "surface:     " + ("DSM (dsm.png), heights above the ground" if m.has_dsm
+                            else "flat (no DSM; every height 0)"),
     ]
+    if m.source_crs is not None:
+        lines.append(f"source crs:  {m.source_crs if len(m.source_crs) <= 60 else m.source_crs[:57] + '...'}")
+        lines.append(f"local grid:  {m.local_projection}")
     if world.landcover is not None:
         lines.append("land cover:")
         for cover, share in cover_shares(world.landcover).items():
@@ -171,19 +189,44 @@ def register(subparsers) -> None:
     g.add_argument("--name", default=None, help="world name stored in the manifest")
     g.set_defaults(func=_generate)
 
-    i = sub.add_parser("import", help="make a world folder from an orthophoto",
-                       description="Import a PNG/JPEG (or a TIFF OpenCV can read) orthophoto as a world. "
-                                   "Imported worlds have no land cover and no junction ground truth; "
-                                   "without --reference the image is also the reference map.")
-    i.add_argument("image", metavar="IMAGE", help="orthophoto file (north up, at least 256 px a side)")
-    i.add_argument("--m-per-px", type=_positive_float, required=True, metavar="M",
-                   help="ground resolution in metres per pixel")
+    i = sub.add_parser(
+        "import", help="make a world folder from an orthophoto (PNG/JPEG, or a GeoTIFF with a DSM)",
+        description="Import an orthophoto as a world. A GeoTIFF (or any raster GDAL reads) with a CRS is "
+                    "reprojected (rasterio; bilinear, or area average when coarsening) onto a local grid: "
+                    "azimuthal equidistant on WGS-84 centred on the image centre, north up, so grid north "
+                    "is true north and metres are ground metres whatever the source CRS (UTM, Web "
+                    "Mercator, geographic); the geodetic origin is the image centre and the manifest "
+                    "records the source CRS. Pixels with no source data are black. A PNG/JPEG (or a TIFF "
+                    "without CRS) is used pixel for pixel at --m-per-px, north up. Imported worlds have no "
+                    "land cover and no junction ground truth; without --reference the image is also the "
+                    "reference map; without --dsm the world is flat (and the manifest says so). "
+                    "See docs/worlds.md, 'Real places'.")
+    i.add_argument("image", metavar="IMAGE",
+                   help="orthophoto: a GeoTIFF with a CRS, or a north-up PNG/JPEG/TIFF (>= 256 px a side)")
+    i.add_argument("--m-per-px", type=_positive_float, default=None, metavar="M",
+                   help="ground resolution of the world in metres per pixel (required for plain images; "
+                        "GeoTIFF default: the source's ground resolution at its centre)")
     i.add_argument("--out", required=True, metavar="DIR", help="world folder to write")
     i.add_argument("--reference", default=None, metavar="IMAGE2",
-                   help="reference map of the same area and size (another day/sensor)")
+                   help="reference map of the same area (another day/sensor): georeferenced, or "
+                        "pixel-aligned with IMAGE at the same size")
     i.add_argument("--origin", default=None, metavar="LAT,LON",
-                   help="geodetic position of the image centre in degrees (default: unknown, 0,0)")
+                   help="plain images only: geodetic position of the image centre in degrees "
+                        "(default: unknown, 0,0); a GeoTIFF's origin comes from its CRS")
+    i.add_argument("--dsm", default=None, metavar="RASTER",
+                   help="surface model in metres (GeoTIFF, reprojected bilinearly onto the world grid; or "
+                        "pixel-aligned with IMAGE): gives the world its heights; nodata -> 0")
+    i.add_argument("--dsm-kind", choices=[k.value for k in DsmKind], default=DsmKind.NDSM.value,
+                   help="ndsm (default): heights above the ground, used as they are; dsm: elevations, "
+                        "from which the ground (--dtm, or an estimate) is subtracted; negatives -> 0")
+    i.add_argument("--dtm", default=None, metavar="RASTER",
+                   help="ground elevations under a --dsm-kind dsm raster (default: estimated from the DSM "
+                        "by a morphological opening, see --ground-window-m)")
+    i.add_argument("--ground-window-m", type=_positive_float, default=DEFAULT_GROUND_WINDOW_M, metavar="M",
+                   help=f"window of the ground estimate of a DSM without --dtm: objects narrower than this "
+                        f"are raised above the ground (default {DEFAULT_GROUND_WINDOW_M:g} m)")
     i.add_argument("--name", default=None, help="world name (default: the image file name)")
+    i.add_argument("--quiet", action="store_true", help="no progress bar")
     i.set_defaults(func=_import)
 
     n = sub.add_parser("info", help="print a world's manifest, land-cover shares and junction counts",

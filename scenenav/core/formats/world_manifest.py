@@ -212,6 +212,11 @@ class WorldManifest:
     #: world is flat (every height 0) and ``missing_ground_truth`` lists "dsm".
     has_dsm: bool = False
     reference: ReferenceInfo = field(default_factory=ReferenceInfo)
+    #: Imported GeoTIFFs: the coordinate reference system of the source image ("EPSG:<code>" when
+    #: it has one, else its WKT) and the local projection (a PROJ string, metres, centred on the
+    #: map centre, grid north = true north there) it was reprojected to. None: not georeferenced.
+    source_crs: str | None = None
+    local_projection: str | None = None
 
     def __post_init__(self) -> None:
         object.__setattr__(self, "missing_ground_truth", tuple(self.missing_ground_truth))
@@ -286,11 +291,17 @@ class WorldManifest:
         if not isinstance(has_dsm, bool):
             raise UserError(f"{where}: has_dsm = {has_dsm!r}: expected true or false")
         reference = ReferenceInfo.from_dict(data.get("reference", {}), where)
+        geo = {}
+        for key in ("source_crs", "local_projection"):
+            v = data.get(key)
+            if v is not None and (not isinstance(v, str) or not v.strip()):
+                raise UserError(f"{where}: {key} = {v!r}: expected a non-empty string (a CRS) or null")
+            geo[key] = v
         return cls(format_version=version, name=name, width_px=width, height_px=height,
                    m_per_px=m_per_px, origin_lat_deg=lat, origin_lon_deg=lon, source=source,
                    seed=seed, has_landcover=has_lc, has_junctions=has_jn,
                    missing_ground_truth=tuple(missing), conventions=conventions,
-                   generator=generator, has_dsm=has_dsm, reference=reference)
+                   generator=generator, has_dsm=has_dsm, reference=reference, **geo)
 
 
 def read_manifest(world_dir: str | Path) -> WorldManifest:

@@ -317,7 +317,9 @@ def test_import_with_and_without_reference(tmp_path, small_world):
     assert (world.width_px, world.height_px, world.m_per_px) == (320, 300, 0.5)
     assert np.array_equal(world.reference, img) and np.array_equal(world.orthophoto, img)
     assert world.landcover is None and world.junctions is None
-    assert set(world.manifest.missing_ground_truth) == {"landcover", "junctions", "geodetic_origin"}
+    # without a DSM an imported world is flat and says so
+    assert set(world.manifest.missing_ground_truth) == {"landcover", "junctions", "geodetic_origin", "dsm"}
+    assert not world.manifest.has_dsm and world.dsm_m is None
     back = load_world(tmp_path / "w1")
     assert back.manifest.source == "imported" and back.landcover is None
     assert sorted(p.name for p in (tmp_path / "w1").iterdir()) == [
@@ -326,7 +328,7 @@ def test_import_with_and_without_reference(tmp_path, small_world):
     world = import_world(tmp_path / "a.png", 0.5, tmp_path / "w2", reference=tmp_path / "b.png",
                          origin_lat_lon=(47.0, 8.0), name="zurich")
     assert np.array_equal(load_world(tmp_path / "w2").reference, ref)
-    assert world.manifest.missing_ground_truth == ("landcover", "junctions")
+    assert world.manifest.missing_ground_truth == ("landcover", "junctions", "dsm")
     assert (world.manifest.origin_lat_deg, world.manifest.name) == (47.0, "zurich")
 
 
