@@ -87,8 +87,12 @@ def generate_world(cfg: CityConfig, name: str | None = None) -> World:
     reference = render(ref_sc, ref_day, ref_dsm)
     t2 = time.perf_counter()
     # the walls of the other day get its tone curve and colour balance like everything else
-    ref_walls = np.clip(tone_map(ref_facade.astype(np.float32), ref_day) + 0.5, 0, 255).astype(np.uint8)
-    ref_walls[ref_facade.max(axis=2) == 0] = 0
+    ref_walls = ref_facade          # in place, in strips (8000 x 8000 px: no full-size float copy)
+    for r0 in range(0, ref_walls.shape[0], 512):
+        rows = ref_walls[r0:r0 + 512]
+        none = rows.max(axis=2) == 0
+        rows[:] = np.clip(tone_map(rows.astype(np.float32), ref_day) + 0.5, 0, 255).astype(np.uint8)
+        rows[none] = 0
     del ref_facade
     persp = perspective_reference(reference, ref_dsm, ref_walls, cfg.m_per_px, cfg.reference_height_m,
                                   canopy=ref_sc.material == Material.FOREST)
