@@ -85,6 +85,22 @@ def describe(world: World) -> str:
         f"origin:      {m.origin_lat_deg:.6f}, {m.origin_lon_deg:.6f} deg (map centre)",
         f"missing:     {', '.join(m.missing_ground_truth) or 'none'}",
     ]
+    if world.dsm_m is not None:
+        raised = world.dsm_m > 0
+        lines.append(f"surface:     DSM up to {float(world.dsm_m.max()):.1f} m, "
+                     f"{100.0 * float(raised.mean()):.1f} % of the map raised"
+                     + (f" (mean {float(world.dsm_m[raised].mean()):.1f} m)" if raised.any() else ""))
+    else:
+        lines.append("surface:     flat (no DSM)")
+    ref = m.reference
+    xs = (np.arange(0, m.width_px + 1, max(1, m.width_px // 16)) - m.width_px / 2) * m.m_per_px
+    ys = (m.height_px / 2 - np.arange(0, m.height_px + 1, max(1, m.height_px // 16))) * m.m_per_px
+    dx, dy = ref.offset_m(*np.meshgrid(xs, ys))
+    off = np.hypot(dx, dy)
+    lines.append(f"reference:   uses the {ref.kind.value} one"
+                 + (f" (perspective image taken from {ref.camera_height_m:.0f} m)" if ref.camera_height_m else "")
+                 + f", {ref.season}, misregistration {off.min():.2f}..{off.max():.2f} m, "
+                 f"{ref.changed_buildings} buildings changed")
     if world.landcover is not None:
         lines.append("land cover:")
         for cover, share in cover_shares(world.landcover).items():

@@ -470,7 +470,7 @@ def test_cli_generate_info_preview_import(tmp_path, capsys, small_world):
     assert world.manifest.seed == 7 and world.manifest.origin_lat_deg == 52.52
     assert _cli(["world", "info", str(out)]) == 0
     text = capsys.readouterr().out
-    assert "junctions:" in text and "water" in text
+    assert "junctions:" in text and "water" in text and "surface:     DSM up to" in text
     assert _cli(["world", "preview", str(out), "--out", str(tmp_path / "p.png")]) == 0
     assert cv2.imread(str(tmp_path / "p.png")).shape[1] > 3 * 400
     _write_png(tmp_path / "a.png", np.ascontiguousarray(small_world.orthophoto[:300, :300]))
