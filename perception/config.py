@@ -166,6 +166,8 @@ class PerceptionNodeConfig:
     decision_model: str = ""           # combined rule: model .json (empty: the shipped one)
     swap_at_s: float = 0.0             # > 0: at this simulated time a second node takes over (swap)
     swap_method: str = "statistical"   # method of that second node (perception-2)
+    swap_every_s: float = 0.0          # > 0 (with swap_at_s > 0): swap again every this many simulated s,
+                                       # back and forth between the two nodes and their methods
 
     def __post_init__(self) -> None:
         methods = ("cnn", "assistant-map", "statistical", "none")
@@ -178,6 +180,9 @@ class PerceptionNodeConfig:
         check(self.swap_at_s >= 0, "swap_at_s", self.swap_at_s, ">= 0 s (0 = no swap)")
         check(self.swap_method in methods, "swap_method", self.swap_method,
               "one of cnn, assistant-map, statistical, none")
+        check(self.swap_every_s == 0 or (self.swap_every_s >= 10.0 and self.swap_at_s > 0),
+              "swap_every_s", self.swap_every_s,
+              "0 (one swap at most) or >= 10 simulated s, with swap_at_s > 0 (the first swap)")
 
 
 #: A frame's FOV may differ from the expected one by this much (JSON round trip, config rounding).

@@ -494,35 +494,59 @@ SWAP_HANDOVER_TIMEOUT_S = 60.0
 class PerceptionSwap:
     """``perception.swap_at_s``: start a second perception node (``perception-2``, method
     ``perception.swap_method``) on the live bus at that simulated time, and stop the first one as soon
-    as the second has published a fix (make-before-break, as an operator would swap nodes by hand)."""
+    as the second has published a fix (make-before-break, as an operator would swap nodes by hand).
+    With ``perception.swap_every_s`` the swap repeats every that many simulated seconds, back and
+    forth between ``perception`` (its method) and ``perception-2`` (``swap_method``), each time a new
+    process."""
 
     def __init__(self, launch: Launch, cfg: ScenarioConfig) -> None:
         self.launch = launch
         self.cfg = cfg
         self.started_wall: float | None = None
         self.done = False
+        self.swaps = 0                           # swaps started
+        self._next_at_s = cfg.perception.swap_at_s
+        self._active = "perception"              # the node now in charge
+        self._incoming = SWAP_NODE_ID
+        self._fixes_offset = 0
 
     def poll(self, sim_t_s: float | None) -> None:
         if self.done:
             return
         p = self.cfg.perception
         if self.started_wall is None:
-            if sim_t_s is not None and sim_t_s >= p.swap_at_s:
-                self.launch.spawn(SWAP_NODE_ID, ["perception", "--run-dir", str(self.launch.run_dir),
-                                                 "--node-id", SWAP_NODE_ID, "--method", p.swap_method])
+            if sim_t_s is not None and sim_t_s >= self._next_at_s:
+                method = p.swap_method if self._incoming == SWAP_NODE_ID else p.method
+                self._fixes_offset = _size(self.launch.run_dir / "fixes.csv")
+                self.launch.spawn(self._incoming, ["perception", "--run-dir", str(self.launch.run_dir),
+                                                   "--node-id", self._incoming, "--method", method])
                 self.started_wall = time.monotonic()
-                log.info("perception swap at %.1f s: %s -> %s", sim_t_s, p.method, p.swap_method)
+                self.swaps += 1
+                log.info("perception swap %d at %.1f s: %s -> %s (%s)", self.swaps, sim_t_s,
+                         self._active, self._incoming, method)
             return
-        answered = _fixes_from(self.launch.run_dir, SWAP_NODE_ID)
+        answered = _fixes_from(self.launch.run_dir, self._incoming, self._fixes_offset)
         late = time.monotonic() - self.started_wall > SWAP_HANDOVER_TIMEOUT_S
         if answered or late:
             if late and not answered:
-                log.warning("%s produced no fix within %.0f s; stopping the first node anyway",
-                            SWAP_NODE_ID, SWAP_HANDOVER_TIMEOUT_S)
+                log.warning("%s produced no fix within %.0f s; stopping %s anyway", self._incoming,
+                            SWAP_HANDOVER_TIMEOUT_S, self._active)
             for c in self.launch.children:
-                if c.name == "perception":
+                if c.name == self._active and c.proc.poll() is None:
                     _stop(c)
-            self.done = True
+            self._active, self._incoming = self._incoming, self._active
+            self.started_wall = None
+            if p.swap_every_s > 0:
+                self._next_at_s += p.swap_every_s
+            else:
+                self.done = True
+
+
+def _size(path: Path) -> int:
+    try:
+        return path.stat().st_size
+    except OSError:
+        return 0
 
 
 def _tail(path: Path, n_bytes: int) -> bytes:
@@ -535,9 +559,11 @@ def _tail(path: Path, n_bytes: int) -> bytes:
         return b""
 
 
-def _fixes_from(run_dir: Path, node_id: str) -> bool:
-    """Has fixes.csv a row from ``node_id`` (read from the end of the file)?"""
-    return f",{node_id},".encode() in _tail(run_dir / "fixes.csv", 20000)
+def _fixes_from(run_dir: Path, node_id: str, since_offset: int = 0) -> bool:
+    """Has fixes.csv a row from ``node_id`` after byte ``since_offset`` (read from the end)?"""
+    path = run_dir / "fixes.csv"
+    size = _size(path)
+    return f",{node_id},".encode() in _tail(path, min(20000, max(0, size - since_offset)))
 
 
 def _wait_sim(sim: Child, launch: Launch, cfg: ScenarioConfig, progress: bool,

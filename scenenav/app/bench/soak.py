@@ -1,0 +1,428 @@
+"""``scenenav bench soak``: a long GPS-denied flight under churn, then: did anything grow?
+
+Kept out of ``make test`` (it flies 30 simulated minutes by default). The flight is
+``scenarios/gps_denied.yaml`` without the guidance node: GPS off, the autopilot navigates on the
+perception node's fixes, flying laps of the bowtie route until the duration is reached. Meanwhile
+
+* the perception node is swapped every ``swap_every_s`` simulated seconds (make-before-break,
+  ``perception.swap_every_s``: each swap is a new process running the CNN, alternately named
+  ``perception`` and ``perception-2``), and
+* a fuzzer sends ``fuzz_frames_per_min`` garbage frames a minute to the autopilot's MAVLink TCP port
+  (MAVLink v2 frames of random message ids and payloads with a wrong checksum, truncated frames and
+  stray bytes: all must be counted and dropped, none may command the vehicle).
+
+Every process of the run (and the simulator's render worker) is sampled every few wall seconds:
+resident memory (``VmRSS``) and open file descriptors, from ``/proc``. The figures compare each
+process role at simulated minute 5 with the end of the flight (for perception: the node in charge
+then), and the lockstep counters (``sim_stats.json``: ticks flown, answers that timed out;
+``autopilot_stats.json``: ticks out of order) say whether any tick was dropped.
+
+Issue 14's targets: memory of every process within 10 % of its value at minute 5, no file
+descriptor growth, no dropped lockstep tick.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import logging
+import math
+import os
+import random
+import socket
+import struct
+import sys
+import tempfile
+import threading
+import time
+from dataclasses import asdict, dataclass, field
+from pathlib import Path
+
+import yaml
+
+from scenenav.app.json_output import emit_json
+from scenenav.core.config import check
+
+log = logging.getLogger(__name__)
+
+#: Issue 14: memory growth allowed between minute 5 and the end.
+MEMORY_GROWTH_LIMIT = 0.10
+BASELINE_SIM_S = 300.0
+SCENARIO = Path(__file__).resolve().parents[3] / "scenarios" / "gps_denied.yaml"
+RENDER_WORKER = "sim/render_worker"
+#: Wall seconds a process runs before it is sampled (a new perception node loads its CNN first).
+SETTLE_WALL_S = 20.0
+
+
+@dataclass(frozen=True)
+class SoakConfig:
+    duration_s: float = 1800.0          # simulated seconds
+    swap_every_s: float = 120.0         # simulated seconds between perception swaps
+    fuzz_frames_per_min: int = 10000    # garbage MAVLink frames a (wall) minute
+    sample_period_s: float = 5.0        # wall seconds between /proc samples
+    seed: int = 2
+
+    def __post_init__(self) -> None:
+        check(math.isfinite(self.duration_s) and 360.0 <= self.duration_s <= 4 * 3600.0, "duration_s",
+              self.duration_s, "360 .. 14400 simulated s (the baseline is taken at minute 5)")
+        check(10.0 <= self.swap_every_s <= self.duration_s, "swap_every_s", self.swap_every_s,
+              "10 s .. the duration")
+        check(0 <= self.fuzz_frames_per_min <= 600_000, "fuzz_frames_per_min", self.fuzz_frames_per_min,
+              "0 .. 600000")
+        check(0.5 <= self.sample_period_s <= 60.0, "sample_period_s", self.sample_period_s, "0.5 .. 60 s")
+
+
+@dataclass
+class Sample:
+    sim_time_s: float
+    rss_mb: float
+    fds: int
+
+
+@dataclass
+class RoleFigures:
+    role: str
+    at_minute_5: Sample | None = None
+    at_end: Sample | None = None
+    peak_rss_mb: float = 0.0
+
+    @property
+    def memory_growth(self) -> float | None:
+        if self.at_minute_5 is None or self.at_end is None or self.at_minute_5.rss_mb <= 0:
+            return None
+        return self.at_end.rss_mb / self.at_minute_5.rss_mb - 1.0
+
+    @property
+    def fd_growth(self) -> int | None:
+        if self.at_minute_5 is None or self.at_end is None:
+            return None
+        return self.at_end.fds - self.at_minute_5.fds
+
+
+@dataclass
+class SoakResult:
+    config: SoakConfig
+    sim_time_s: float = 0.0
+    wall_time_s: float = 0.0
+    end_reason: str = ""
+    swaps: int = 0
+    fuzz_frames_sent: int = 0
+    mavlink_frames_dropped: int | None = None
+    ticks: int = 0
+    ticks_expected: int = 0
+    lockstep_timeouts: int | None = None
+    autopilot_ticks_out_of_order: int | None = None
+    roles: list[RoleFigures] = field(default_factory=list)
+
+    @property
+    def memory_ok(self) -> bool:
+        growths = [r.memory_growth for r in self.roles]
+        return bool(growths) and all(g is not None and g <= MEMORY_GROWTH_LIMIT for g in growths)
+
+    @property
+    def fds_ok(self) -> bool:
+        growths = [r.fd_growth for r in self.roles]
+        return bool(growths) and all(g is not None and g <= 0 for g in growths)
+
+    @property
+    def ticks_ok(self) -> bool:
+        return (self.lockstep_timeouts == 0 and self.autopilot_ticks_out_of_order == 0
+                and self.ticks >= self.ticks_expected)
+
+    def to_dict(self) -> dict:
+        return {
+            "config": asdict(self.config), "sim_time_s": round(self.sim_time_s, 1),
+            "wall_time_s": round(self.wall_time_s, 1), "end_reason": self.end_reason,
+            "swaps": self.swaps, "fuzz_frames_sent": self.fuzz_frames_sent,
+            "mavlink_frames_dropped": self.mavlink_frames_dropped, "ticks": self.ticks,
+            "ticks_expected": self.ticks_expected, "lockstep_timeouts": self.lockstep_timeouts,
+            "autopilot_ticks_out_of_order": self.autopilot_ticks_out_of_order,
+            "memory_within_10_percent": self.memory_ok, "no_fd_growth": self.fds_ok,
+            "no_dropped_tick": self.ticks_ok,
+            "roles": [{"role": r.role,
+                       "rss_mb_at_minute_5": None if r.at_minute_5 is None else round(r.at_minute_5.rss_mb, 1),
+                       "rss_mb_at_end": None if r.at_end is None else round(r.at_end.rss_mb, 1),
+                       "peak_rss_mb": round(r.peak_rss_mb, 1),
+                       "memory_growth": None if r.memory_growth is None else round(r.memory_growth, 4),
+                       "fds_at_minute_5": None if r.at_minute_5 is None else r.at_minute_5.fds,
+                       "fds_at_end": None if r.at_end is None else r.at_end.fds,
+                       "fd_growth": r.fd_growth} for r in self.roles],
+        }
+
+
+# ------------------------------------------------------------------------------------------ /proc
+def _rss_mb(pid: int) -> float | None:
+    try:
+        with open(f"/proc/{pid}/status") as f:
+            for line in f:
+                if line.startswith("VmRSS:"):
+                    return int(line.split()[1]) / 1024.0
+    except OSError:
+        return None
+    return None
+
+
+def _fd_count(pid: int) -> int | None:
+    try:
+        return len(os.listdir(f"/proc/{pid}/fd"))
+    except OSError:
+        return None
+
+
+def _children(pid: int) -> list[int]:
+    try:
+        with open(f"/proc/{pid}/task/{pid}/children") as f:
+            return [int(x) for x in f.read().split()]
+    except OSError:
+        return []
+
+
+def _last_sim_time(run_dir: Path) -> float | None:
+    try:
+        with (run_dir / "truth.csv").open("rb") as f:
+            f.seek(max(0, (run_dir / "truth.csv").stat().st_size - 400))
+            return float(f.read().splitlines()[-1].split(b",")[0])
+    except (OSError, ValueError, IndexError):
+        return None
+
+
+class Sampler(threading.Thread):
+    """Samples every role's RSS and fds; keeps the sample nearest minute 5 and the newest one."""
+
+    def __init__(self, run_dir: Path, cfg: SoakConfig) -> None:
+        super().__init__(name="soak-sampler", daemon=True)
+        self.run_dir = run_dir
+        self.cfg = cfg
+        self.stop = threading.Event()
+        self.roles: dict[str, RoleFigures] = {}
+
+    def _pids(self) -> dict[str, int]:
+        """Role -> pid of every live process of the run. The two perception node ids keep their
+        own roles, each new process of a role replacing the last."""
+        try:
+            pids = json.loads((self.run_dir / "logs" / "pids.json").read_text())
+        except (OSError, ValueError):
+            return {}
+        out = {name: pid for name, pid in pids.items() if _rss_mb(pid) is not None}
+        sim = pids.get("sim")
+        if sim is not None:
+            for child in _children(sim):
+                out[RENDER_WORKER] = child
+        return out
+
+    def run(self) -> None:
+        end_window_s = self.cfg.duration_s - 3.0 * self.cfg.sample_period_s
+        first_seen: dict[int, float] = {}
+        while not self.stop.wait(self.cfg.sample_period_s):
+            t = _last_sim_time(self.run_dir)
+            if t is None:
+                continue
+            now = time.monotonic()
+            for role, pid in self._pids().items():
+                # a process is compared once it settled (loaded its models, opened its files)
+                if now - first_seen.setdefault(pid, now) < SETTLE_WALL_S:
+                    continue
+                rss, fds = _rss_mb(pid), _fd_count(pid)
+                if rss is None or fds is None:
+                    continue
+                fig = self.roles.setdefault(role, RoleFigures(role))
+                fig.peak_rss_mb = max(fig.peak_rss_mb, rss)
+                sample = Sample(t, rss, fds)
+                if t >= BASELINE_SIM_S and fig.at_minute_5 is None:
+                    fig.at_minute_5 = sample
+                if t <= end_window_s:
+                    fig.at_end = sample
+
+
+# ------------------------------------------------------------------------------------------ fuzz
+def _garbage_frame(rng: random.Random) -> bytes:
+    kind = rng.random()
+    if kind < 0.6:      # a MAVLink v2 frame, random message id and payload, wrong checksum
+        payload = rng.randbytes(rng.randint(0, 255))
+        header = struct.pack("<BBBBBBBHB", 0xFD, len(payload), 0, 0, rng.randint(0, 255), 255, 190,
+                             rng.randint(0, 0xFFFF), rng.randint(0, 0xFF))
+        return header + payload + struct.pack("<H", rng.randint(0, 0xFFFF))
+    if kind < 0.8:      # a truncated frame
+        return bytes([0xFD, rng.randint(10, 255)]) + rng.randbytes(rng.randint(0, 8))
+    return rng.randbytes(rng.randint(1, 64))    # stray bytes
+
+
+class Fuzzer(threading.Thread):
+    """Sends ``fuzz_frames_per_min`` garbage frames a minute to the run's MAVLink TCP port."""
+
+    def __init__(self, run_dir: Path, cfg: SoakConfig) -> None:
+        super().__init__(name="soak-fuzzer", daemon=True)
+        self.run_dir = run_dir
+        self.cfg = cfg
+        self.stop = threading.Event()
+        self.sent = 0
+
+    def _port(self) -> int | None:
+        try:
+            return int(json.loads((self.run_dir / "mavlink.json").read_text())["tcp_port"])
+        except (OSError, ValueError, KeyError, TypeError):
+            return None
+
+    def run(self) -> None:
+        rng = random.Random(self.cfg.seed)
+        burst = max(1, self.cfg.fuzz_frames_per_min // 600)       # 10 bursts a second
+        sock = None
+        while not self.stop.wait(0.1):
+            if self.cfg.fuzz_frames_per_min == 0:
+                return
+            if sock is None:
+                port = self._port()
+                if port is None:
+                    continue
+                try:
+                    sock = socket.create_connection(("127.0.0.1", port), timeout=2.0)
+                except OSError:
+                    sock = None
+                    continue
+            try:
+                sock.sendall(b"".join(_garbage_frame(rng) for _ in range(burst)))
+                self.sent += burst
+            except OSError:
+                sock.close()
+                sock = None
+        if sock is not None:
+            sock.close()
+
+
+# ------------------------------------------------------------------------------------------ run
+def soak_scenario(cfg: SoakConfig) -> dict:
+    """scenarios/gps_denied.yaml without guidance, flying bowtie laps for ``duration_s``."""
+    data = yaml.safe_load(SCENARIO.read_text())
+    data["name"] = "soak"
+    data["seed"] = cfg.seed
+    data["duration_s"] = cfg.duration_s
+    data.pop("guidance", None)
+    data.setdefault("autopilot", {})["mission_end"] = "rtl"
+    # both nodes run the CNN, so the navigation stays what gps_denied.yaml flies; every swap is a
+    # new process
+    data["perception"] = {"method": "cnn", "swap_at_s": cfg.swap_every_s, "swap_every_s": cfg.swap_every_s,
+                          "swap_method": "cnn"}
+    return data
+
+
+def _lap_route(cfg: SoakConfig) -> list[list[float]]:
+    from scenenav.app.nodes import load_world_for
+    from scenenav.app.scenario import bowtie_route, load_scenario
+    scen = load_scenario(None, ("world=default",))
+    world = load_world_for(scen)
+    lap = bowtie_route(world)
+    length = sum(math.dist(a, b) for a, b in zip(lap, lap[1:], strict=False))
+    laps = int(math.ceil(cfg.duration_s * 10.0 / max(length, 1.0))) + 1    # 10 m/s
+    return [list(p) for p in lap[:-1]] * laps + [list(lap[-1])]
+
+
+def run_soak(cfg: SoakConfig, out_dir: Path | None = None, progress: bool = True) -> SoakResult:
+    from scenenav.app import launcher
+    from scenenav.core.bus import free_port
+    work = Path(out_dir) if out_dir else Path(tempfile.mkdtemp(prefix="scenenav-soak-"))
+    work.mkdir(parents=True, exist_ok=True)
+    run_dir = work / "run"
+    data = soak_scenario(cfg)
+    data["flight"]["route_enu_m"] = _lap_route(cfg)
+    data.setdefault("autopilot", {}).update({"mavlink_tcp_port": free_port(), "mavlink_udp_out": "none"})
+    scen_path = work / "soak.yaml"
+    scen_path.write_text(yaml.safe_dump(data, sort_keys=False))
+    result = SoakResult(cfg)
+    sampler, fuzzer = Sampler(run_dir, cfg), Fuzzer(run_dir, cfg)
+    sampler.start()
+    fuzzer.start()
+    t0 = time.monotonic()
+    try:
+        summary = launcher.run(str(scen_path), str(run_dir), (), progress=progress)
+    finally:
+        sampler.stop.set()
+        fuzzer.stop.set()
+        sampler.join(10)
+        fuzzer.join(10)
+    result.wall_time_s = time.monotonic() - t0
+    result.end_reason = str(summary.get("end_reason"))
+    result.sim_time_s = _last_sim_time(run_dir) or 0.0
+    result.fuzz_frames_sent = fuzzer.sent
+    result.roles = sorted(sampler.roles.values(), key=lambda r: r.role)
+    sim_stats = _read_json(run_dir / "sim_stats.json")
+    ap_stats = _read_json(run_dir / "autopilot_stats.json")
+    result.ticks = int(sim_stats.get("ticks", 0))
+    result.ticks_expected = int(round(cfg.duration_s * 100.0))
+    result.lockstep_timeouts = sim_stats.get("ack_timeouts")
+    # the node writes its counters at exit; a counter that never counted is not in the file
+    result.autopilot_ticks_out_of_order = int(ap_stats.get("clock_out_of_order", 0)) if ap_stats else None
+    mav = ap_stats.get("mavlink", {})
+    if isinstance(mav, dict):
+        result.mavlink_frames_dropped = sum(int(mav.get(k, 0)) for k in ("bad_crc", "parse_errors", "unknown",
+                                                                         "truncated"))
+    result.swaps = max(0, _read_text(run_dir / "events.csv").count("node up: perception/") - 1)
+    return result
+
+
+def _read_text(path: Path) -> str:
+    try:
+        return path.read_text()
+    except OSError:
+        return ""
+
+
+def _read_json(path: Path) -> dict:
+    try:
+        data = json.loads(path.read_text())
+        return data if isinstance(data, dict) else {}
+    except (OSError, ValueError):
+        return {}
+
+
+def format_table(r: SoakResult) -> str:
+    c = r.config
+    lines = [f"soak: {r.sim_time_s:.0f} simulated s in {r.wall_time_s:.0f} wall s ({r.end_reason}); "
+             f"{r.swaps} perception swaps (every {c.swap_every_s:.0f} s); {r.fuzz_frames_sent} fuzz frames "
+             f"({c.fuzz_frames_per_min}/min)",
+             f"{'process':<20} {'RSS min 5':>10} {'RSS end':>9} {'growth':>8} {'peak':>8} "
+             f"{'fds min 5':>9} {'fds end':>8}"]
+    for f in r.roles:
+        g = f.memory_growth
+        lines.append(f"{f.role:<20} {_mb(f.at_minute_5):>10} {_mb(f.at_end):>9} "
+                     f"{'-' if g is None else f'{100 * g:+.1f} %':>8} {f.peak_rss_mb:>6.0f} MB "
+                     f"{'-' if f.at_minute_5 is None else f.at_minute_5.fds:>9} "
+                     f"{'-' if f.at_end is None else f.at_end.fds:>8}")
+    lines.append(f"ticks {r.ticks} of {r.ticks_expected}; lockstep answers timed out: {r.lockstep_timeouts}; "
+                 f"autopilot ticks out of order: {r.autopilot_ticks_out_of_order}; MAVLink frames dropped "
+                 f"(bad CRC or unparsable): {r.mavlink_frames_dropped}")
+    lines.append(f"targets: memory within 10 % of minute 5: {'yes' if r.memory_ok else 'NO'}; "
+                 f"no fd growth: {'yes' if r.fds_ok else 'NO'}; no dropped tick: {'yes' if r.ticks_ok else 'NO'}")
+    return "\n".join(lines)
+
+
+def _mb(s: Sample | None) -> str:
+    return "-" if s is None else f"{s.rss_mb:.0f} MB"
+
+
+def _cmd_bench_soak(args: argparse.Namespace) -> int:
+    cfg = SoakConfig(duration_s=args.duration_s, swap_every_s=args.swap_every_s,
+                     fuzz_frames_per_min=args.fuzz_per_min)
+    result = run_soak(cfg, Path(args.out) if args.out else None, progress=not args.json)
+    if args.json:
+        emit_json(result.to_dict())
+    else:
+        print(format_table(result))
+    sys.stdout.flush()
+    return 0
+
+
+def register_bench(bench_subparsers) -> None:
+    """Add ``soak`` to the ``scenenav bench`` sub-commands."""
+    p = bench_subparsers.add_parser(
+        "soak", help="30 simulated minutes of GPS-denied flying with perception swaps and MAVLink fuzz; "
+                     "memory, file descriptors and lockstep ticks afterwards (not part of make test)",
+        description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    p.add_argument("--duration-s", type=float, default=SoakConfig.duration_s,
+                   help="simulated seconds to fly (default 1800)")
+    p.add_argument("--swap-every-s", type=float, default=SoakConfig.swap_every_s,
+                   help="simulated seconds between perception swaps (default 120)")
+    p.add_argument("--fuzz-per-min", type=int, default=SoakConfig.fuzz_frames_per_min,
+                   help="garbage MAVLink frames a minute on the TCP port (default 10000)")
+    p.add_argument("--out", default="", help="keep the run folder here (default: a temporary folder)")
+    p.add_argument("--json", action="store_true", help="print only JSON on stdout instead of a table")
+    p.set_defaults(func=_cmd_bench_soak)
