@@ -28,7 +28,7 @@ from __future__ import annotations
 
 import logging
 import math
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from enum import Enum
 
 import numpy as np
@@ -115,6 +115,10 @@ class CaptureScene:
                    camera_rgb=world.orthophoto if relief else None,
                    facade_rgb=world.facade_rgb if relief else None,
                    reference_info=info, reference_kind=kind)
+
+    def with_reference(self, reference_gray: np.ndarray, kind: ReferenceKind) -> "CaptureScene":
+        """The same captures (and the same renderer, built once) matched against another reference."""
+        return replace(self, reference_gray=reference_gray, reference_kind=kind, _renderer=self.renderer())
 
     @property
     def relief(self) -> bool:
