@@ -9,7 +9,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
-from enum import IntEnum
+from enum import Enum, IntEnum
 
 import cv2
 import numpy as np
@@ -32,6 +32,39 @@ class BlockKind(IntEnum):
     INDUSTRIAL = 6
 
 
+class BuildingKind(str, Enum):
+    """What a building is; it decides its height range (:data:`HEIGHT_RANGE_M`) and its walls."""
+
+    HOUSE = "house"               # detached house, garden
+    OUTBUILDING = "outbuilding"   # garage, shed, workshop in a courtyard
+    PERIMETER = "perimeter"       # terraced building of a perimeter block along the street
+    TOWER = "tower"               # office or residential tower (a few flat-roofed buildings)
+    LARGE = "large_flat"          # large flat roof: shopping centre, school, office block
+    BOX = "uniform_box"           # large box with a uniform roof: supermarket, depot
+    HALL = "hall"                 # industrial hall of a uniform-roof district
+
+
+#: Height (metres above the ground, to the ridge for pitched roofs) per building kind: uniform in
+#: [low, high]. Basis: storeys of ~3 m (residential 2.7-3.0 m floor to floor, commercial ~3.5-4 m;
+#: Neufert, Architects' Data, 4th ed., ch. "Dimensions"); detached houses 2-3 storeys + roof,
+#: Central-European perimeter blocks 4-7 storeys (Munich/Berlin Gruenderzeit blocks: eaves at
+#: 15-22 m, ridge up to 24 m), towers 8-13 storeys, large flat-roofed buildings 3-5 storeys, single-
+#: storey commercial boxes and industrial halls with 6-10 m clear height.
+HEIGHT_RANGE_M: dict[BuildingKind, tuple[float, float]] = {
+    BuildingKind.HOUSE: (6.0, 12.0),
+    BuildingKind.OUTBUILDING: (3.0, 6.0),
+    BuildingKind.PERIMETER: (12.0, 24.0),
+    BuildingKind.TOWER: (24.0, 40.0),
+    BuildingKind.LARGE: (10.0, 20.0),
+    BuildingKind.BOX: (8.0, 14.0),
+    BuildingKind.HALL: (7.0, 11.0),
+}
+#: Share of the flat-roofed large buildings and of the flat-roofed perimeter buildings that are
+#: towers instead ("a few": about one tower per 4 ha of city on the default map).
+TOWER_SHARE_LARGE = 0.35
+TOWER_SHARE_PERIMETER = 0.06
+
+
 class RoofStyle(IntEnum):
     """Roof shapes, as rendered."""
 
@@ -43,7 +76,12 @@ class RoofStyle(IntEnum):
 
 @dataclass
 class Building:
-    """One building: footprint, height, roof style and tone, roof boxes (continuous px)."""
+    """One building: footprint, kind, height, roof style and tone, roof boxes (continuous px).
+
+    ``height_m`` is the top of the building above the ground (the ridge of a pitched roof);
+    ``roof_rise_m`` is the ridge above the eaves (0 for flat roofs), set by
+    :func:`worlds.surface.finish_buildings` with the wall colour ``facade``.
+    """
 
     corners: np.ndarray         # (4, 2) continuous px; corners[0] -> corners[1] is the long side
     height_m: float
@@ -51,6 +89,9 @@ class Building:
     tone: tuple[float, ...]
     hvac: np.ndarray            # (k, 4, 2) roof boxes
     hvac_height_m: float = 2.0
+    kind: BuildingKind = BuildingKind.PERIMETER
+    roof_rise_m: float = 0.0
+    facade: tuple[float, float, float] = (150.0, 150.0, 150.0)
 
 
 class Block:
@@ -117,6 +158,7 @@ class Layout:
         self.ppm = 1.0 / cfg.m_per_px
         self.buildings: list[Building] = []
         self.spots: list[np.ndarray] = []   # parking stalls: (u, v, dir_u, dir_v)
+        self.crowns: list[tuple[float, float, float]] = []   # garden trees: (u, v, radius) px
 
     def m(self, metres: float) -> float:
         return metres * self.ppm
@@ -126,9 +168,14 @@ class Layout:
                         dtype=float)
         return tuple(float(x) for x in np.clip(base * self.rng.uniform(0.9, 1.1), 0, 255))
 
-    def add(self, blk: Block, corners: np.ndarray, style: RoofStyle, height_m: float,
-            tone: tuple[float, ...] | None = None) -> None:
+    def height(self, kind: BuildingKind) -> float:
+        return float(self.rng.uniform(*HEIGHT_RANGE_M[kind]))
+
+    def add(self, blk: Block, corners: np.ndarray, style: RoofStyle, kind: BuildingKind,
+            tone: tuple[float, ...] | None = None, height_m: float | None = None) -> None:
         rng = self.rng
+        if height_m is None:
+            height_m = self.height(kind)
         if tone is None:
             tone = self._tone(GABLE_TONES, GABLE_WEIGHTS) if style in (RoofStyle.GABLE, RoofStyle.HIP) \
                 else self._tone(FLAT_TONES, FLAT_WEIGHTS)
@@ -154,7 +201,7 @@ class Layout:
             if boxes:
                 hvac = np.array(boxes)
         self.buildings.append(Building(glob, float(height_m), style, tone, hvac,
-                                        float(rng.uniform(1.2, 2.5))))
+                                        float(rng.uniform(1.2, 2.5)), kind))
 
     # -- block kinds --------------------------------------------------------------------------
 
@@ -192,7 +239,7 @@ class Layout:
                     if blk.try_place(corners):
                         style = RoofStyle.GABLE if rng.random() < gable_share else RoofStyle.FLAT
                         corners = _long_first(corners)
-                        self.add(blk, corners, style, rng.uniform(12.0, 24.0))
+                        self.add(blk, corners, style, BuildingKind.PERIMETER)
                         t += f + (0.0 if rng.random() < 0.6 else self.m(rng.uniform(1.0, 4.0)))
                     else:
                         t += self.m(2.0)
@@ -201,10 +248,10 @@ class Layout:
         if free_m2 > 6000.0:
             self.detached(blk)
         elif free_m2 > 1500.0 and rng.random() < 0.5:
-            self.detached(blk, (6.0, 12.0), (5.0, 9.0), (22.0, 26.0), RoofStyle.FLAT, (3.0, 6.0))
+            self.detached(blk, (6.0, 12.0), (5.0, 9.0), (22.0, 26.0), RoofStyle.FLAT, BuildingKind.OUTBUILDING)
 
     def detached(self, blk: Block, size_a=(8.0, 13.0), size_b=(7.0, 11.0), pitch=(16.0, 22.0),
-                 style: RoofStyle | None = None, heights=(6.0, 10.0)) -> None:
+                 style: RoofStyle | None = None, kind: BuildingKind = BuildingKind.HOUSE) -> None:
         rng = self.rng
         fr = blk.frame()
         if fr is None:
@@ -222,7 +269,7 @@ class Layout:
                     st = style if style is not None else (
                         RoofStyle.GABLE if rng.random() < 0.5 else
                         (RoofStyle.HIP if rng.random() < 0.6 else RoofStyle.FLAT))
-                    self.add(blk, corners, st, rng.uniform(*heights))
+                    self.add(blk, corners, st, kind)
 
     def big(self, blk: Block, uniform_tone: tuple[float, ...] | None = None) -> None:
         """One large building (flat roof with HVAC, or a uniform roof), houses around it."""
@@ -238,13 +285,13 @@ class Layout:
             if blk.try_place(corners):
                 if uniform:
                     tone = uniform_tone or self._tone(UNIFORM_TONES, (1, 1, 1))
-                    self.add(blk, corners, RoofStyle.UNIFORM, rng.uniform(8.0, 14.0), tone)
+                    self.add(blk, corners, RoofStyle.UNIFORM, BuildingKind.BOX, tone)
                 else:
-                    self.add(blk, corners, RoofStyle.FLAT, rng.uniform(10.0, 20.0))
+                    self.add(blk, corners, RoofStyle.FLAT, BuildingKind.LARGE)
                 break
             fa *= 0.85
             fb *= 0.85
-        self.detached(blk, (8.0, 14.0), (7.0, 12.0), (18.0, 24.0), None, (6.0, 12.0))
+        self.detached(blk, (8.0, 14.0), (7.0, 12.0), (18.0, 24.0), None, BuildingKind.HOUSE)
 
     def halls(self, blk: Block, spec: tuple[float, float, float, tuple[float, ...]]) -> bool:
         """Pack identical halls row by row (greedy scan in the block's rectangle frame)."""
@@ -274,7 +321,7 @@ class Layout:
                 hall = rect(centre, a, b, ha, hb)
                 if (all(_inside(blk.inner, q) for q in hall) and not _inside(blk.occ, centre)
                         and blk.try_place(hall, max_bad=0.01, claim=outer)):
-                    self.add(blk, hall, RoofStyle.UNIFORM, height, tone)
+                    self.add(blk, hall, RoofStyle.UNIFORM, BuildingKind.HALL, tone, height)
                     placed = True
                     count += 1
                     ta += ha + gap_a
@@ -324,7 +371,9 @@ def _long_first(corners: np.ndarray) -> np.ndarray:
 
 
 def _trees(material_win: np.ndarray, region: np.ndarray, rng: np.random.Generator, ppm: float,
-           per_m2: float) -> None:
+           per_m2: float, x0: int, y0: int, crowns: list[tuple[float, float, float]]) -> None:
+    """Garden trees: crowns (FOREST) on ``region``; each crown's (u, v, radius) in continuous global
+    px is appended to ``crowns`` (the surface model gives it a dome, ``worlds/surface.py``)."""
     ys, xs = np.nonzero(region)
     n = int(rng.poisson(len(ys) / ppm ** 2 * per_m2))
     if n == 0 or len(ys) == 0:
@@ -333,7 +382,9 @@ def _trees(material_win: np.ndarray, region: np.ndarray, rng: np.random.Generato
     idx = rng.integers(len(ys), size=n)
     for i in idx:
         r = rng.uniform(2.0, 4.5) * ppm
-        cv2.circle(canopy, (int(xs[i]), int(ys[i])), max(1, int(r)), 1, -1)
+        rad = max(1, int(r))
+        cv2.circle(canopy, (int(xs[i]), int(ys[i])), rad, 1, -1)
+        crowns.append((float(xs[i]) + x0 + 0.5, float(ys[i]) + y0 + 0.5, float(rad) + 0.5))
     material_win[(canopy > 0) & region] = Material.FOREST
 
 
@@ -351,7 +402,7 @@ def layout_blocks(material: np.ndarray, features: list[Feature], cfg: CityConfig
     hall_specs = []
     for _ in districts:
         hall_specs.append((cfg.hall_length_m * rng.uniform(0.9, 1.1),
-                           cfg.hall_width_m * rng.uniform(0.9, 1.1), rng.uniform(7.0, 11.0),
+                           cfg.hall_width_m * rng.uniform(0.9, 1.1), rng.uniform(*HEIGHT_RANGE_M[BuildingKind.HALL]),
                            tuple(float(x) for x in UNIFORM_TONES[int(rng.integers(len(UNIFORM_TONES)))])))
 
     # district blocks: nearest to the district centre first, until they cover ~60 % of its disc
@@ -429,7 +480,7 @@ def layout_blocks(material: np.ndarray, features: list[Feature], cfg: CityConfig
         if grass_yard:
             win[yard] = Material.GRASS
         if tree_density > 0:
-            _trees(win, yard & (blk.occ == 0), rng, ppm, tree_density)
+            _trees(win, yard & (blk.occ == 0), rng, ppm, tree_density, x, y, lay.crowns)
         for bld in lay.buildings[first:]:
             mat = Material.ROOF_UNIFORM if bld.style is RoofStyle.UNIFORM else Material.ROOF_TEXTURED
             fill_convex(material, bld.corners, int(mat))

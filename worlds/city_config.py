@@ -15,8 +15,13 @@ import numpy as np
 from scenenav.core.config import check
 
 #: Bump when the output of the generator changes for the same config (invalidates caches).
-GENERATOR_VERSION = 1
+GENERATOR_VERSION = 2
 
+
+#: Values of CityConfig.reference_kind and CityConfig.season (scenenav.core.formats.world_manifest
+#: ReferenceKind and worlds.reference.Season spell the same strings).
+REFERENCE_KINDS = ("orthophoto", "perspective")
+SEASONS = ("summer", "winter")
 
 MIN_SIDE_PX = 256
 MAX_SIDE_PX = 16384
@@ -30,6 +35,10 @@ class Stream(IntEnum):
     BLOCKS = 3
     DAYS = 4
     TRAFFIC = 5
+    HEIGHTS = 6
+    TREES = 7
+    CHANGES = 8
+    REGISTRATION = 9
     TEX_FINE = 10
     TEX_MEDIUM = 11
     TEX_COARSE = 12
@@ -86,6 +95,15 @@ class CityConfig:
     # traffic
     cars_per_100m_lane: float = 2.5
     parking_occupancy: float = 0.6
+    # the reference map ("another day", docs/worlds.md)
+    reference_kind: str = "perspective"   # the kind perception uses: orthophoto | perspective
+    reference_height_m: float = 500.0     # eye of the perspective reference above the map centre
+    season: str = "summer"                # of the reference: summer | winter (leaf-off, snow)
+    reroofed_share: float = 0.045         # buildings with a new roof tone in the reference
+    added_share: float = 0.01             # buildings built since the reference (bare lot there)
+    demolished_share: float = 0.005       # buildings in the reference, gone on the capture day
+    misregistration_shift_m: float = 2.0  # global shift of the reference: this x U(0.7, 1) metres
+    misregistration_warp_m: float = 0.7   # sum of the amplitudes of the smooth warp terms
 
     def __post_init__(self) -> None:
         check(isinstance(self.seed, int) and 0 <= self.seed < 2 ** 63, "seed", self.seed,
@@ -145,6 +163,21 @@ class CityConfig:
               "cars per 100 m of lane in [0, 20]")
         check(0.0 <= self.parking_occupancy <= 1.0, "parking_occupancy", self.parking_occupancy,
               "a fraction in [0, 1]")
+        check(self.reference_kind in REFERENCE_KINDS, "reference_kind", self.reference_kind,
+              " or ".join(REFERENCE_KINDS))
+        check(50.0 <= self.reference_height_m <= 20000.0, "reference_height_m", self.reference_height_m,
+              "metres above the map centre in [50, 20000]")
+        check(self.season in SEASONS, "season", self.season, " or ".join(SEASONS))
+        for key in ("reroofed_share", "added_share", "demolished_share"):
+            v = getattr(self, key)
+            check(0.0 <= v <= 0.3, key, v, "a fraction of the buildings in [0, 0.3]")
+        check(self.reroofed_share + self.added_share + self.demolished_share <= 0.5,
+              "reroofed_share+added_share+demolished_share",
+              self.reroofed_share + self.added_share + self.demolished_share, "a sum of at most 0.5")
+        check(0.0 <= self.misregistration_shift_m <= 20.0, "misregistration_shift_m",
+              self.misregistration_shift_m, "metres in [0, 20]")
+        check(0.0 <= self.misregistration_warp_m <= 10.0, "misregistration_warp_m",
+              self.misregistration_warp_m, "metres in [0, 10]")
 
     @property
     def area_m2(self) -> float:

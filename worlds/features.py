@@ -229,7 +229,9 @@ def river_polylines(cfg: CityConfig, rng: np.random.Generator) -> list[tuple[np.
 def draw_features(material: np.ndarray, blocked: np.ndarray, owner: np.ndarray,
                    features: list[Feature], rings: list[Ring | None],
                    rivers: list[tuple[np.ndarray, float]], cfg: CityConfig,
-                   rng: np.random.Generator, river_margin_px: float) -> None:
+                   rng: np.random.Generator, river_margin_px: float,
+                   crowns: list[tuple[float, float, float]]) -> None:
+    """Draw the features; the tree clumps of parks append their crowns (u, v, radius px) to ``crowns``."""
     mpp = cfg.m_per_px
     clear = _RING_CLEAR_M / mpp
     for i, (f, ring) in enumerate(zip(features, rings, strict=True)):
@@ -255,9 +257,10 @@ def draw_features(material: np.ndarray, blocked: np.ndarray, owner: np.ndarray,
                 c = f.centre + rad * np.array([math.cos(ang), math.sin(ang)])
                 for _ in range(int(rng.integers(1, 5))):
                     q = c + rng.normal(0.0, 4.0 / mpp, 2)
-                    cv2.circle(material, tuple(int(x) for x in cv_points(q)),
-                               int(rng.uniform(2.5, 5.5) / mpp * SCALE), int(Material.FOREST), -1,
-                               cv2.LINE_8, SHIFT)
+                    rad = int(rng.uniform(2.5, 5.5) / mpp * SCALE)
+                    cv2.circle(material, tuple(int(x) for x in cv_points(q)), rad,
+                               int(Material.FOREST), -1, cv2.LINE_8, SHIFT)
+                    crowns.append((float(q[0]), float(q[1]), rad / SCALE + 0.5))
         elif f.kind is FeatureKind.SQUARE:
             fill_poly(material, _feature_outline(f, 0.0), Material.SQUARE)
     for pts, width in rivers:

@@ -38,12 +38,25 @@ import dataclasses
 import logging
 import time
 
-from scenenav.core.formats.world_manifest import CONVENTIONS, FORMAT_VERSION, WorldManifest, WorldSource
+import numpy as np
+
+from scenenav.core.formats.world_manifest import (
+    CONVENTIONS,
+    FORMAT_VERSION,
+    ReferenceInfo,
+    ReferenceKind,
+    WorldManifest,
+    WorldSource,
+)
+from worlds.changes import day_scenes, plan_changes
 from worlds.city_config import GENERATOR_VERSION, CityConfig, Stream, stream_rng
 from worlds.materials import MATERIAL_TO_COVER
-from worlds.reference import capture_day, other_day
+from worlds.perspective import perspective_reference
+from worlds.reference import Season, capture_day, other_day, tone_map
+from worlds.registration import draw_misregistration, misregister
 from worlds.rendering import render
 from worlds.scene import build_scene
+from worlds.surface import surface_model
 from worlds.world import World
 
 log = logging.getLogger(__name__)
@@ -52,36 +65,59 @@ __all__ = ["GENERATOR_SOURCES", "GENERATOR_VERSION", "CityConfig", "build_scene"
 
 #: The source files (in ``worlds/``) whose code decides the generated arrays; ``worlds/default.py``
 #: hashes them (sorted) to name the cache folders, so a change to any of them regenerates the worlds.
-GENERATOR_SOURCES = ("blocks.py", "city_config.py", "drawing.py", "features.py", "generator.py",
-                     "landcover.py", "materials.py", "reference.py", "rendering.py", "road_graph.py",
-                     "roads.py", "scene.py", "traffic.py", "world.py")
+GENERATOR_SOURCES = ("blocks.py", "changes.py", "city_config.py", "drawing.py", "features.py",
+                     "generator.py", "landcover.py", "materials.py", "perspective.py", "raycast.py",
+                     "reference.py", "registration.py", "rendering.py", "road_graph.py", "roads.py",
+                     "scene.py", "shadows.py", "surface.py", "traffic.py", "world.py")
 
 
 def generate_world(cfg: CityConfig, name: str | None = None) -> World:
     """Generate a city world; the same ``cfg`` always gives identical arrays."""
     t0 = time.perf_counter()
-    sc = build_scene(cfg)
+    base = build_scene(cfg)
+    changes = plan_changes(base, cfg, stream_rng(cfg, Stream.CHANGES))
+    sc, ref_sc = day_scenes(base, changes)
+    dsm, facade = surface_model(sc)
+    ref_dsm, ref_facade = surface_model(ref_sc)
     t1 = time.perf_counter()
     drng = stream_rng(cfg, Stream.DAYS)
     capture = capture_day(drng)
-    ref_day = other_day(drng, capture)
-    ortho = render(sc, capture)
-    reference = render(sc, ref_day)
+    ref_day = other_day(drng, capture, Season(cfg.season))
+    ortho = render(sc, capture, dsm)
+    reference = render(ref_sc, ref_day, ref_dsm)
+    del ref_sc
     t2 = time.perf_counter()
+    # the walls of the other day get its tone curve and colour balance like everything else
+    ref_walls = np.clip(tone_map(ref_facade.astype(np.float32), ref_day) + 0.5, 0, 255).astype(np.uint8)
+    ref_walls[ref_facade.max(axis=2) == 0] = 0
+    del ref_facade
+    persp = perspective_reference(reference, ref_dsm, ref_walls, cfg.m_per_px, cfg.reference_height_m)
+    del ref_dsm, ref_walls
+    shift_e, shift_n, warp = draw_misregistration(cfg, stream_rng(cfg, Stream.REGISTRATION))
+    info = ReferenceInfo(kind=ReferenceKind(cfg.reference_kind), camera_height_m=cfg.reference_height_m,
+                         shift_east_m=shift_e, shift_north_m=shift_n, warp=warp, season=cfg.season,
+                         changed_buildings=changes.count)
+    reference = misregister(reference, info, cfg.m_per_px)
+    persp = misregister(persp, info, cfg.m_per_px)
+    t3 = time.perf_counter()
     landcover = MATERIAL_TO_COVER[sc.material]
     gen = dataclasses.asdict(cfg)
     gen["generator_version"] = GENERATOR_VERSION
     gen["features"] = [{"kind": f.kind.value, "u_px": round(float(f.centre[0]), 1),
                         "v_px": round(float(f.centre[1]), 1),
                         "radius_m": round(f.radius_px * cfg.m_per_px, 1)} for f in sc.features]
+    gen["changes"] = {"reroofed": len(changes.reroofed), "added": len(changes.added),
+                      "demolished": len(changes.demolished)}
     manifest = WorldManifest(
         format_version=FORMAT_VERSION,
         name=name or f"city-seed{cfg.seed}-{cfg.width_px}x{cfg.height_px}",
         width_px=cfg.width_px, height_px=cfg.height_px, m_per_px=cfg.m_per_px,
         origin_lat_deg=cfg.origin_lat_deg, origin_lon_deg=cfg.origin_lon_deg,
         source=WorldSource.GENERATED.value, seed=cfg.seed, has_landcover=True, has_junctions=True,
-        missing_ground_truth=(), conventions=CONVENTIONS, generator=gen)
-    log.info("generated %s: layout %.1fs, rendering %.1fs, %d junctions, %d buildings",
-             manifest.name, t1 - t0, t2 - t1, len(sc.junctions), len(sc.buildings))
+        missing_ground_truth=(), conventions=CONVENTIONS, generator=gen, has_dsm=True, reference=info)
+    log.info("generated %s: layout and surface %.1fs, rendering %.1fs, perspective reference and "
+             "misregistration %.1fs, %d junctions, %d buildings (%d changed), %d trees",
+             manifest.name, t1 - t0, t2 - t1, t3 - t2, len(sc.junctions), len(sc.buildings),
+             changes.count, len(sc.crowns))
     return World(manifest=manifest, orthophoto=ortho, reference=reference, landcover=landcover,
-                 junctions=sc.junctions)
+                 junctions=sc.junctions, dsm_m=dsm, facade_rgb=facade, reference_perspective=persp)

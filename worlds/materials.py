@@ -81,6 +81,9 @@ GRASS_LUSH = np.array([82, 126, 52], dtype=np.float32)
 GRASS_DRY = np.array([136, 138, 78], dtype=np.float32)
 FOREST_BASE = np.array([44, 74, 36], dtype=np.float32)
 WATER_BASE = np.array([38, 64, 76], dtype=np.float32)
+#: Winter: fresh snow seen from above (albedo 0.8-0.9, slightly blue), and leaf-off branches.
+SNOW_RGB = np.array([232, 236, 242], dtype=np.float32)
+BRANCH_RGB = np.array([104, 96, 86], dtype=np.float32)
 
 GABLE_TONES = ((168, 86, 64), (142, 72, 58), (96, 96, 104), (118, 94, 78), (128, 126, 122),
                 (104, 136, 122))
@@ -91,3 +94,17 @@ UNIFORM_TONES = ((192, 192, 188), (172, 180, 188), (206, 206, 200))
 CAR_COLOURS = ((236, 236, 234), (30, 30, 34), (162, 164, 168), (92, 94, 98), (150, 32, 30),
                 (34, 54, 120), (200, 182, 70))
 CAR_WEIGHTS = (0.25, 0.2, 0.24, 0.1, 0.08, 0.08, 0.05)
+
+# Wall colours (RGB) by wall material: the base colour of a facade in diffuse daylight. They are a
+# shade darker than the roofs (walls face the sky only half and the sun at a grazing angle; measured
+# facade albedos: plaster 0.4-0.6, brick 0.2-0.35, concrete 0.3-0.4, glass curtain walls 0.1-0.2,
+# Taha, "Urban climates and heat islands: albedo", Energy and Buildings 25, 1997).
+FACADE_PALETTE: dict[str, tuple[tuple[int, int, int], ...]] = {
+    "plaster": ((186, 176, 156), (194, 188, 178), (178, 154, 112), (160, 168, 162), (176, 150, 132)),
+    "brick": ((140, 78, 58), (116, 68, 52), (152, 100, 74)),
+    "concrete": ((140, 138, 132), (118, 116, 112), (150, 146, 136)),
+    "glass": ((62, 84, 100), (76, 96, 106), (54, 66, 82)),
+    "metal": ((156, 160, 164), (112, 122, 132), (136, 136, 128)),
+}
+#: Side colour of tree crowns (dark green: the shaded inside of the canopy).
+TREE_FACADE_RGB = (30, 50, 26)

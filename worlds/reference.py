@@ -18,6 +18,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
+from enum import Enum
 
 import cv2
 import numpy as np
@@ -90,6 +91,19 @@ class SmoothNoise:
         return out
 
 
+class Season(str, Enum):
+    """The season of a capture: ``winter`` has leaf-off trees and snow on grass and flat roofs."""
+
+    SUMMER = "summer"
+    WINTER = "winter"
+
+
+#: Share of the sunlight a tree crown stops: a summer crown ~0.9 (foliage lets sun flecks through),
+#: a leaf-off crown ~0.35 (branches only; crown porosity of deciduous trees in winter 0.5-0.8,
+#: Heisler, "Effects of individual trees on the solar radiation climate", J. Clim. Appl. Met. 1986).
+TREE_OPACITY = {Season.SUMMER: 0.9, Season.WINTER: 0.35}
+
+
 @dataclass(frozen=True)
 class DayConditions:
     """Everything that differs between two captures of the same area."""
@@ -112,6 +126,11 @@ class DayConditions:
     grass_dryness: float       # 0 lush green .. 1 dry yellow
     water_wave_dir_deg: float
     water_wave_m: float
+    season: Season = Season.SUMMER
+
+    @property
+    def tree_opacity(self) -> float:
+        return TREE_OPACITY[Season(self.season)]
 
     def sun_vector_px(self) -> np.ndarray:
         """Unit horizontal vector towards the sun in image axes (u right = east, v down = south)."""
@@ -140,15 +159,22 @@ def capture_day(rng: np.random.Generator) -> DayConditions:
     )
 
 
-def other_day(rng: np.random.Generator, capture: DayConditions) -> DayConditions:
-    """Conditions of the reference map: another season/time of day, another camera."""
+def other_day(rng: np.random.Generator, capture: DayConditions,
+              season: Season = Season.SUMMER) -> DayConditions:
+    """Conditions of the reference map: another time of day, another camera, ``season``.
+
+    A winter sun is lower: 18-30 degrees (the noon sun at 48 degrees north in December-February,
+    NOAA solar calculator), against 36-62 degrees in summer.
+    """
+    season = Season(season)
     gains = tuple(float(g) for g in rng.uniform(0.9, 1.1, size=3))
     return DayConditions(
         name="reference", nature_seed=int(rng.integers(1 << 31)),
         traffic_seed=int(rng.integers(1 << 31)), sensor_seed=int(rng.integers(1 << 31)),
         sun_azimuth_deg=float((capture.sun_azimuth_deg + rng.choice([-1.0, 1.0])
                                * rng.uniform(40.0, 80.0)) % 360.0),
-        sun_elevation_deg=float(rng.uniform(36.0, 62.0)),
+        sun_elevation_deg=float(rng.uniform(36.0, 62.0) if season is Season.SUMMER
+                                else rng.uniform(18.0, 30.0)),
         shadow_strength=float(rng.uniform(0.35, 0.55)),
         gamma=float(rng.uniform(0.78, 1.3)),
         contrast=float(rng.uniform(0.8, 1.12)),
@@ -161,6 +187,7 @@ def other_day(rng: np.random.Generator, capture: DayConditions) -> DayConditions
         grass_dryness=float(rng.uniform(0.3, 0.9)),
         water_wave_dir_deg=float((capture.water_wave_dir_deg + rng.uniform(40.0, 140.0)) % 180.0),
         water_wave_m=float(rng.uniform(1.5, 4.0)),
+        season=season,
     )
 
 

@@ -20,21 +20,21 @@ from worlds.materials import (
     AMP_FINE,
     AMP_MED,
     BASE_RGB,
+    BRANCH_RGB,
     FOREST_BASE,
     GRASS_DRY,
     GRASS_LUSH,
+    SNOW_RGB,
     WATER_BASE,
     Material,
 )
-from worlds.reference import DayConditions, NoiseField, SmoothNoise, finish_strip
+from worlds.reference import DayConditions, NoiseField, Season, SmoothNoise, finish_strip
 from worlds.scene import Scene
+from worlds.shadows import cast_shadows
 from worlds.traffic import CAR_HEIGHT_M, Cars, cars_for_day, paint_cars
 
 STRIP_ROWS = 1024      # rendering strip height (multiple of 16 for JPEG block alignment)
 STRIP_MARGIN = 32      # extra rows rendered above/below a strip for blurs
-
-
-_MAX_BUILDING_HEIGHT_M = 30.0
 
 
 def _facets(b: Building) -> list[tuple[np.ndarray, np.ndarray]]:
@@ -55,10 +55,14 @@ def _facets(b: Building) -> list[tuple[np.ndarray, np.ndarray]]:
             (np.array([p0, r0, p3]), -a_unit), (np.array([p1, p2, r1]), a_unit)]
 
 
-def _paint_roofs(canvas: np.ndarray, sc: Scene, idx: np.ndarray, sun: np.ndarray, top: int) -> None:
+def _paint_roofs(canvas: np.ndarray, sc: Scene, idx: np.ndarray, sun: np.ndarray, top: int,
+                 snow: bool = False) -> None:
     for i in idx:
         b = sc.buildings[i]
         tone = b.tone
+        if snow and b.style in (RoofStyle.FLAT, RoofStyle.UNIFORM):
+            # snow stays on flat roofs (pitched ones shed it): a tone from the building's own
+            tone = tuple(float(c) for c in SNOW_RGB * (0.95 + 0.04 * ((sum(b.tone) / 3.0) / 255.0)))
         fill_convex(canvas, b.corners, tone, 0, top)
         if b.style in (RoofStyle.GABLE, RoofStyle.HIP):
             for poly, nrm in _facets(b):
@@ -91,8 +95,15 @@ def _paint_nature(canvas: np.ndarray, mat: np.ndarray, a: int, b: int, sc: Scene
     """Grass, forest canopy and water ripples from the day's own random stream."""
     mpp = sc.cfg.m_per_px
     f = _StripFields(nat, a, b)
+    winter = day.season is Season.WINTER
     grass = mat == Material.GRASS
-    if grass.any():
+    if grass.any() and winter:
+        # snow cover: bright, faintly blue, drifts at ~14 m and crust at ~1 m
+        col = SNOW_RGB[None, :] * (1.0 + 0.025 * f["coarse"][grass])[:, None]
+        col += f["medium"][grass][:, None] * 2.5
+        col += f["fine"][grass][:, None] * 2.0
+        canvas[grass] = col
+    elif grass.any():
         base = GRASS_LUSH + (GRASS_DRY - GRASS_LUSH) * day.grass_dryness
         col = base[None, :] * (1.0 + 0.06 * f["coarse"][grass])[:, None]
         col += f["medium"][grass][:, None] * np.array([4.0, 7.0, 3.0], dtype=np.float32)
@@ -117,7 +128,13 @@ def _paint_nature(canvas: np.ndarray, mat: np.ndarray, a: int, b: int, sc: Scene
         hf, sf = h[sub], shade[sub]
         lum = 1.0 + 0.16 * hf + 0.35 * sf + 0.10 * f["coarse"][y0:y1, x0:x1][sub]
         lum = np.where(hf < -1.3, lum * 0.55, lum)
-        col = FOREST_BASE[None, :] * lum[:, None]
+        if winter:
+            # leaf-off crowns: brown-grey branches over the snow-covered ground showing through
+            cover = np.clip(0.5 + 0.12 * hf + 0.1 * f["fine"][y0:y1, x0:x1][sub], 0.25, 0.8)
+            col = (BRANCH_RGB[None, :] * (cover * lum)[:, None]
+                   + SNOW_RGB[None, :] * (0.85 * (1.0 - cover))[:, None])
+        else:
+            col = FOREST_BASE[None, :] * lum[:, None]
         col += f["fine"][y0:y1, x0:x1][sub][:, None] * 3.0
         canvas[y0:y1, x0:x1][sub] = col
     water = mat == Material.WATER
@@ -139,34 +156,32 @@ def _paint_nature(canvas: np.ndarray, mat: np.ndarray, a: int, b: int, sc: Scene
         canvas[water] = col
 
 
-def _shadow_mask(sc: Scene, day: DayConditions, cars: Cars, b_idx: np.ndarray, c_idx: np.ndarray,
-                 top: int, shape: tuple[int, int]) -> np.ndarray:
-    mpp = sc.cfg.m_per_px
+def _car_shadows(day: DayConditions, cars: Cars, c_idx: np.ndarray, top: int, mpp: float,
+                 shape: tuple[int, int]) -> np.ndarray:
+    """The cars' shadows (boxes of CAR_HEIGHT_M; cars are not in the DSM, they change by day)."""
     m = np.zeros(shape, dtype=np.uint8)
-    d1 = day.shadow_offset_px(1.0, mpp)
-    for i in b_idx:
-        bld = sc.buildings[i]
-        pts = np.vstack([bld.corners, bld.corners + d1 * bld.height_m])
-        cv2.fillConvexPoly(m, cv2.convexHull(cv_points(pts, 0, top)), 1, cv2.LINE_8, SHIFT)
-    dc = d1 * CAR_HEIGHT_M
+    dc = day.shadow_offset_px(CAR_HEIGHT_M, mpp)
     for i in c_idx:
         pts = np.vstack([cars.corners[i], cars.corners[i] + dc])
         cv2.fillConvexPoly(m, cv2.convexHull(cv_points(pts, 0, top)), 1, cv2.LINE_8, SHIFT)
-    for i in b_idx:
-        fill_convex(m, sc.buildings[i].corners, 0, 0, top)
     for i in c_idx:
         fill_convex(m, cars.corners[i], 0, 0, top)
-    for i in b_idx:
-        bld = sc.buildings[i]
-        for box in bld.hvac:
-            pts = np.vstack([box, box + d1 * bld.hvac_height_m])
-            cv2.fillConvexPoly(m, cv2.convexHull(cv_points(pts, 0, top)), 1, cv2.LINE_8, SHIFT)
-    out = m.astype(np.float32)
-    return cv2.GaussianBlur(out, (0, 0), 0.8)
+    return m.astype(np.float32)
+
+
+def _shadow_mask(sc: Scene, day: DayConditions, cars: Cars, dsm: np.ndarray, max_h: float,
+                 c_idx: np.ndarray, top: int, shape: tuple[int, int]) -> np.ndarray:
+    """Soft shadow opacity of rows [top, top + shape[0]): the DSM's (buildings, roof boxes, trees)
+    cast with the day's sun, and the cars'."""
+    mpp = sc.cfg.m_per_px
+    m = cast_shadows(dsm, sc.material, top, top + shape[0], day.sun_vector_px(), day.sun_elevation_deg,
+                     mpp, day.tree_opacity, max_h)
+    np.maximum(m, _car_shadows(day, cars, c_idx, top, mpp, shape), out=m)
+    return cv2.GaussianBlur(m, (0, 0), 0.8)
 
 
 def _render_strip(sc: Scene, day: DayConditions, cars: Cars, nat: dict, sensor: NoiseField,
-                  r0: int, r1: int) -> np.ndarray:
+                  dsm: np.ndarray, max_h: float, r0: int, r1: int) -> np.ndarray:
     cfg = sc.cfg
     H, W = sc.material.shape
     a, b = max(0, r0 - STRIP_MARGIN), min(H, r1 + STRIP_MARGIN)
@@ -175,7 +190,7 @@ def _render_strip(sc: Scene, day: DayConditions, cars: Cars, nat: dict, sensor: 
     sun = day.sun_vector_px()
     bb = sc.bld_bbox
     in_rows = np.nonzero((bb[:, 3] >= a - 2) & (bb[:, 1] < b + 2))[0] if len(bb) else np.zeros(0, int)
-    _paint_roofs(canvas, sc, in_rows, sun, a)
+    _paint_roofs(canvas, sc, in_rows, sun, a, day.season is Season.WINTER)
     tex = AMP_FINE[mat] * sc.fine.rows(a, b)
     tex += AMP_MED[mat] * sc.medium.rows(a, b)
     tex += AMP_COARSE[mat] * sc.coarse.rows(a, b)
@@ -184,10 +199,7 @@ def _render_strip(sc: Scene, day: DayConditions, cars: Cars, nat: dict, sensor: 
     _paint_nature(canvas, mat, a, b, sc, day, nat)
     car_idx = np.nonzero((cars.centre_v >= a - 8) & (cars.centre_v < b + 8))[0]
     paint_cars(canvas, cars, car_idx, a)
-    reach = float(np.hypot(*day.shadow_offset_px(_MAX_BUILDING_HEIGHT_M, cfg.m_per_px))) + 2
-    sh_idx = np.nonzero((bb[:, 3] >= a - reach) & (bb[:, 1] < b + reach))[0] if len(bb) \
-        else np.zeros(0, int)
-    shadow = _shadow_mask(sc, day, cars, sh_idx, car_idx, a, mat.shape)
+    shadow = _shadow_mask(sc, day, cars, dsm, max_h, car_idx, a, mat.shape)
     tint = np.array([1.0, 0.97, 0.86], dtype=np.float32) * day.shadow_strength
     canvas *= 1.0 - shadow[:, :, None] * tint
     del shadow
@@ -197,8 +209,9 @@ def _render_strip(sc: Scene, day: DayConditions, cars: Cars, nat: dict, sensor: 
     return finish_strip(canvas, r0 - a, r1 - r0, r0, day, sensor)
 
 
-def render(sc: Scene, day: DayConditions) -> np.ndarray:
-    """Render the scene as captured on ``day``: (H, W, 3) uint8 RGB."""
+def render(sc: Scene, day: DayConditions, dsm: np.ndarray) -> np.ndarray:
+    """Render the scene as captured on ``day``: (H, W, 3) uint8 RGB; ``dsm`` (the scene's surface
+    model, ``worlds/surface.py``) casts the shadows."""
     cfg = sc.cfg
     H, W = sc.material.shape
     mpp = cfg.m_per_px
@@ -213,7 +226,8 @@ def render(sc: Scene, day: DayConditions) -> np.ndarray:
     sensor = NoiseField((cfg.seed, GENERATOR_VERSION, Stream.SENSOR, day.sensor_seed), 3 * W)
     cars = cars_for_day(sc, day)
     out = np.empty((H, W, 3), dtype=np.uint8)
+    max_h = float(dsm.max()) if dsm.size else 0.0
     for r0 in range(0, H, STRIP_ROWS):
         r1 = min(H, r0 + STRIP_ROWS)
-        out[r0:r1] = _render_strip(sc, day, cars, nat, sensor, r0, r1)
+        out[r0:r1] = _render_strip(sc, day, cars, nat, sensor, dsm, max_h, r0, r1)
     return out

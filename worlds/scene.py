@@ -20,6 +20,7 @@ from worlds.landcover import Junction
 from worlds.materials import Material
 from worlds.reference import NoiseField, SmoothNoise
 from worlds.road_graph import build_graph, graph_junctions
+from worlds.surface import finish_buildings, tree_crowns
 from worlds.roads import Lanes, draw_roads
 
 log = logging.getLogger(__name__)
@@ -37,6 +38,7 @@ class Scene:
     lanes: Lanes
     spots: np.ndarray              # (n, 4) u, v, dir_u, dir_v
     features: list[Feature]
+    crowns: np.ndarray             # (n, 4) tree crowns: u, v, radius px, height m
     fine: NoiseField
     medium: SmoothNoise
     coarse: SmoothNoise
@@ -55,7 +57,8 @@ def build_scene(cfg: CityConfig) -> Scene:
     material = np.full((H, W), int(Material.GROUND), dtype=np.uint8)
     blocked = np.zeros((H, W), dtype=np.uint8)
     owner = np.zeros((H, W), dtype=np.uint16)
-    draw_features(material, blocked, owner, features, rings, rivers, cfg, frng, river_margin)
+    crowns: list[tuple[float, float, float]] = []
+    draw_features(material, blocked, owner, features, rings, rivers, cfg, frng, river_margin, crowns)
     grng = stream_rng(cfg, Stream.GRAPH)
     graph = build_graph(cfg, grng, angle, blocked, owner, rings)
     del blocked, owner
@@ -65,6 +68,8 @@ def build_scene(cfg: CityConfig) -> Scene:
     t2 = time.perf_counter()
     lay = layout_blocks(material, features, cfg, stream_rng(cfg, Stream.BLOCKS))
     t3 = time.perf_counter()
+    finish_buildings(lay.buildings, cfg, stream_rng(cfg, Stream.HEIGHTS))
+    tree_rows = tree_crowns(crowns + lay.crowns, features, material, cfg, stream_rng(cfg, Stream.TREES))
     if lay.buildings:
         corners = np.array([b.corners for b in lay.buildings])
         bbox = np.concatenate([corners.min(axis=1), corners.max(axis=1)], axis=1)
@@ -75,6 +80,7 @@ def build_scene(cfg: CityConfig) -> Scene:
               t1 - t0, t2 - t1, t3 - t2, len(junctions), len(lay.buildings), len(spots))
     return Scene(cfg=cfg, material=material, junctions=junctions, buildings=lay.buildings,
                   bld_bbox=bbox, lanes=lanes, spots=spots, features=features,
+                  crowns=tree_rows,
                   fine=NoiseField((cfg.seed, GENERATOR_VERSION, Stream.TEX_FINE), W),
                   medium=SmoothNoise((cfg.seed, GENERATOR_VERSION, Stream.TEX_MEDIUM), W, 3.0 / mpp),
                   coarse=SmoothNoise((cfg.seed, GENERATOR_VERSION, Stream.TEX_COARSE), W, 25.0 / mpp))

@@ -49,11 +49,17 @@ def _generate(args: argparse.Namespace) -> int:
             kwargs[key] = getattr(args, key)
     if args.origin is not None:
         kwargs["origin_lat_deg"], kwargs["origin_lon_deg"] = parse_origin(args.origin)
+    for key in ("reference_kind", "reference_height_m", "season"):
+        if getattr(args, key) is not None:
+            kwargs[key] = getattr(args, key)
     cfg = CityConfig(**kwargs)
     world = generate_world(cfg, name=args.name)
     world.save(args.out)
+    ref = world.manifest.reference
     print(f"wrote {args.out}: {world.width_px}x{world.height_px} px at {world.m_per_px} m/px, "
-          f"{len(world.junctions or ())} junctions")
+          f"{len(world.junctions or ())} junctions; reference: {ref.kind.value} "
+          f"(perspective from {ref.camera_height_m:.0f} m), {ref.season}, "
+          f"{ref.changed_buildings} buildings changed")
     return 0
 
 
@@ -155,9 +161,13 @@ def register(subparsers) -> None:
     sub = p.add_subparsers(dest="world_command", required=True, metavar="SUBCOMMAND")
 
     g = sub.add_parser("generate", help="generate a procedural city world",
-                       description="Generate a procedural city (roads with junctions, buildings, lakes, "
-                                   "forests, squares, parking, uniform-roof districts) and write the "
-                                   "world folder. The same seed and sizes always give the same world.")
+                       description="Generate a procedural 3-D city (roads with junctions, buildings with "
+                                   "heights, trees, lakes, forests, squares, parking, uniform-roof "
+                                   "districts) and write the world folder: orthophoto, surface model "
+                                   "(dsm.png, facade.png), land cover, junctions and the reference map "
+                                   "of another day both as a true orthophoto and in perspective, with a "
+                                   "stated misregistration and some changed buildings. The same options "
+                                   "always give the same world. See docs/worlds.md.")
     g.add_argument("--seed", type=int, default=0, help="random seed (default 0)")
     g.add_argument("--out", required=True, metavar="DIR", help="world folder to write")
     g.add_argument("--width-px", type=int, default=None, metavar="PX",
@@ -169,6 +179,18 @@ def register(subparsers) -> None:
     g.add_argument("--origin", default=None, metavar="LAT,LON",
                    help="geodetic position of the map centre in degrees (default 48.1372,11.5755)")
     g.add_argument("--name", default=None, help="world name stored in the manifest")
+    g.add_argument("--reference", dest="reference_kind", choices=("orthophoto", "perspective"), default=None,
+                   help="the reference map perception uses (manifest reference.kind; both are always "
+                        "written): 'orthophoto' = reference.png, the other day seen straight down "
+                        "everywhere (roofs over their footprints); 'perspective' (default, as the seed "
+                        "paper's) = reference_perspective.png, the other day seen from "
+                        "--reference-height-m above the map centre, roofs leaning away from the centre")
+    g.add_argument("--reference-height-m", type=_positive_float, default=None, metavar="M",
+                   help="height of the perspective reference's eye above the map centre in metres "
+                        "(default 500, the seed paper's section 6.1; 50..20000)")
+    g.add_argument("--season", choices=("summer", "winter"), default=None,
+                   help="season of the reference day (default summer); winter: leaf-off trees, snow on "
+                        "grass and flat roofs (a bad matching area, seed paper section 4.2), a low sun")
     g.set_defaults(func=_generate)
 
     i = sub.add_parser("import", help="make a world folder from an orthophoto",

@@ -197,13 +197,22 @@ def test_config_ranges_are_checked():
 # ------------------------------------------------------------------------------------------------
 # the reference map: matching is realistically imperfect
 
-def _match(ortho: np.ndarray, ref: np.ndarray, u: float, v: float, size: int) -> tuple[float, float]:
-    """Peak position error (px) and peak value of an orthophoto crop matched against the reference."""
+def _match(ortho: np.ndarray, ref: np.ndarray, u: float, v: float, size: int,
+           world: World | None = None) -> tuple[float, float]:
+    """Peak position error (px) and peak value of an orthophoto crop matched against the reference.
+
+    With ``world``, the error is measured from where the reference's stated misregistration puts
+    the crop (``manifest.reference.offset_m``), not from the crop's own place.
+    """
     x0, y0 = int(u) - size // 2, int(v) - size // 2
     tmpl = ortho[y0:y0 + size, x0:x0 + size]
     res = cv2.matchTemplate(ref, tmpl, cv2.TM_CCOEFF_NORMED)
     _, peak, _, loc = cv2.minMaxLoc(res)
-    return float(math.hypot(loc[0] - x0, loc[1] - y0)), float(peak)
+    du = dv = 0.0
+    if world is not None:
+        dx, dy = world.manifest.reference.offset_m(*world.pixel_to_world(u, v))
+        du, dv = dx / world.m_per_px, -dy / world.m_per_px
+    return float(math.hypot(loc[0] - x0 - du, loc[1] - y0 - dv)), float(peak)
 
 
 def test_ncc_matches_city_but_not_lake_or_forest(default_world):
@@ -223,7 +232,7 @@ def test_ncc_matches_city_but_not_lake_or_forest(default_world):
     assert len(city) == 5, "fewer than 5 junction-centred crops over city"
     peaks = []
     for j in city:
-        err, peak = _match(ortho, ref, j.u_px, j.v_px, FOOTPRINT_PX)
+        err, peak = _match(ortho, ref, j.u_px, j.v_px, FOOTPRINT_PX, default_world)
         assert err <= 2.0, f"city crop at {j} matched {err:.1f} px away (peak {peak:.2f})"
         peaks.append(peak)
     # lake and forest: crops entirely over water/canopy are wrong or weak (a sliver of shore in
@@ -233,7 +242,7 @@ def test_ncc_matches_city_but_not_lake_or_forest(default_world):
         vs, us = np.nonzero(share > 0.99995)
         assert len(vs) > 0, f"no footprint-sized {cover.name} area"
         for k in np.linspace(0, len(vs) - 1, 3).astype(int):
-            err, peak = _match(ortho, ref, us[k] + 0.5, vs[k] + 0.5, FOOTPRINT_PX)
+            err, peak = _match(ortho, ref, us[k] + 0.5, vs[k] + 0.5, FOOTPRINT_PX, default_world)
             assert err > 2.0 or peak < 0.5 * min(peaks), \
                 f"{cover.name} crop matched too well: error {err:.1f} px, peak {peak:.2f}"
 
@@ -255,11 +264,15 @@ def test_reference_differs_from_orthophoto_on_another_day(default_world):
 def test_save_load_round_trip(tmp_path, small_world):
     small_world.save(tmp_path / "w")
     names = sorted(p.name for p in (tmp_path / "w").iterdir())
-    assert names == ["junctions.json", "landcover.png", "manifest.json", "orthophoto.png", "reference.png"]
+    assert names == ["dsm.png", "facade.png", "junctions.json", "landcover.png", "manifest.json",
+                     "orthophoto.png", "reference.png", "reference_perspective.png"]
     back = load_world(tmp_path / "w")
-    assert back.manifest == small_world.manifest
+    assert back.manifest == small_world.manifest and back.manifest.has_dsm
     assert np.array_equal(back.orthophoto, small_world.orthophoto)
     assert np.array_equal(back.reference, small_world.reference)
+    assert np.array_equal(back.reference_perspective, small_world.reference_perspective)
+    assert np.array_equal(back.facade_rgb, small_world.facade_rgb)
+    assert np.abs(back.dsm_m - small_world.dsm_m).max() <= 0.005 + 1e-6     # 1 cm steps, rounded
     assert np.array_equal(back.landcover, small_world.landcover)
     assert back.junctions == small_world.junctions
     assert WorldManifest.from_json(small_world.manifest.to_json()) == small_world.manifest
