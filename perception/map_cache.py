@@ -85,6 +85,7 @@ def build_world_map(world_dir: str, out: str, stride_px: int = 5, altitude_m: fl
     from perception.assistant_map import RenderMode, build_assistant_map
     from perception.capture import CaptureScene, CaptureSettings
     from perception.cnn import MatchClassifier
+    from perception.matchability import CAMERA_PX
     from worlds.world import load_world
     if stride_px < 1:
         raise UserError(f"--stride-px {stride_px}: expected a positive integer")
@@ -101,7 +102,11 @@ def build_world_map(world_dir: str, out: str, stride_px: int = 5, altitude_m: fl
     capture = None
     if scene.relief:
         def capture(u: float, v: float):
-            return scene.camera_image(u, v, 0.0, altitude_m, fov_deg, clf.input_px)
+            # the camera's image, resized for the CNN as the pipeline resizes it in flight
+            img = scene.camera_image(u, v, 0.0, altitude_m, fov_deg, CAMERA_PX)
+            if clf.input_px == CAMERA_PX:
+                return img
+            return cv2.resize(img, (clf.input_px, clf.input_px), interpolation=cv2.INTER_AREA)
     bar = None
     if progress:
         from tqdm import tqdm
