@@ -50,7 +50,7 @@ from scenenav.core.formats.world_manifest import (
 )
 from worlds.changes import day_scenes, plan_changes
 from worlds.city_config import GENERATOR_VERSION, CityConfig, Stream, stream_rng
-from worlds.materials import MATERIAL_TO_COVER
+from worlds.materials import MATERIAL_TO_COVER, Material
 from worlds.perspective import perspective_reference
 from worlds.reference import Season, capture_day, other_day, tone_map
 from worlds.registration import draw_misregistration, misregister
@@ -85,13 +85,14 @@ def generate_world(cfg: CityConfig, name: str | None = None) -> World:
     ref_day = other_day(drng, capture, Season(cfg.season))
     ortho = render(sc, capture, dsm)
     reference = render(ref_sc, ref_day, ref_dsm)
-    del ref_sc
     t2 = time.perf_counter()
     # the walls of the other day get its tone curve and colour balance like everything else
     ref_walls = np.clip(tone_map(ref_facade.astype(np.float32), ref_day) + 0.5, 0, 255).astype(np.uint8)
     ref_walls[ref_facade.max(axis=2) == 0] = 0
     del ref_facade
-    persp = perspective_reference(reference, ref_dsm, ref_walls, cfg.m_per_px, cfg.reference_height_m)
+    persp = perspective_reference(reference, ref_dsm, ref_walls, cfg.m_per_px, cfg.reference_height_m,
+                                  canopy=ref_sc.material == Material.FOREST)
+    del ref_sc
     del ref_dsm, ref_walls
     shift_e, shift_n, warp = draw_misregistration(cfg, stream_rng(cfg, Stream.REGISTRATION))
     info = ReferenceInfo(kind=ReferenceKind(cfg.reference_kind), camera_height_m=cfg.reference_height_m,

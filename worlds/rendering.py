@@ -90,9 +90,24 @@ class _StripFields:
         return self._cache[key]
 
 
+#: Weight of the DSM crowns' sunlight in the canopy's brightness (the rest is the day's texture).
+CROWN_RELIEF = 0.15
+
+
+def _crown_light(dsm: np.ndarray, day: DayConditions, mpp: float) -> np.ndarray:
+    """Sunlight on the tree crowns of the DSM relative to flat ground (Lambert, clipped 0.35..1.35)."""
+    gy, gx = np.gradient(dsm.astype(np.float32), mpp)
+    su, sv = day.sun_vector_px()
+    el = math.radians(day.sun_elevation_deg)
+    # normal (-dz/du, -dz/dv, 1) in image axes (u east, v south, z up), sun (cos el su, cos el sv, sin el)
+    lit = (-gx * math.cos(el) * su - gy * math.cos(el) * sv + math.sin(el)) / np.sqrt(1.0 + gx * gx + gy * gy)
+    return np.clip(lit / math.sin(el), 0.35, 1.35)
+
+
 def _paint_nature(canvas: np.ndarray, mat: np.ndarray, a: int, b: int, sc: Scene,
-                  day: DayConditions, nat: dict) -> None:
-    """Grass, forest canopy and water ripples from the day's own random stream."""
+                  day: DayConditions, nat: dict, dsm_rows: np.ndarray) -> None:
+    """Grass, forest canopy and water ripples from the day's own random stream; the crowns are lit
+    by the day's sun on their domes in the DSM."""
     mpp = sc.cfg.m_per_px
     f = _StripFields(nat, a, b)
     winter = day.season is Season.WINTER
@@ -126,7 +141,11 @@ def _paint_nature(canvas: np.ndarray, mat: np.ndarray, a: int, b: int, sc: Scene
         shade = gx * float(-sun[0] * sigma / 8.0) + gy * float(-sun[1] * sigma / 8.0)
         sub = forest[y0:y1, x0:x1]
         hf, sf = h[sub], shade[sub]
-        lum = 1.0 + 0.16 * hf + 0.35 * sf + 0.10 * f["coarse"][y0:y1, x0:x1][sub]
+        # the day's own canopy texture dominates (a forest stays a bad matching area, seed paper
+        # section 4.2); the DSM's crowns add a faint relief lit by the day's sun
+        crown = _crown_light(dsm_rows[y0:y1, x0:x1], day, mpp)[sub]
+        lum = (1.0 + 0.16 * hf + 0.35 * sf + 0.10 * f["coarse"][y0:y1, x0:x1][sub]) \
+            * (1.0 - CROWN_RELIEF + CROWN_RELIEF * crown)
         lum = np.where(hf < -1.3, lum * 0.55, lum)
         if winter:
             # leaf-off crowns: brown-grey branches over the snow-covered ground showing through
@@ -182,7 +201,6 @@ def _shadow_mask(sc: Scene, day: DayConditions, cars: Cars, dsm: np.ndarray, max
 
 def _render_strip(sc: Scene, day: DayConditions, cars: Cars, nat: dict, sensor: NoiseField,
                   dsm: np.ndarray, max_h: float, r0: int, r1: int) -> np.ndarray:
-    cfg = sc.cfg
     H, W = sc.material.shape
     a, b = max(0, r0 - STRIP_MARGIN), min(H, r1 + STRIP_MARGIN)
     mat = sc.material[a:b]
@@ -196,16 +214,16 @@ def _render_strip(sc: Scene, day: DayConditions, cars: Cars, nat: dict, sensor: 
     tex += AMP_COARSE[mat] * sc.coarse.rows(a, b)
     canvas += tex[:, :, None]
     del tex
-    _paint_nature(canvas, mat, a, b, sc, day, nat)
+    _paint_nature(canvas, mat, a, b, sc, day, nat, dsm[a:b])
     car_idx = np.nonzero((cars.centre_v >= a - 8) & (cars.centre_v < b + 8))[0]
     paint_cars(canvas, cars, car_idx, a)
+    for i in in_rows:
+        for box in sc.buildings[i].hvac:
+            fill_convex(canvas, box, (214.0, 214.0, 210.0), 0, a)
     shadow = _shadow_mask(sc, day, cars, dsm, max_h, car_idx, a, mat.shape)
     tint = np.array([1.0, 0.97, 0.86], dtype=np.float32) * day.shadow_strength
     canvas *= 1.0 - shadow[:, :, None] * tint
     del shadow
-    for i in in_rows:
-        for box in sc.buildings[i].hvac:
-            fill_convex(canvas, box, (214.0, 214.0, 210.0), 0, a)
     return finish_strip(canvas, r0 - a, r1 - r0, r0, day, sensor)
 
 

@@ -20,8 +20,8 @@ from worlds.landcover import Junction
 from worlds.materials import Material
 from worlds.reference import NoiseField, SmoothNoise
 from worlds.road_graph import build_graph, graph_junctions
-from worlds.surface import finish_buildings, tree_crowns
 from worlds.roads import Lanes, draw_roads
+from worlds.surface import finish_buildings, tree_crowns
 
 log = logging.getLogger(__name__)
 

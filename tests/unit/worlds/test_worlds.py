@@ -479,5 +479,12 @@ def test_cli_generate_info_preview_import(tmp_path, capsys, small_world):
     assert "missing ground truth" in capsys.readouterr().out
     with pytest.raises(UserError, match="origin"):
         _cli(["world", "generate", "--origin", "north", "--out", str(tmp_path / "x")])
+    assert _cli(["world", "generate", "--seed", "7", "--width-px", "300", "--height-px", "300",
+                 "--reference", "orthophoto", "--reference-height-m", "800", "--season", "winter",
+                 "--out", str(tmp_path / "w")]) == 0
+    ref = load_world(tmp_path / "w").manifest.reference
+    assert (ref.kind.value, ref.camera_height_m, ref.season) == ("orthophoto", 800.0, "winter")
+    with pytest.raises(UserError, match="reference_height_m"):
+        _cli(["world", "generate", "--reference-height-m", "10", "--out", str(tmp_path / "y")])
     with pytest.raises(UserError):
         _cli(["world", "info", str(tmp_path / "nothing")])
