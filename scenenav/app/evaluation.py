@@ -171,8 +171,11 @@ def fix_height_splits(fx: dict[str, np.ndarray], world, fov_deg: float,
     if not fx:
         return None
     valid = fx["valid"] > 0.5
-    heights = footprint_mean_height_m(world.heights_m, world.m_per_px, fx["truth_x_m"], fx["truth_y_m"],
-                                      fx["truth_heading_rad"], fx["truth_z_m"], fov_deg)
+    if world.dsm_m is None:               # flat: every footprint is 0 m high (no map-sized zeros)
+        heights = np.where(np.isfinite(fx["truth_x_m"]), 0.0, np.nan)
+    else:
+        heights = footprint_mean_height_m(world.dsm_m, world.m_per_px, fx["truth_x_m"], fx["truth_y_m"],
+                                          fx["truth_heading_rad"], fx["truth_z_m"], fov_deg)
     acc = valid & (fx["accepted"] > 0.5)
     return (split_by_height(fx["error_m"][valid], heights[valid], threshold_m),
             split_by_height(fx["error_m"][acc], heights[acc], threshold_m))

@@ -157,7 +157,8 @@ def run_relief(world_spec: str | None = None, out: str | Path | None = None, see
     cfg = PerceptionConfig(fov_deg=FOV_DEG)          # the perception node's configuration
     x, y = world.pixel_to_world(np.array([p.u_px for p in poses]), np.array([p.v_px for p in poses]))
     heading = np.array([p.heading_rad for p in poses])
-    heights = footprint_mean_height_m(world.heights_m, world.m_per_px, x, y, heading, ALTITUDE_M, FOV_DEG)
+    heights = (np.zeros(n) if world.dsm_m is None else
+               footprint_mean_height_m(world.dsm_m, world.m_per_px, x, y, heading, ALTITUDE_M, FOV_DEG))
     scenes = _scenes(world)
     results = {}
     t0 = time.perf_counter()
