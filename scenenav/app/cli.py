@@ -86,7 +86,7 @@ def _table2(args: argparse.Namespace) -> int:
 def _relief(args: argparse.Namespace) -> int:
     from scenenav.app.relief_experiment import relief_markdown, run_relief
     doc = run_relief(args.world, args.out, seed=args.seed, positions=args.positions,
-                     progress=not args.quiet)
+                     progress=not args.quiet, window_px=args.window_px)
     if args.json:
         emit_json(doc)
     else:
@@ -197,6 +197,9 @@ def build_parser() -> argparse.ArgumentParser:
     rl.add_argument("--positions", type=positive_int,
                     help="number of positions (default 300 on worlds up to the default world's size, "
                          "600 on bigger ones)")
+    rl.add_argument("--window-px", type=positive_int, metavar="R",
+                    help="search only the template plus R px around the true match (a tracked flight's "
+                         "window) instead of the whole map (default: global search)")
     rl.add_argument("--out", metavar="DIR", help="folder for relief.json and relief.md (default: none)")
     rl.add_argument("--json", action="store_true", help="print only the JSON document on stdout")
     rl.add_argument("--quiet", action="store_true", help="no progress bars")

@@ -14,8 +14,10 @@ seeded positions away from the map edge, nadir, at 100 m, a random heading each,
 All three render through the same camera (``perception.capture.CaptureScene`` over
 ``worlds.view_renderer.CityRenderer``; the flat one with every height 0), so they differ only in
 relief and reference. Each capture is matched over the whole reference (``SceneMatcher``'s global
-search, the re-acquisition the node runs when it has no track); its error is the distance from the
-true match position, i.e. after undoing the reference misregistration the world states. Per
+search, the re-acquisition the node runs when it has no track), or with ``--window-px R`` in the
+tracker's kind of window: the template plus R px on each side around the true match position (a
+tracked flight's view: no false match can land further than R px off); its error is the distance
+from the true match position, i.e. after undoing the reference misregistration the world states. Per
 comparison: median error, RMS of the errors up to 5 m, share over 5 m and over 20 m, also per bin
 of the mean building height in the camera footprint (scenenav/app/height_split.py).
 
@@ -135,8 +137,10 @@ def _skipped(world) -> dict[str, str]:
 
 
 def run_relief(world_spec: str | None = None, out: str | Path | None = None, seed: int = 0,
-               positions: int | None = None, progress: bool = True) -> dict:
-    """Run the comparison; returns the JSON document (also written to ``out`` when given)."""
+               positions: int | None = None, progress: bool = True, window_px: int | None = None) -> dict:
+    """Run the comparison; returns the JSON document (also written to ``out`` when given).
+    ``window_px``: search a window of the template plus this many px around the true match
+    position instead of the whole map (None: global search)."""
     from perception.alignment import align_capture
     from perception.config import PerceptionConfig
     from perception.ncc_search import SceneMatcher
@@ -172,7 +176,8 @@ def run_relief(world_spec: str | None = None, out: str | Path | None = None, see
             cam = scene.camera_image(p.u_px, p.v_px, p.heading_rad, ALTITUDE_M, FOV_DEG, CAMERA_PX)
             aligned = align_capture(cam, p.heading_rad, ALTITUDE_M, FOV_DEG, scene.m_per_px, cfg.crop_mode,
                                     (matcher.width_px, matcher.height_px))
-            m = matcher.match(aligned.template, None,
+            centre = None if window_px is None else (float(tu[i]), float(tv[i]))
+            m = matcher.match(aligned.template, centre, window_px,
                               mask=None if aligned.mask_is_full else aligned.mask)
             if m.flat_template:
                 errors[i], peaks[i] = math.inf, math.nan
@@ -190,8 +195,11 @@ def run_relief(world_spec: str | None = None, out: str | Path | None = None, see
         "world_has_dsm": world.manifest.has_dsm,
         "reference_camera_height_m": world.manifest.reference.camera_height_m,
         "positions": n, "seed": seed, "altitude_m": ALTITUDE_M, "fov_deg": FOV_DEG, "camera_px": CAMERA_PX,
-        "matcher": "perception.ncc_search.SceneMatcher, global search, PerceptionConfig() defaults "
-                   f"({cfg.matcher.ncc_method.value}, {cfg.crop_mode.value})",
+        "matcher": "perception.ncc_search.SceneMatcher, "
+                   + ("global search" if window_px is None else
+                      f"window of the template + {window_px} px around the true match")
+                   + f", PerceptionConfig() defaults ({cfg.matcher.ncc_method.value}, {cfg.crop_mode.value})",
+        "window_px": window_px,
         "sensors": "ideal: true heading and altitude",
         "errors": "against the true match position (reference misregistration undone)",
         "misregistration_max_m": float(np.max(np.hypot(*world.manifest.reference.offset_m(x, y)))),

@@ -65,3 +65,10 @@ def test_a_flat_world_runs_the_flat_comparison_only(small_world, tmp_path):
     doc = run_relief(str(tmp_path / "flat"), None, positions=2, progress=False)
     assert list(doc["comparisons"]) == ["flat-ortho"]
     assert set(doc["skipped"]) == {"relief-ortho", "relief-perspective"}
+
+
+def test_a_windowed_search_cannot_land_further_than_its_window(tiny_city):
+    doc = run_relief(str(tiny_city), None, positions=4, progress=False, window_px=10)
+    assert doc["window_px"] == 10 and "window of the template + 10 px" in doc["matcher"]
+    for res in doc["comparisons"].values():
+        assert res["overall"]["share_over_gross"] == 0.0          # 10 px = 5.3 m at most
