@@ -8,7 +8,9 @@ as a PNG like Figure 6: black = false match expected (p < 0.5), white = true mat
 in blue.
 
 ``build_assistant_map`` fills a whole map offline by sliding a camera-footprint crop over the
-reference with a stride and classifying the crops in batches (the classifier is injected).
+reference with a stride and classifying the crops in batches (the classifier is injected); given a
+``capture`` callable it classifies, per cell, the capture that callable renders over the cell centre
+instead (``perception.map_cache``: nadir captures with relief on a world with a DSM).
 """
 
 from __future__ import annotations
@@ -198,7 +200,8 @@ def build_assistant_map(reference_gray: np.ndarray, classify_batch: ClassifyBatc
                         altitude_m: float = 100.0, fov_deg: float = 60.0, stride_px: int = 5,
                         batch_size: int = 64, progress: Progress | None = None, *,
                         cnn_input_px: int = 200, fill_edges: bool = False, world_name: str = "",
-                        model_id: str = "", method: str = "offline") -> AssistantMap:
+                        model_id: str = "", method: str = "offline",
+                        capture: Callable[[float, float], np.ndarray] | None = None) -> AssistantMap:
     """Classify every stride cell of the reference and fill an assistant map.
 
     The map is cut into ``stride_px`` x ``stride_px`` cells. For each cell, the camera footprint at
@@ -208,7 +211,9 @@ def build_assistant_map(reference_gray: np.ndarray, classify_batch: ClassifyBatc
     footprint along the edges) stay NaN, or with ``fill_edges`` take the value of the nearest
     classified cell. ``classify_batch`` gets (N, cnn_input_px, cnn_input_px) float32 grey in [0, 1]
     and returns (N,) P(bad) or (N, K) class probabilities (column 0 = bad).
-    ``progress(done, total)`` is called after each batch.
+    ``progress(done, total)`` is called after each batch. ``capture(u, v)``, when given, returns the
+    (cnn_input_px, cnn_input_px) float32 grey image classified for the cell centred on continuous
+    pixel (u, v) in place of the reference crop (the same cells are classified).
     """
     if not isinstance(reference_gray, np.ndarray) or reference_gray.ndim != 2:
         raise ValueError("reference_gray: expected a 2-D grey image")
@@ -257,10 +262,13 @@ def build_assistant_map(reference_gray: np.ndarray, classify_batch: ClassifyBatc
         y0 = int(y0s[r])
         for c in cols:
             x0 = int(x0s[c])
-            crop = reference_gray[y0:y0 + fp, x0:x0 + fp]
-            if fp != cnn_input_px:
-                crop = cv2.resize(crop, (cnn_input_px, cnn_input_px), interpolation=interp)
-            np.multiply(crop, to_unit, out=batch[len(where)], casting="unsafe")
+            if capture is not None:
+                batch[len(where)] = capture(float(cu[c]), float(cv[r]))
+            else:
+                crop = reference_gray[y0:y0 + fp, x0:x0 + fp]
+                if fp != cnn_input_px:
+                    crop = cv2.resize(crop, (cnn_input_px, cnn_input_px), interpolation=interp)
+                np.multiply(crop, to_unit, out=batch[len(where)], casting="unsafe")
             where.append((int(r), int(c)))
             if len(where) == batch.shape[0]:
                 flush()

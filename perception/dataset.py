@@ -5,7 +5,9 @@ grayscale, resized them to 200 x 200 and augmented them to 3920. We do the same 
 worlds, whose ground truth (road-graph junctions, land cover) replaces the manual labelling:
 
 * base crops are camera footprints (``footprint_px``: 217 px at 0.53 m/px for 100 m altitude and
-  a 60 degree field of view), north-up, taken from the ORTHOPHOTO (what the camera sees);
+  a 60 degree field of view), north-up, taken from the ORTHOPHOTO (what the camera sees); on a world
+  with a surface model they are nadir captures rendered with relief (``DatasetConfig.capture``,
+  ``perception.capture.CaptureScene.footprint_image``; ``relief: false`` gives today's flat crops);
 * junction crops are centred on a junction (+- ``junction_jitter_px``), class by arm count:
   >= 4 arms -> FOUR_ARM (stars count as four), 3 -> THREE_ARM (tee and wye), 2 -> TWO_ARM (corner
   and bend);
@@ -65,7 +67,7 @@ from tqdm import tqdm
 from perception.cnn import Labelling, MatchClass
 from perception.dataset_config import EVAL_WORLD_SEEDS, DatasetConfig, check_config
 from perception.dataset_files import DATASET_VERSION, IMAGES_DIR, INDEX_COLUMNS, INDEX_FILE, MANIFEST_FILE
-from perception.dataset_images import augment_image, render_crop
+from perception.dataset_images import augment_image
 from perception.dataset_samples import (
     MATCHABLE_SHARE,
     BaseSample,
@@ -119,8 +121,7 @@ def build_dataset(out_dir: str | Path, cfg: DatasetConfig, progress: bool = Fals
             if not idx:
                 continue
             pos = np.array([[pool[i].u_px, pool[i].v_px] for i in idx])
-            res = matchability(wd.ortho_gray, wd.ref_gray, pos, wd.m_per_px, mcfg,
-                               np.random.default_rng([cfg.seed, wd.seed, 7002]))
+            res = matchability(wd.scene, pos, mcfg, np.random.default_rng([cfg.seed, wd.seed, 7002]))
             for i, score in zip(idx, res.score, strict=False):
                 pool[i].matchability = float(score)
             bar.update(len(idx))
@@ -158,9 +159,9 @@ def build_dataset(out_dir: str | Path, cfg: DatasetConfig, progress: bool = Fals
     for i, s in enumerate(samples):
         wd = by_seed[s.world_seed]
         srng = np.random.default_rng([cfg.seed, s.world_seed, i, 7003])
-        images = [(render_crop(wd.ortho_gray, s.u_px, s.v_px, crop_px, cfg.image_px), {})]
+        images = [(wd.scene.footprint_image(s.u_px, s.v_px, crop_px, cfg.image_px, cfg.fov_deg), {})]
         for _ in range(int(per_sample_extra[i])):
-            images.append(augment_image(wd.ortho_gray, s, crop_px, cfg.image_px, cfg.augment, srng))
+            images.append(augment_image(wd.scene, s, crop_px, cfg.image_px, cfg.augment, srng, cfg.fov_deg))
         for a, (img, _params) in enumerate(images):
             rel = f"{IMAGES_DIR}/{s.label.name}/{s.base_id}_a{a}.png"
             u8 = np.clip(np.rint(img * 255.0), 0, 255).astype(np.uint8)
@@ -207,6 +208,9 @@ def build_dataset(out_dir: str | Path, cfg: DatasetConfig, progress: bool = Fals
         "crop_m": crop_px * cfg.m_per_px,
         "image_px": cfg.image_px,
         "image_format": "8-bit grayscale PNG, images/<CLASS>/<base_id>_a<k>.png (a0 = base crop)",
+        "captures": {"relief": cfg.capture.relief, "reference": cfg.capture.reference.value,
+                     "worlds_with_relief": [wd.seed for wd in worlds if wd.scene.relief],
+                     "reference_kinds": sorted({wd.scene.reference_kind.value for wd in worlds})},
         "augmentation": {"augment_to": cfg.augment_to, "recipe": asdict(cfg.augment),
                          "allocation": "water-filling per class, round-robin over base crops",
                          "extra_per_class": {c.name: int(extra[c]) for c in MatchClass}},
@@ -240,8 +244,8 @@ def _validate_subset(samples: list[BaseSample], worlds: list[WorldData], mcfg: M
     for wd in worlds:
         sel = [samples[i] for i in pick if samples[i].world_seed == wd.seed]
         if sel:
-            per_world.append(validate_windowed(wd.ortho_gray, wd.ref_gray, np.array([[s.u_px, s.v_px] for s in sel]),
-                                               wd.m_per_px, mcfg, seed=cfg.seed * 7919 + wd.seed))
+            per_world.append(validate_windowed(wd.scene, np.array([[s.u_px, s.v_px] for s in sel]),
+                                               mcfg, seed=cfg.seed * 7919 + wd.seed))
     if not per_world:
         return {}
     n = sum(r["n_positions"] for r in per_world)
@@ -266,4 +270,5 @@ def _generator_digest() -> dict[str, str]:
 def _config_dict(cfg: DatasetConfig) -> dict:
     d = asdict(cfg)
     d["labelling"] = cfg.labelling.value
+    d["capture"] = {"relief": cfg.capture.relief, "reference": cfg.capture.reference.value}
     return d

@@ -8,6 +8,7 @@ from __future__ import annotations
 import logging
 from dataclasses import dataclass, field
 
+from perception.capture import CaptureSettings
 from perception.cnn import PAPER_INPUT_PX, Labelling, MatchClass
 from perception.matchability import MatchabilityConfig, footprint_px
 from scenenav.core.errors import UserError
@@ -59,6 +60,9 @@ class DatasetConfig:
     matchability_extra_positions: int = 2000
     augment: AugmentRecipe = field(default_factory=AugmentRecipe)
     matchability: MatchabilityConfig = field(default_factory=MatchabilityConfig)
+    # Captures with relief when the world has a DSM (false: today's flat crops), matched against
+    # the default / orthophoto / perspective reference (perception/capture.py).
+    capture: CaptureSettings = field(default_factory=CaptureSettings)
 
     def world_seeds(self) -> tuple[int, ...]:
         return training_world_seeds(self.seed, self.n_worlds)

@@ -7,12 +7,16 @@ from __future__ import annotations
 
 import logging
 import math
+from typing import TYPE_CHECKING
 
 import cv2
 import numpy as np
 
 from perception.dataset_config import AugmentRecipe
 from perception.dataset_samples import BaseSample
+
+if TYPE_CHECKING:
+    from perception.capture import CaptureScene
 
 log = logging.getLogger(__name__)
 
@@ -36,13 +40,15 @@ def render_crop(gray: np.ndarray, u: float, v: float, crop_px: int, out_px: int,
                           borderMode=cv2.BORDER_REFLECT_101)
 
 
-def augment_image(world_gray: np.ndarray, sample: BaseSample, crop_px: int, out_px: int,
-                  recipe: AugmentRecipe, rng: np.random.Generator) -> tuple[np.ndarray, dict]:
-    """One augmented copy of a base crop, re-rendered from the world; returns (image, parameters)."""
+def augment_image(scene: CaptureScene, sample: BaseSample, crop_px: int, out_px: int,
+                  recipe: AugmentRecipe, rng: np.random.Generator,
+                  fov_deg: float = 60.0) -> tuple[np.ndarray, dict]:
+    """One augmented copy of a base crop, re-rendered from the world's capture scene (with relief
+    when it has a DSM, ``CaptureScene.footprint_image``); returns (image, parameters)."""
     angle = math.radians(rng.uniform(*recipe.rotation_deg))
     flip = bool(rng.random() < recipe.flip_probability)
     scale = rng.uniform(*recipe.scale)
-    img = render_crop(world_gray, sample.u_px, sample.v_px, crop_px, out_px, angle, scale, flip)
+    img = scene.footprint_image(sample.u_px, sample.v_px, crop_px, out_px, fov_deg, angle, scale, flip)
     img = apply_photometry(img, rng, recipe)
     return img, {"rotation_deg": math.degrees(angle), "flip": flip, "scale": scale}
 

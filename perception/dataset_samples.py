@@ -14,7 +14,7 @@ from enum import Enum
 import cv2
 import numpy as np
 
-from perception.alignment import to_gray_float32
+from perception.capture import CaptureScene
 from perception.cnn import MatchClass
 from perception.dataset_config import DatasetConfig
 from scenenav.core.errors import UserError
@@ -56,12 +56,24 @@ class BaseSample:
 
 @dataclass
 class WorldData:
+    """A training world: its capture scene (perception.capture), junctions and land cover."""
+
     seed: int
-    ortho_gray: np.ndarray
-    ref_gray: np.ndarray
-    m_per_px: float
+    scene: CaptureScene
     junctions: tuple
     landcover: np.ndarray
+
+    @property
+    def ortho_gray(self) -> np.ndarray:
+        return self.scene.camera_gray
+
+    @property
+    def ref_gray(self) -> np.ndarray:
+        return self.scene.reference_gray
+
+    @property
+    def m_per_px(self) -> float:
+        return self.scene.m_per_px
 
 
 def arm_class(arms: int) -> MatchClass | None:
@@ -81,9 +93,8 @@ def generate_world_data(seed: int, cfg: DatasetConfig) -> WorldData:
                                       m_per_px=cfg.m_per_px))
     if world.landcover is None or world.junctions is None:
         raise UserError(f"world seed {seed}: generated world has no land cover/junction ground truth")
-    return WorldData(seed=seed, ortho_gray=to_gray_float32(world.orthophoto), ref_gray=to_gray_float32(world.reference),
-                      m_per_px=world.manifest.m_per_px, junctions=tuple(world.junctions),
-                      landcover=world.landcover)
+    return WorldData(seed=seed, scene=CaptureScene.from_world(world, cfg.capture),
+                     junctions=tuple(world.junctions), landcover=world.landcover)
 
 
 def _inside(u: float, v: float, half: float, w: int, h: int) -> bool:

@@ -1,5 +1,13 @@
 """Whole-world assistant maps: built for a world folder (``build_world_map``), and cached per
-(reference map, CNN weights, stride, altitude, FOV) (``cached_assistant_map``).
+(reference map, CNN weights, stride, altitude, FOV; and the DSM when the map is built with relief)
+(``cached_assistant_map``).
+
+What is classified per cell: on a flat world (or with ``relief`` off) the camera-footprint crop of
+the chosen reference map (``reference``: default / orthophoto / perspective, perception/capture.py),
+as before. On a world with a surface model and ``relief`` on (the default), the nadir capture a
+drone would take over the cell centre, north-up at the altitude, rendered with relief from the
+world (``perception.capture.CaptureScene.camera_image``): the image the online CNN classifies in
+flight, with its leaning buildings and hidden streets, instead of the reference's flat view.
 
 A scenario whose guidance plans over "the world's assistant map" without naming a file gets one from
 here: ``$SCENENAV_CACHE_DIR/assistant-maps/<world>-<hash>.npz`` (``~/.cache/scenenav`` by default),
@@ -38,24 +46,46 @@ def _file_digest(path: Path) -> str:
     return h.hexdigest()
 
 
-def cache_key(world_dir: Path, weights: Path, stride_px: int, altitude_m: float, fov_deg: float) -> str:
-    """Hex digest naming a cached map (changes whenever any input that shapes the map changes)."""
-    from worlds.world import REFERENCE_FILE
+def cache_key(world_dir: Path, weights: Path, stride_px: int, altitude_m: float, fov_deg: float,
+              relief: bool = True, reference: str = "default") -> str:
+    """Hex digest naming a cached map (changes whenever any input that shapes the map changes; a
+    flat world's map with the default reference keeps the key it had before relief existed)."""
+    from scenenav.core.formats.world_manifest import (
+        DSM_FILE,
+        ORTHOPHOTO_FILE,
+        PERSPECTIVE_REFERENCE_FILE,
+        REFERENCE_FILE,
+        read_manifest,
+    )
+    man = read_manifest(world_dir)
     h = hashlib.sha256()
     h.update(_file_digest(world_dir / REFERENCE_FILE).encode())
     h.update(_file_digest(weights).encode())
     h.update(f"{int(stride_px)}|{float(altitude_m):.3f}|{float(fov_deg):.3f}".encode())
+    if relief and man.has_dsm:
+        h.update(b"relief")
+        for name in (DSM_FILE, ORTHOPHOTO_FILE):
+            h.update(_file_digest(world_dir / name).encode())
+    elif reference != "default" or man.reference.kind.value != "orthophoto":
+        kind = man.reference.kind.value if reference == "default" else reference
+        h.update(f"reference={kind}".encode())
+        if kind == "perspective":
+            h.update(_file_digest(world_dir / PERSPECTIVE_REFERENCE_FILE).encode())
     return h.hexdigest()[:16]
 
 
 def build_world_map(world_dir: str, out: str, stride_px: int = 5, altitude_m: float = 100.0,
                     fov_deg: float = 60.0, weights: str | None = None, batch_size: int = 256,
-                    progress: bool = True, png: bool = True):
+                    progress: bool = True, png: bool = True, relief: bool = True,
+                    reference: str = "default"):
     """Build the whole assistant map of the world folder ``world_dir`` with the CNN ``weights``
     (default: the shipped ones) and write it to ``out`` (.npz, and a Figure-6 PNG beside it with
-    ``png``). Returns (AssistantMap, build seconds). Used by ``scenenav assistant-map build``."""
+    ``png``). ``relief`` / ``reference``: what is classified (module docstring). Returns
+    (AssistantMap, build seconds). Used by ``scenenav assistant-map build``."""
     from perception.assistant_map import RenderMode, build_assistant_map
+    from perception.capture import CaptureScene, CaptureSettings
     from perception.cnn import MatchClassifier
+    from perception.matchability import CAMERA_PX
     from worlds.world import load_world
     if stride_px < 1:
         raise UserError(f"--stride-px {stride_px}: expected a positive integer")
@@ -66,7 +96,17 @@ def build_world_map(world_dir: str, out: str, stride_px: int = 5, altitude_m: fl
         raise UserError(f"--out {out}: expected a .npz file name")
     world = load_world(world_dir)
     clf = MatchClassifier.from_file(weights) if weights else MatchClassifier.default()
-    gray = cv2.cvtColor(world.reference, cv2.COLOR_RGB2GRAY)
+    scene = CaptureScene.from_world(world, CaptureSettings(relief=relief, reference=reference))
+    reference_rgb = world.reference_map(scene.reference_kind)
+    gray = cv2.cvtColor(reference_rgb, cv2.COLOR_RGB2GRAY)
+    capture = None
+    if scene.relief:
+        def capture(u: float, v: float):
+            # the camera's image, resized for the CNN as the pipeline resizes it in flight
+            img = scene.camera_image(u, v, 0.0, altitude_m, fov_deg, CAMERA_PX)
+            if clf.input_px == CAMERA_PX:
+                return img
+            return cv2.resize(img, (clf.input_px, clf.input_px), interpolation=cv2.INTER_AREA)
     bar = None
     if progress:
         from tqdm import tqdm
@@ -82,7 +122,8 @@ def build_world_map(world_dir: str, out: str, stride_px: int = 5, altitude_m: fl
                                fov_deg=fov_deg, stride_px=stride_px, batch_size=batch_size,
                                progress=on_progress, cnn_input_px=clf.input_px,
                                world_name=world.manifest.name,
-                               model_id=str(getattr(clf.meta, "training_record_id", "")))
+                               model_id=str(getattr(clf.meta, "training_record_id", "")),
+                               method="offline-relief" if scene.relief else "offline", capture=capture)
     elapsed = time.perf_counter() - t0
     if bar is not None:
         bar.close()
@@ -95,14 +136,14 @@ def build_world_map(world_dir: str, out: str, stride_px: int = 5, altitude_m: fl
 
 def cached_assistant_map(world_dir: str | Path, stride_px: int = 10, altitude_m: float = 100.0,
                          fov_deg: float = 60.0, weights: str | Path | None = None,
-                         progress: bool = False) -> Path:
+                         progress: bool = False, relief: bool = True, reference: str = "default") -> Path:
     """Path of the world's assistant map built with the CNN ``weights`` (default: the shipped ones);
     built (with a progress bar if asked) and cached on first use."""
     from perception.cnn import DEFAULT_WEIGHTS_PATH
     from worlds.default import cache_root
     world_dir = Path(world_dir)
     weights_path = Path(weights) if weights else DEFAULT_WEIGHTS_PATH
-    key = cache_key(world_dir, weights_path, stride_px, altitude_m, fov_deg)
+    key = cache_key(world_dir, weights_path, stride_px, altitude_m, fov_deg, relief, reference)
     folder = cache_root() / CACHE_SUBDIR
     final = folder / f"{world_dir.name}-{key}.npz"
     if final.is_file():
@@ -120,7 +161,8 @@ def cached_assistant_map(world_dir: str | Path, stride_px: int = 10, altitude_m:
     tmp = Path(tmp_name)
     try:
         _, elapsed = build_world_map(str(world_dir), str(tmp), stride_px=stride_px, altitude_m=altitude_m,
-                           fov_deg=fov_deg, weights=str(weights_path), progress=progress, png=False)
+                           fov_deg=fov_deg, weights=str(weights_path), progress=progress, png=False,
+                           relief=relief, reference=reference)
         os.replace(tmp, final)
     finally:
         tmp.unlink(missing_ok=True)

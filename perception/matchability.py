@@ -4,13 +4,20 @@ For a map position (u, v) we simulate ``n_captures`` noisy nadir captures from t
 the camera sees) and match each against the REFERENCE map (the map of another day) with zero-mean
 normalised cross-correlation (``cv2.TM_CCOEFF_NORMED``, the matcher's default score). The
 matchability is the share of captures whose correlation peak lands within ``tolerance_m`` (5 m) of
-the true position.
+the true match position (the true position moved by the reference misregistration the world states,
+``CaptureScene.true_match_uv``).
+
+The world comes as a ``perception.capture.CaptureScene``: on a world with a surface model (and
+relief on, the default) the captures are rendered in perspective through the relief renderer and
+matched against the chosen reference (orthophoto or the perspective one); on a flat world, or with
+relief off, they are today's images.
 
 One simulated capture:
 
-1. a random true heading psi ~ U[0, 2 pi); the 200 x 200 camera image is resampled from the
-   orthophoto with one bilinear ``warpAffine`` (image-up = forward, camera ground sampling
-   distance = 2 h tan(fov / 2) / 200 at the TRUE altitude h);
+1. a random true heading psi ~ U[0, 2 pi); the 200 x 200 camera image (``CaptureScene.camera_image``)
+   is, on a flat scene, resampled from the orthophoto with one bilinear ``warpAffine``
+   (``render_camera``: image-up = forward, camera ground sampling distance = 2 h tan(fov / 2) / 200
+   at the TRUE altitude h), with relief rendered from the pose at h;
 2. photometric noise on the camera image: gain, offset, gamma, Gaussian blur, additive noise;
 3. alignment exactly as in flight (``perception.alignment.align_capture``, north-up, inscribed
    square, map scale) with the MEASURED heading psi + N(0, heading_sigma) and altitude
@@ -28,6 +35,7 @@ from __future__ import annotations
 import logging
 import math
 from dataclasses import dataclass, field
+from typing import TYPE_CHECKING
 
 import cv2
 import numpy as np
@@ -35,6 +43,9 @@ from tqdm import tqdm
 
 from perception.alignment import align_capture
 from scenenav.core.camera_geometry import ground_footprint_m
+
+if TYPE_CHECKING:
+    from perception.capture import CaptureScene
 
 log = logging.getLogger(__name__)
 
@@ -172,27 +183,28 @@ def ncc_peak(reference_gray: np.ndarray, template: np.ndarray, u: float, v: floa
     return x0 + loc[0] + tw / 2.0, y0 + loc[1] + th / 2.0, float(peak)
 
 
-def simulate_capture(ortho_gray: np.ndarray, reference_gray: np.ndarray, u: float, v: float,
-                     m_per_px: float, cfg: MatchabilityConfig, rng: np.random.Generator,
-                     search_radius_px: int | None = None) -> CaptureOutcome:
-    """One noisy capture at (u, v), aligned as in flight and matched against the reference."""
+def simulate_capture(scene: CaptureScene, u: float, v: float, cfg: MatchabilityConfig,
+                     rng: np.random.Generator, search_radius_px: int | None = None) -> CaptureOutcome:
+    """One noisy capture at (u, v), aligned as in flight and matched against the scene's reference;
+    the error is against the true match position (misregistration applied)."""
     noise = cfg.noise
     heading = rng.uniform(0.0, 2.0 * math.pi)
-    cam = render_camera(ortho_gray, u, v, heading, cfg.altitude_m, cfg.fov_deg, m_per_px)
+    cam = scene.camera_image(u, v, heading, cfg.altitude_m, cfg.fov_deg, CAMERA_PX)
     cam = photometric_noise(cam, rng, noise)
     heading_meas = heading + math.radians(rng.normal(0.0, noise.heading_sigma_deg))
     alt_meas = cfg.altitude_m * (1.0 + rng.normal(0.0, noise.altitude_sigma_rel))
-    aligned = align_capture(cam, heading_meas, max(alt_meas, 1.0), cfg.fov_deg, m_per_px)
+    aligned = align_capture(cam, heading_meas, max(alt_meas, 1.0), cfg.fov_deg, scene.m_per_px)
     radius = cfg.search_radius_px if search_radius_px is None else search_radius_px
-    eu, ev, peak = ncc_peak(reference_gray, aligned.template, u, v, radius)
-    err = math.hypot(eu - u, ev - v) * m_per_px if math.isfinite(eu) else float("inf")
+    tu, tv = scene.true_match_uv(u, v)
+    eu, ev, peak = ncc_peak(scene.reference_gray, aligned.template, tu, tv, radius)
+    err = math.hypot(eu - tu, ev - tv) * scene.m_per_px if math.isfinite(eu) else float("inf")
     return CaptureOutcome(template=aligned.template, camera_image=cam, est_uv=(eu, ev), error_m=err,
                           peak=peak, heading_rad=heading)
 
 
-def matchability(ortho_gray: np.ndarray, reference_gray: np.ndarray, positions_uv: np.ndarray,
-                 m_per_px: float, cfg: MatchabilityConfig, rng: np.random.Generator,
-                 progress: bool = False, search_radius_px: int | None = None) -> MatchabilityResult:
+def matchability(scene: CaptureScene, positions_uv: np.ndarray, cfg: MatchabilityConfig,
+                 rng: np.random.Generator, progress: bool = False,
+                 search_radius_px: int | None = None) -> MatchabilityResult:
     """Matchability of every position (K, 2) (continuous (u, v) px): share of true matches."""
     pos = np.asarray(positions_uv, dtype=float).reshape(-1, 2)
     k, n = len(pos), cfg.n_captures
@@ -202,15 +214,15 @@ def matchability(ortho_gray: np.ndarray, reference_gray: np.ndarray, positions_u
     for i in it:
         u, v = pos[i]
         for j in range(n):
-            out = simulate_capture(ortho_gray, reference_gray, u, v, m_per_px, cfg, rng, search_radius_px)
+            out = simulate_capture(scene, u, v, cfg, rng, search_radius_px)
             errors[i, j] = out.error_m
             peaks[i, j] = out.peak
     score = np.mean(errors <= cfg.tolerance_m, axis=1) if k else np.zeros(0)
     return MatchabilityResult(score=score, errors_m=errors, peaks=peaks)
 
 
-def validate_windowed(ortho_gray: np.ndarray, reference_gray: np.ndarray, positions_uv: np.ndarray,
-                      m_per_px: float, cfg: MatchabilityConfig, seed: int) -> dict[str, float]:
+def validate_windowed(scene: CaptureScene, positions_uv: np.ndarray, cfg: MatchabilityConfig,
+                      seed: int) -> dict[str, float]:
     """Compare windowed and global search on the same simulated captures (same seed per position).
 
     Returns the per-capture agreement of the true/false outcome, the share of captures true in the
@@ -219,9 +231,8 @@ def validate_windowed(ortho_gray: np.ndarray, reference_gray: np.ndarray, positi
     pos = np.asarray(positions_uv, dtype=float).reshape(-1, 2)
     if len(pos) == 0:
         return {"n_positions": 0.0}
-    win = matchability(ortho_gray, reference_gray, pos, m_per_px, cfg, np.random.default_rng(seed))
-    glo = matchability(ortho_gray, reference_gray, pos, m_per_px, cfg, np.random.default_rng(seed),
-                       search_radius_px=GLOBAL_SEARCH)
+    win = matchability(scene, pos, cfg, np.random.default_rng(seed))
+    glo = matchability(scene, pos, cfg, np.random.default_rng(seed), search_radius_px=GLOBAL_SEARCH)
     tw = win.errors_m <= cfg.tolerance_m
     tg = glo.errors_m <= cfg.tolerance_m
     return {

@@ -34,6 +34,7 @@ import torch
 from torch import nn
 from tqdm import tqdm
 
+from perception.capture import CaptureSettings
 from perception.cnn import (
     BAD_THRESHOLD,
     DEFAULT_INPUT_PX,
@@ -453,7 +454,10 @@ def compare_labellings(paper_data: str | Path, matchability_data: str | Path, ou
 
     man = manifests[Labelling.PAPER]
     w_px, h_px = man["world_size_px"]
-    dcfg = DatasetConfig(world_width_px=int(w_px), world_height_px=int(h_px), m_per_px=float(man["m_per_px"]))
+    # Captures as the paper dataset was built (datasets older than the capture settings are flat).
+    cap = man.get("config", {}).get("capture") or {"relief": False}
+    dcfg = DatasetConfig(world_width_px=int(w_px), world_height_px=int(h_px), m_per_px=float(man["m_per_px"]),
+                         capture=CaptureSettings(**cap))
     mcfg = MatchabilityConfig()
     crop_px = footprint_px(mcfg.altitude_m, mcfg.fov_deg, dcfg.m_per_px)
     # per position set: lists of per-capture arrays
@@ -468,7 +472,7 @@ def compare_labellings(paper_data: str | Path, matchability_data: str | Path, ou
             for u, v in tqdm(pos, desc=f"world {seed} {ps.value}", unit="pos", leave=False, disable=not progress):
                 ref_crop = render_crop(wd.ref_gray, u, v, crop_px, PAPER_INPUT_PX)
                 for _ in range(cfg.captures_per_position):
-                    o = simulate_capture(wd.ortho_gray, wd.ref_gray, u, v, wd.m_per_px, mcfg, rng)
+                    o = simulate_capture(wd.scene, u, v, mcfg, rng)
                     cams.append(o.camera_image)
                     refs.append(ref_crop)
                     errs.append(o.error_m)

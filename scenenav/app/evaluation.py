@@ -3,8 +3,16 @@
 Reads only files (truth.csv, fixes.csv, estimates.csv, status.csv, sim_stats.json), so it also
 works on a run that was interrupted. Definitions:
 
-* a fix's error is the horizontal distance between its position and the true position at the
-  fix's capture time (truth interpolated linearly);
+* a fix's error is the horizontal distance between its position and the true position of the
+  vehicle (``truth.csv``: the vehicle's body origin, not a point on a roof under it) at the fix's
+  capture time (truth interpolated linearly), after undoing the reference misregistration the
+  world states: a perfect match of a capture over (x, y) reports (x, y) +
+  ``manifest.reference.offset_m(x, y)`` (scenenav/core/formats/world_manifest.py), so the error is
+  ``|fix - truth - offset_m(truth)|``. The autopilot's estimate is compared with the truth itself
+  (a misregistration it fused is a real navigation error);
+* ``fix_errors_by_height``: the valid fixes' errors split by the mean building height in the
+  camera footprint at the capture (scenenav/app/height_split.py), ``..._accepted`` the same over
+  the accepted fixes;
 * a fix is *false* when it is valid and its error exceeds ``evaluation.false_fix_threshold_m``
   (default 5 m); an invalid fix (no match computed) is neither true nor false;
 * ``rms_error_m`` / ``max_error_m`` are of the autopilot's own estimate against truth (horizontal),
@@ -30,8 +38,10 @@ from typing import Any
 
 import numpy as np
 
+from scenenav.app.height_split import HeightSplit, footprint_mean_height_m, split_by_height
 from scenenav.core.errors import UserError
 from scenenav.core.formats.route_file import RouteFile, read_route_file
+from scenenav.core.formats.world_manifest import ReferenceInfo
 
 log = logging.getLogger(__name__)
 
@@ -102,19 +112,73 @@ def _interp_truth(truth: dict, t: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     return np.interp(t, tt, truth["x_m"]), np.interp(t, tt, truth["y_m"])
 
 
-def fix_table(run_dir: Path, threshold_m: float) -> dict[str, np.ndarray]:
-    """fixes.csv joined with truth: error_m and is_false per fix."""
+def _interp_heading_rad(truth: dict, t: np.ndarray) -> np.ndarray:
+    """The true compass heading at ``t`` (interpolated on the circle); NaN without the column."""
+    if "heading_deg" not in truth:
+        return np.full(np.shape(t), np.nan)
+    h = np.radians(truth["heading_deg"])
+    s, c = np.interp(t, truth["t_s"], np.sin(h)), np.interp(t, truth["t_s"], np.cos(h))
+    return np.mod(np.arctan2(s, c), 2.0 * math.pi)
+
+
+def run_reference(run_dir: Path) -> ReferenceInfo:
+    """The reference of the world a run flew over (its misregistration), read from the world's
+    manifest named by the run's ``scenario.yaml``; a folder without a scenario (hand-made in a test)
+    has no stated misregistration."""
+    from scenenav.app.scenario import load_scenario
+    from scenenav.core.formats.world_manifest import read_manifest
+    from worlds.default import world_folder
+    path = Path(run_dir) / "scenario.yaml"
+    if not path.is_file():
+        log.debug("%s: no scenario.yaml, no reference misregistration to undo", run_dir)
+        return ReferenceInfo()
+    return read_manifest(world_folder(load_scenario(path).world)).reference
+
+
+def fix_table(run_dir: Path, threshold_m: float,
+              reference: ReferenceInfo | None = None) -> dict[str, np.ndarray]:
+    """fixes.csv joined with truth: error_m and is_false per fix.
+
+    The error is against the vehicle's true position at the capture time, after undoing the
+    ``reference`` misregistration (default: the one the run's world states, ``run_reference``).
+    Added columns: truth_x_m, truth_y_m, truth_z_m, truth_heading_rad (at the capture),
+    ref_offset_x_m, ref_offset_y_m (the misregistration there), error_m, is_false.
+    """
     fixes = read_csv(run_dir / "fixes.csv")
     truth = read_csv(run_dir / "truth.csv")
     if not fixes or not truth or len(truth.get("t_s", [])) < 2 or len(fixes.get("t_s", [])) == 0:
         return {}
+    if reference is None:
+        reference = run_reference(run_dir)
     tx, ty = _interp_truth(truth, fixes["t_s"])
-    err = np.hypot(fixes["x_m"] - tx, fixes["y_m"] - ty)
+    ox, oy = reference.offset_m(tx, ty)
+    err = np.hypot(fixes["x_m"] - tx - ox, fixes["y_m"] - ty - oy)
     valid = fixes["valid"] > 0.5
     fixes["error_m"] = np.where(valid, err, np.nan)
     fixes["is_false"] = valid & (err > threshold_m)
     fixes["truth_x_m"], fixes["truth_y_m"] = tx, ty
+    fixes["truth_z_m"] = (np.interp(fixes["t_s"], truth["t_s"], truth["z_m"]) if "z_m" in truth
+                          else np.full(len(tx), np.nan))
+    fixes["truth_heading_rad"] = _interp_heading_rad(truth, fixes["t_s"])
+    fixes["ref_offset_x_m"], fixes["ref_offset_y_m"] = np.asarray(ox), np.asarray(oy)
     return fixes
+
+
+def fix_height_splits(fx: dict[str, np.ndarray], world, fov_deg: float,
+                      threshold_m: float) -> tuple[HeightSplit, HeightSplit] | None:
+    """The valid and the accepted fixes' errors split by the mean surface height in the camera
+    footprint at the capture (true position, height and heading); None without fixes."""
+    if not fx:
+        return None
+    valid = fx["valid"] > 0.5
+    if world.dsm_m is None:               # flat: every footprint is 0 m high (no map-sized zeros)
+        heights = np.where(np.isfinite(fx["truth_x_m"]), 0.0, np.nan)
+    else:
+        heights = footprint_mean_height_m(world.dsm_m, world.m_per_px, fx["truth_x_m"], fx["truth_y_m"],
+                                          fx["truth_heading_rad"], fx["truth_z_m"], fov_deg)
+    acc = valid & (fx["accepted"] > 0.5)
+    return (split_by_height(fx["error_m"][valid], heights[valid], threshold_m),
+            split_by_height(fx["error_m"][acc], heights[acc], threshold_m))
 
 
 def fix_metrics(fx: dict[str, np.ndarray]) -> dict[str, Any]:
@@ -183,10 +247,17 @@ def evaluate_run(run_dir: Path, cfg, world, wall_time_s: float | None, interrupt
     saw die; ``recorder_stopped_early``: None = judge from the folder (no recorder_stats.json);
     ``abort_reason``: why the launcher ended the run early (a full disk), else None."""
     run_dir = Path(run_dir)
-    fx = fix_table(run_dir, cfg.evaluation.false_fix_threshold_m)
+    threshold = cfg.evaluation.false_fix_threshold_m
+    fx = fix_table(run_dir, threshold, world.manifest.reference)
     summary: dict[str, Any] = {"scenario": cfg.name, "world": world.manifest.name}
     summary.update(estimate_metrics(run_dir))
     summary.update(fix_metrics(fx))
+    splits = fix_height_splits(fx, world, cfg.sim.camera.fov_deg, threshold)
+    summary["world_has_dsm"] = world.manifest.has_dsm
+    summary["reference_misregistration_max_m"] = (
+        float(np.nanmax(np.hypot(fx["ref_offset_x_m"], fx["ref_offset_y_m"]))) if fx else None)
+    summary["fix_errors_by_height"] = splits[0].to_dict() if splits else None
+    summary["fix_errors_by_height_accepted"] = splits[1].to_dict() if splits else None
     status = read_csv(run_dir / "status.csv")
     sim_stats = _read_json(run_dir / "sim_stats.json")
     end_reason = sim_stats.get("end_reason")
@@ -221,7 +292,8 @@ def evaluate_run(run_dir: Path, cfg, world, wall_time_s: float | None, interrupt
     tmp.write_text(json.dumps(summary, indent=2))
     tmp.replace(run_dir / "summary.json")
     try:
-        plot_run(run_dir, world, fx)
+        plot_run(run_dir, world, fx, split=splits[0] if splits else None,
+                 plot_dsm=cfg.evaluation.plot_dsm)
     except Exception:  # a plot must never lose the summary
         log.exception("could not draw trajectory.png")
     return summary
@@ -304,7 +376,24 @@ def _distance(truth: dict) -> float:
     return float(np.sum(np.hypot(np.diff(truth["x_m"]), np.diff(truth["y_m"]))))
 
 
-def plot_run(run_dir: Path, world, fx: dict) -> None:
+def hillshade(heights_m: np.ndarray, m_per_px: float, azimuth_deg: float = 315.0,
+              altitude_deg: float = 45.0) -> np.ndarray:
+    """Shaded relief of a height map in [0, 1] (sun from ``azimuth_deg`` clockwise from north,
+    ``altitude_deg`` above the horizon; the usual cartographic 315 / 45, e.g. GDAL gdaldem)."""
+    dz_dv, dz_du = np.gradient(np.asarray(heights_m, dtype=np.float64), m_per_px)
+    dz_de, dz_dn = dz_du, -dz_dv                       # u east, v south
+    az, alt = math.radians(azimuth_deg), math.radians(altitude_deg)
+    sun = (math.sin(az) * math.cos(alt), math.cos(az) * math.cos(alt), math.sin(alt))   # (e, n, up)
+    # the unit normal (-dz/de, -dz/dn, 1) / |.| against the sun direction
+    shade = (-dz_de * sun[0] - dz_dn * sun[1] + sun[2]) / np.sqrt(1.0 + dz_de ** 2 + dz_dn ** 2)
+    return np.clip(shade, 0.0, 1.0)
+
+
+def plot_run(run_dir: Path, world, fx: dict, split: HeightSplit | None = None,
+             plot_dsm: bool = True) -> None:
+    """trajectory.png: the trajectory over the orthophoto (and the DSM's hillshade and height
+    contours when the world has one and ``plot_dsm``), the errors over time, and the errors by
+    mean footprint height (``split``) as a small bar plot."""
     import matplotlib
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
@@ -313,11 +402,26 @@ def plot_run(run_dir: Path, world, fx: dict) -> None:
     est = read_csv(run_dir / "estimates.csv")
     m = world.manifest
     half_w, half_h = m.width_px * m.m_per_px / 2, m.height_px * m.m_per_px / 2
-    fig, axes = plt.subplots(1, 2, figsize=(15, 7), gridspec_kw={"width_ratios": [1.1, 1]})
+    with_split = split is not None and split.overall.n > 0
+    ratios = [1.1, 1, 0.55] if with_split else [1.1, 1]
+    fig, axes = plt.subplots(1, len(ratios), figsize=(15 + (5 if with_split else 0), 7),
+                             gridspec_kw={"width_ratios": ratios})
     ax = axes[0]
     step = max(1, max(m.width_px, m.height_px) // 1500)
-    ax.imshow(world.orthophoto[::step, ::step], extent=(-half_w, half_w, -half_h, half_h),
-              origin="upper", alpha=0.8)
+    extent = (-half_w, half_w, -half_h, half_h)
+    ax.imshow(world.orthophoto[::step, ::step], extent=extent, origin="upper", alpha=0.8)
+    if plot_dsm and world.dsm_m is not None:
+        dsm = world.dsm_m[::step, ::step]
+        ax.imshow(hillshade(dsm, m.m_per_px * step), extent=extent, origin="upper", cmap="gray",
+                  alpha=0.45, vmin=0.0, vmax=1.0)
+        top = float(dsm.max())
+        if top > 0.0:
+            ys = np.linspace(half_h, -half_h, dsm.shape[0])
+            xs = np.linspace(-half_w, half_w, dsm.shape[1])
+            levels = [lv for lv in (6.0, 12.0, 20.0, 30.0) if lv < top]
+            if levels:
+                cs = ax.contour(xs, ys, dsm, levels=levels, linewidths=0.4, cmap="viridis", alpha=0.8)
+                ax.clabel(cs, fontsize=5, fmt="%g m")
     for i, route in enumerate(_routes(run_dir)):
         xy = np.array(route.waypoints_xy_m)
         if len(xy):
@@ -357,9 +461,28 @@ def plot_run(run_dir: Path, world, fx: dict) -> None:
     ax2.set_ylabel("horizontal error (m)")
     ax2.grid(True, alpha=0.3)
     ax2.legend(fontsize=7)
+    if with_split:
+        _plot_height_bars(axes[2], split)
     fig.tight_layout()
     fig.savefig(run_dir / "trajectory.png", dpi=90)
     plt.close(fig)
+
+
+def _plot_height_bars(ax, split: HeightSplit) -> None:
+    """Median error and share of false fixes per mean-footprint-height bin."""
+    labels = [b.bin.label for b in split.bins]
+    med = [b.stats.median_m or 0.0 for b in split.bins]
+    false = [100.0 * (b.stats.share_over_threshold or 0.0) for b in split.bins]
+    x = np.arange(len(labels))
+    ax.bar(x - 0.2, med, 0.4, color="steelblue", label="median error (m)")
+    ax.bar(x + 0.2, false, 0.4, color="orange", label=f"over {split.threshold_m:g} m (%)")
+    for i, b in enumerate(split.bins):
+        ax.text(x[i], max(med[i], false[i]), f"n={b.stats.n}", ha="center", va="bottom", fontsize=6)
+    ax.set_xticks(x)
+    ax.set_xticklabels(labels, rotation=30, fontsize=7)
+    ax.set_xlabel("mean building height in the footprint")
+    ax.set_title("fix errors by height", fontsize=9)
+    ax.legend(fontsize=7)
 
 
 def fx_threshold(run_dir: Path) -> float:
@@ -383,6 +506,12 @@ def format_summary(summary: dict) -> str:
         lines.append(f"  {k:26s} {v}")
     if summary.get("failed_nodes"):
         lines.append(f"  failed_nodes               {summary['failed_nodes']}")
+    split = summary.get("fix_errors_by_height") or {}
+    for b in split.get("bins") or ():
+        if b["n"]:
+            med = "—" if b["median_m"] is None else f"{b['median_m']:.2f} m"
+            lines.append(f"  fixes over {b['label']:10s}      n={b['n']} median {med}, "
+                         f"{100.0 * b['share_over_threshold']:.1f} % over {split['threshold_m']:g} m")
     for f in summary.get("node_failures") or ():
         lines.append(f"  node failure               {f['what']}")
     for m in summary.get("missing") or ():

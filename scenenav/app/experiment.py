@@ -6,6 +6,9 @@ map built during that first flight, the statistical indicator, and no exclusion.
 full ``scenenav run`` (simulator, perception node, recorder) in its own run folder.
 
 Definitions (printed in table2.md):
+* a fix's error is against the vehicle's true position at the capture, after undoing the reference
+  misregistration the world states (scenenav/app/evaluation.py); each row's JSON also splits the
+  accepted fixes' errors by the mean building height in the footprint (``errors_by_height_accepted``);
 * a fix is *false* when it is valid and its horizontal error exceeds the threshold (default 5 m);
 * ``rms_error_m``: RMS horizontal error over the fixes the method accepted;
 * ``detected_false_pct``: fixes the method flagged false / fixes that really are false, x 100
@@ -87,7 +90,7 @@ def run_table2(world_dir: str | None, out: str, seed: int = 0, threshold_m: floa
                overrides: tuple[str, ...] = (), progress: bool = True,
                results_page: str | None = None, decision_rule: str = "combined",
                paper_rows: bool = True) -> dict:
-    from scenenav.app.evaluation import fix_table
+    from scenenav.app.evaluation import fix_height_splits, fix_table
     from scenenav.app.launcher import run
     from scenenav.app.nodes import load_world_for
     from scenenav.app.scenario import load_scenario, route_for
@@ -128,12 +131,14 @@ def run_table2(world_dir: str | None, out: str, seed: int = 0, threshold_m: floa
             built = run_dir / "assistant_map_perception.npz"
             if built.is_file():
                 shutil.copy(built, map_path)
-        fx = fix_table(run_dir, threshold_m)
+        fx = fix_table(run_dir, threshold_m, world.manifest.reference)
         if not fx:
             raise UserError(f"{run_dir}: the flight produced no fixes (see {run_dir / 'logs'})")
+        splits = fix_height_splits(fx, world, cfg0.sim.camera.fov_deg, threshold_m)
         row = {"method": method, "rule": flown_rule(run_dir) if method in ("cnn", "assistant-map")
                else "—", **rejection_metrics(fx), "run_dir": str(run_dir),
-               "real_time_factor": summary.get("real_time_factor")}
+               "real_time_factor": summary.get("real_time_factor"),
+               "errors_by_height_accepted": splits[1].to_dict() if splits else None}
         rows.append(row)
     result = {"world": world.manifest.name, "threshold_m": threshold_m, "seed": seed,
               "decision_rule": decision_rule,
@@ -143,7 +148,7 @@ def run_table2(world_dir: str | None, out: str, seed: int = 0, threshold_m: floa
     md = table2_markdown(result)
     (out_dir / "table2.md").write_text(md)
     try:
-        plot_figures(out_dir, rows[:len(METHODS)], threshold_m)
+        plot_figures(out_dir, rows[:len(METHODS)], threshold_m, world.manifest.reference)
     except Exception:  # plots never lose the table
         log.exception("could not draw the figures")
     if results_page:
@@ -186,7 +191,9 @@ def table2_markdown(result: dict) -> str:
     return "\n".join(lines) + "\n"
 
 
-def plot_figures(out_dir: Path, rows: list[dict], threshold_m: float) -> None:
+def plot_figures(out_dir: Path, rows: list[dict], threshold_m: float, reference=None) -> None:
+    """Figures 7 and 8 of the flights in ``rows``; errors after undoing ``reference``'s
+    misregistration (None: the one each run's world states)."""
     import matplotlib
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
@@ -195,7 +202,7 @@ def plot_figures(out_dir: Path, rows: list[dict], threshold_m: float) -> None:
     from scenenav.app.evaluation import fix_table
     fig, axes = plt.subplots(2, 4, figsize=(18, 8))
     for i, r in enumerate(rows):
-        fx = fix_table(Path(r["run_dir"]), threshold_m)
+        fx = fix_table(Path(r["run_dir"]), threshold_m, reference)
         acc = (fx["valid"] > 0.5) & (fx["accepted"] > 0.5)
         ax = axes[0, i]
         ax.plot(fx["truth_x_m"], fx["truth_y_m"], "k-", lw=1, label="ref")
@@ -217,7 +224,7 @@ def plot_figures(out_dir: Path, rows: list[dict], threshold_m: float) -> None:
     fig.savefig(out_dir / "figure7.png", dpi=80)
     plt.close(fig)
     stat = next(r for r in rows if r["method"] == "statistical")
-    fx = fix_table(Path(stat["run_dir"]), threshold_m)
+    fx = fix_table(Path(stat["run_dir"]), threshold_m, reference)
     det = StatisticalDetector()
     var = [det.update(x, y, t)[1] for x, y, t in zip(fx["x_m"], fx["y_m"], fx["t_s"], strict=False)]
     fig, ax = plt.subplots(figsize=(10, 4))

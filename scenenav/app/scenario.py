@@ -64,6 +64,7 @@ class RecorderConfig:
 @dataclass(frozen=True)
 class EvaluationConfig:
     false_fix_threshold_m: float = 5.0  # a fix whose error exceeds this is false
+    plot_dsm: bool = True               # trajectory.png: the DSM's hillshade and contours under the path
 
     def __post_init__(self) -> None:
         check(self.false_fix_threshold_m > 0, "false_fix_threshold_m",

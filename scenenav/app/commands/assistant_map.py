@@ -1,7 +1,8 @@
 """``scenenav assistant-map``: build, render and inspect assistant maps.
 
 ``build`` precomputes a whole map for a world with the CNN at a stride (batched inference, progress
-bar); ``render`` draws it like the paper's Figure 6; ``info`` prints its metadata and coverage.
+bar; on a world with a DSM the cells' nadir captures rendered with relief, unless --no-relief);
+``render`` draws it like the paper's Figure 6; ``info`` prints its metadata and coverage.
 """
 
 from __future__ import annotations
@@ -16,7 +17,8 @@ log = logging.getLogger(__name__)
 
 def _build(args: argparse.Namespace) -> int:
     amap, elapsed = build_world_map(args.world, args.out, args.stride_px, args.altitude_m, args.fov_deg,
-                          args.weights, args.batch_size, progress=not args.quiet, png=not args.no_png)
+                          args.weights, args.batch_size, progress=not args.quiet, png=not args.no_png,
+                          relief=not args.no_relief, reference=args.reference)
     print(f"assistant map {amap.width_px}x{amap.height_px} px, stride {args.stride_px} px, "
           f"coverage {amap.coverage():.1%}, built in {elapsed:.1f} s -> {args.out}")
     return 0
@@ -64,6 +66,11 @@ def register(subparsers) -> None:
     b.add_argument("--fov-deg", type=float, default=60.0, help="camera field of view (default 60)")
     b.add_argument("--weights", help="CNN weights .pt (default: the shipped perception/weights/default.pt)")
     b.add_argument("--batch-size", type=int, default=256, help="crops per CNN batch (default 256)")
+    b.add_argument("--no-relief", action="store_true",
+                   help="classify crops of the reference even where the world has a DSM (default: "
+                        "there, the nadir captures rendered with relief over each cell)")
+    b.add_argument("--reference", choices=["default", "orthophoto", "perspective"], default="default",
+                   help="reference map the crops are cut from (default: the one the manifest names)")
     b.add_argument("--no-png", action="store_true", help="do not write the PNG")
     b.add_argument("--quiet", action="store_true", help="no progress bar")
     b.set_defaults(func=_build)

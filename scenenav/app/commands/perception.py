@@ -44,13 +44,15 @@ def _command_line() -> str:
 
 
 def _dataset(args: argparse.Namespace) -> int:
+    from perception.capture import CaptureSettings
     from perception.cnn import Labelling
     from perception.dataset import build_dataset
     from perception.dataset_config import DatasetConfig
     w, h = args.world_size
     cfg = DatasetConfig(n_worlds=args.worlds, seed=args.seed, labelling=Labelling(args.labelling),
                         base_crops=args.base_crops, augment_to=args.augment_to, world_width_px=w,
-                        world_height_px=h)
+                        world_height_px=h,
+                        capture=CaptureSettings(relief=not args.no_relief, reference=args.reference))
     man = build_dataset(args.out, cfg, progress=not args.quiet, command=_command_line())
     print(f"dataset {args.out}: {man['n_images']} images ({man['n_base_crops']} base crops), "
           f"labelling {man['labelling']}, counts {man['counts']}, worlds {man['world_seeds']}, "
@@ -192,6 +194,12 @@ def register(subparsers) -> None:
                    help=f"total images after augmentation (default {dc.augment_to}, the paper's 3920)")
     d.add_argument("--world-size", type=_size, default=(dc.world_width_px, dc.world_height_px), metavar="WxH",
                    help=f"world size in px (default {dc.world_width_px}x{dc.world_height_px})")
+    d.add_argument("--no-relief", action="store_true",
+                   help="flat crops of the orthophoto even where the world has a DSM (default: nadir "
+                        "captures rendered with relief there; flat worlds give the same images either way)")
+    d.add_argument("--reference", choices=["default", "orthophoto", "perspective"], default="default",
+                   help="reference map the matchability labelling matches against (default: the one "
+                        "the world's manifest names)")
     d.add_argument("--quiet", action="store_true", help="no progress bars")
     d.set_defaults(func=_dataset)
 

@@ -29,6 +29,7 @@ def scenenav(*args):
      "goals_enu_m"),
     (["run", "--out", "{tmp}/p", "--set", "guidance.enabled=true", "--set", "flight.mode=autopilot",
       "--set", "guidance.goals_enu_m=[[0,0]]", "--set", "guidance.assistant_map=/nope.npz"], "/nope.npz"),
+    (["experiment", "relief", "--world", "/nonexistent/world", "--json"], "/nonexistent/world"),
 ])
 def test_one_line_error_exit_2(tmp_path, args, needle):
     bad = tmp_path / "bad.yaml"

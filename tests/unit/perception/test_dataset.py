@@ -10,6 +10,7 @@ import cv2
 import numpy as np
 import pytest
 
+from perception.capture import CaptureScene
 from perception.cnn import Labelling, MatchClass
 from perception.dataset import build_dataset
 from perception.dataset_config import EVAL_WORLD_SEEDS, AugmentRecipe, DatasetConfig, training_world_seeds
@@ -72,7 +73,7 @@ def test_augmentation_keeps_the_label_and_centre():
                    arms=4)
     rng = np.random.default_rng(0)
     for _ in range(10):
-        out, params = augment_image(img, s, 217, 200, AugmentRecipe(), rng)
+        out, params = augment_image(CaptureScene.flat(img, img, 0.53), s, 217, 200, AugmentRecipe(), rng)
         assert out.shape == (200, 200) and out.dtype == np.float32
         assert 0.0 <= out.min() and out.max() <= 1.0
         assert out[95:105, 95:105].mean() > out.mean()       # the crossing is still at the centre
@@ -100,7 +101,7 @@ def test_bad_area_candidates_need_dominant_bad_cover_and_no_junction():
     lc[:, :300] = int(LandCover.WATER)                 # west half: a lake
     junctions = (Junction(450.0, 300.0, 4, JunctionKind.CROSS), Junction(150.0, 150.0, 3, JunctionKind.TEE))
     gray = np.zeros((600, 600), np.float32)
-    wd = WorldData(seed=1, ortho_gray=gray, ref_gray=gray, m_per_px=0.53, junctions=junctions, landcover=lc)
+    wd = WorldData(seed=1, scene=CaptureScene.flat(gray, gray, 0.53), junctions=junctions, landcover=lc)
     cands = _bad_candidates(wd, 217, 0.6)
     assert cands
     for c in cands:
@@ -205,9 +206,9 @@ def test_matchability_textured_vs_flat_map():
     textured = _texture(1)
     cfg = MatchabilityConfig(n_captures=4, noise=CaptureNoise(noise_sigma=0.01))
     pos = np.array([[250.5, 250.5]])
-    good = matchability(textured, textured, pos, 0.53, cfg, np.random.default_rng(0))
+    good = matchability(CaptureScene.flat(textured, textured, 0.53), pos, cfg, np.random.default_rng(0))
     assert good.score[0] == 1.0
     flat = np.full((500, 500), 0.5, np.float32) + np.random.default_rng(2).normal(0, 0.01, (500, 500)).astype(np.float32)
     other_day = np.full((500, 500), 0.5, np.float32) + np.random.default_rng(3).normal(0, 0.01, (500, 500)).astype(np.float32)
-    bad = matchability(flat, other_day, pos, 0.53, cfg, np.random.default_rng(0))
+    bad = matchability(CaptureScene.flat(flat, other_day, 0.53), pos, cfg, np.random.default_rng(0))
     assert bad.score[0] <= 0.25
