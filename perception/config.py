@@ -161,6 +161,8 @@ class PerceptionNodeConfig:
     method: str = "none"               # cnn | assistant-map | statistical | none
     assistant_map: str = ""            # .npz for method assistant-map (empty: built online)
     weights: str = ""                  # CNN weights .pt (empty: perception/weights/default.pt)
+    reference: str = "default"         # map matched against: default (the world manifest's kind),
+                                       # orthophoto (reference.png) or perspective (reference_perspective.png)
     lockstep: bool = True              # the simulator waits for this node's answer to each frame
     decision_rule: str = "paper"       # cnn, assistant-map: paper (P(bad) > 0.5) or combined (docs/perception.md)
     decision_model: str = ""           # combined rule: model .json (empty: the shipped one)
@@ -174,6 +176,8 @@ class PerceptionNodeConfig:
         check(self.method in methods, "method", self.method, "one of cnn, assistant-map, statistical, none")
         check(self.decision_rule in ("paper", "combined"), "decision_rule", self.decision_rule,
               "paper or combined")
+        check(self.reference in ("default", "orthophoto", "perspective"), "reference", self.reference,
+              "default (the world manifest's kind), orthophoto or perspective")
         check(not (self.decision_rule == "combined" and self.weights.endswith(".pt")), "weights",
               self.weights, "empty with decision_rule combined (the decision model names the CNN it "
               "was fitted with; choose another model with decision_model)")

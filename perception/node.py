@@ -54,13 +54,15 @@ log = logging.getLogger(__name__)
 
 
 def make_pipeline(world, method: str, assistant_map_path: str | None, weights: str | None = None,
-                  fov_deg: float = PerceptionConfig.fov_deg):
+                  fov_deg: float = PerceptionConfig.fov_deg, reference: str = "default"):
     """The pure perception pipeline for a world and a false-match method (``fov_deg``: the camera's,
     used when a capture does not state its own).
 
     ``weights``: a CNN ``.pt`` (the paper's rule, P(bad) > 0.5) or a combined decision-model
     ``.json`` (perception.decision.CombinedDecisionModel): that file selects the combined rule and
     names the CNN weights it was fitted with. Empty: ``perception/weights/default.pt``, paper rule.
+    ``reference``: the reference map matched against: ``default`` (the one the world's manifest
+    names), ``orthophoto`` or ``perspective`` (``worlds.world.World.reference_map``).
     """
     from perception.decision import CombinedDecisionModel, DecisionRule, FalseMatchMethod
     from perception.pipeline import PerceptionPipeline
@@ -86,7 +88,8 @@ def make_pipeline(world, method: str, assistant_map_path: str | None, weights: s
         else:
             amap = AssistantMap.empty(world.width_px, world.height_px, world.m_per_px,
                                       world_name=world.manifest.name)
-    return PerceptionPipeline(world.reference, world.m_per_px, m, cfg,
+    ref = world.reference_map(None if reference == "default" else reference)
+    return PerceptionPipeline(ref, world.m_per_px, m, cfg,
                               classify=classify, assistant_map=amap, decision_model=decision_model)
 
 
@@ -104,7 +107,7 @@ class PerceptionNode:
     def __init__(self, world, bus_cfg: BusConfig, node_id: str, method: str,
                  assistant_map_path: str | None = None, lockstep: bool = True,
                  out_dir: Path | None = None, camera: ExpectedCamera | None = None,
-                 weights: str | None = None):
+                 weights: str | None = None, reference: str = "default"):
         self.world = world
         self.node_id = node_id
         self.method = method
@@ -112,7 +115,8 @@ class PerceptionNode:
         self.out_dir = out_dir
         self.camera = camera if camera is not None else ExpectedCamera()
         self.keys = Keys(bus_cfg.namespace)
-        self.pipeline = make_pipeline(world, method, assistant_map_path, weights, self.camera.fov_deg)
+        self.pipeline = make_pipeline(world, method, assistant_map_path, weights, self.camera.fov_deg,
+                                      reference)
         self._diag = None
         if out_dir is not None:
             try:

@@ -35,6 +35,10 @@ def _check_perception(cfg: ScenarioConfig, world) -> None:
     p = cfg.perception
     if not p.enabled:
         return
+    try:
+        world.reference_map(None if p.reference == "default" else p.reference)
+    except UserError as exc:
+        raise UserError(f"perception.reference = {p.reference!r}: {exc}") from None
     from scenenav.app.nodes import _perception_weights
     weights = _perception_weights(p)
     methods = {p.method} | ({p.swap_method} if p.swap_at_s > 0 else set())
