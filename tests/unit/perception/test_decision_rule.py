@@ -173,7 +173,7 @@ def test_node_pipeline_rule_follows_the_weights_file(world):
     from perception.node import make_pipeline
     ref, _ = world
     w = SimpleNamespace(reference=ref, m_per_px=MPP, width_px=ref.shape[1], height_px=ref.shape[0],
-                        manifest=SimpleNamespace(name="t"))
+                        manifest=SimpleNamespace(name="t"), reference_map=lambda _kind=None: ref)
     assert make_pipeline(w, "assistant-map", None).rule is DecisionRule.PAPER
     pipe = make_pipeline(w, "assistant-map", None, str(DEFAULT_DECISION_MODEL))
     assert pipe.rule is DecisionRule.COMBINED
