@@ -1,39 +1,35 @@
-"""Downward camera: renders the orthophoto lying on the ground with pybullet's TinyRenderer.
+"""The independent reference renderer: the ground and the DSM as pybullet meshes drawn by TinyRenderer.
 
-Ground model (world conventions of scenenav/core/frames.py: origin = map centre, x east, y north, pixel
-row 0 = north edge). Only a *ground window* of ``ground_window_px`` x ``ground_window_px`` texels is
-ever uploaded, whatever the map size, so the per-frame cost does not depend on the map:
+This was the simulator's camera until the 3-D city (issue 11); ``sitl.camera.GroundCamera`` now renders
+with ``worlds.view_renderer.CityRenderer`` (a height-field ray caster) and this module is what that
+renderer is checked against (``tests/unit/worlds/test_view_renderer.py``, ``scenenav bench render``).
+It shares nothing with the ray caster but the ground-window placement (``worlds.ground_window``, so
+both draw the same texels) and the camera matrices.
 
-* the window is one textured quad (``createVisualShape(GEOM_MESH, vertices, indices, uvs, normals)``)
-  covering ``N * L`` x ``N * L`` map pixels, where N = ``ground_window_px`` and L (1, 2, 4, ...) is the
-  level of detail: each texel is the mean of an L x L block of map pixels. L follows the altitude so
-  that a texel is about one image pixel (between 1/2.5 and 1.25 image pixels), which is also what a
-  real camera integrates; L = 1 (full map resolution) whenever the image is finer than the map;
-* texels of the window that fall outside the map are plain grey (``outside_grey_level``), and a grey
-  frame surrounds the window (seen only by a tilted FIXED camera);
-* before every render the camera footprint (ground intersection of the image corners) is checked
-  against the window; when it comes within a margin of the edge (or L must change) the window is
-  re-centred on the footprint, snapped to whole map pixels (multiples of L), and rebuilt.
+Ground model (world conventions of scenenav/core/frames.py): the ground window of
+``ground_window_px`` x ``ground_window_px`` texels at level of detail L (``worlds.ground_window``) is one
+textured quad (``createVisualShape(GEOM_MESH, vertices, indices, uvs, normals)``) with a grey frame
+around it; texels outside the map are grey.
 
-Rebuild = a fresh private DIRECT client with the two ground bodies and the window texture written to a
-temporary BMP and loaded with ``loadTexture``. The private client is deliberate: in DIRECT mode
-TinyRenderer ignores ``changeTexture`` (verified with pybullet 3.2.7: the rendered image does not
-change), and every ``loadTexture`` keeps its pixels until the client disconnects (``resetSimulation``
-does not free them), so re-centring inside a long-lived client would leak ~40 MB per re-centre at
-N = 2048. A private client also keeps the vehicle's own body out of its nadir images.
+Relief: when given heights, every run of equal-height raised pixels in a map row becomes a box (top
+and four walls, no bottom), for the map pixels inside the ground window; all boxes are one mesh
+textured with a small palette image, each face's uvs at the centre of its palette texel so that it is
+drawn in one flat colour. ``box_colours="shaded"``: roofs the mean orthophoto colour of the run, walls
+the facade colour (or the darkened roof colour) times the per-face light of ``worlds.raycast``
+(no window pattern); ``box_colours="labels"``: label colours (``label_colour``) that identify the face
+and the run exactly, for pixel-exact comparisons.
 
-Camera model: ideal pinhole, ``fov_deg`` across the image width (and the height for a square image),
-square pixels, principal point at the image centre, optical centre at the vehicle position. Image
-top = body forward, image right = body right. GIMBAL mount: optical axis straight down and image
-rotated by the body heading only; FIXED mount: optical axis along body -z (full attitude). At
-heading 0, level, the image is the north-up crop under the vehicle with footprint width
-2 h tan(fov/2). Lighting is ambient-only (ambient 1, diffuse 0, specular 0, no shadows), so rendered
-colours are the texel colours. TinyRenderer samples the nearest texel at a pixel *corner*; the
-projection matrix shifts the principal point by half a pixel so that pixels sample their centres
-(checked to 1/50 pixel with a coded texture).
+Rebuild = a fresh private DIRECT client with the bodies and the window texture written to a temporary
+BMP and loaded with ``loadTexture``. The private client is deliberate: in DIRECT mode TinyRenderer
+ignores ``changeTexture`` (verified with pybullet 3.2.7: the rendered image does not change), and every
+``loadTexture`` keeps its pixels until the client disconnects (``resetSimulation`` does not free them),
+so re-centring inside a long-lived client would leak ~40 MB per re-centre at N = 2048.
 
-Camera effects (gain, blur, noise; ``sitl.sensors.CameraEffects``) are applied by ``render`` when the
-camera is given an ``rng``; without one ``render`` returns the ideal image.
+Camera model: ideal pinhole, ``fov_deg`` across the image width, square pixels, principal point at the
+image centre (``worlds.view_renderer.projection_matrix``: TinyRenderer samples at a pixel corner, the
+projection shifts the principal point by half a pixel so that pixels sample their centres).
+Lighting is ambient-only (ambient 1, diffuse 0, specular 0, no shadows), so rendered colours are the
+texel colours. It costs ~8 ms a frame on the flat world, far more with many boxes.
 """
 
 from __future__ import annotations
@@ -44,69 +40,106 @@ import os
 import shutil
 import tempfile
 import weakref
-from dataclasses import dataclass
 
 import cv2
 import numpy as np
 import pybullet as p
 
-from sitl.config import CameraConfig, CameraMount
-from sitl.dynamics import rotation_rows
-from sitl.sensors import CameraEffects
+from sitl.camera import MIN_HEIGHT_M, camera_axes
+from sitl.config import CameraConfig
+from worlds.ground_window import GroundWindow, WindowTracker
+from worlds.raycast import FACE_LIGHT, NO_FACADE_FACTOR, WallFace
+from worlds.view_renderer import projection_matrix, view_matrix, window_meshes
 
 logger = logging.getLogger(__name__)
 
-# Lowest optical-centre height rendered (a landed vehicle's camera is about this high).
-_MIN_HEIGHT_M = 0.3
-# Clip planes: the ground is a single surface, so depth precision is irrelevant; the near plane
-# stays below the lowest camera, the far plane beyond the grey frame seen by a tilted FIXED camera.
-_NEAR_M = 0.1
-_FAR_M = 30000.0
-# A tilted FIXED camera sees ground up to the horizon: its footprint is clipped at this many heights.
-_MAX_RANGE_HEIGHTS = 6.0
-# Extent of the grey frame around the window, beyond the window edge, m.
-_FRAME_MARGIN_M = 10000.0
-# Level-of-detail hysteresis, in map pixels per image pixel over L.
-_LOD_TOO_FINE = 2.5
-_LOD_TOO_COARSE = 0.8
+# Label colours (box_colours="labels"): red channel = the face class, green/blue = the run index.
+LABEL_ROOF = 200
+LABEL_WALL = {WallFace.EAST: 210, WallFace.WEST: 220, WallFace.NORTH: 230, WallFace.SOUTH: 240}
+# TinyRenderer limits the vertices of one createVisualShape mesh; boxes are split in chunks of this.
+_MAX_BOX_VERTICES = 40000
 
 
-@dataclass(frozen=True)
-class GroundWindow:
-    """Placement of the textured window: top-left map pixel (col, row), texels per side, texel size."""
-
-    col0_px: int
-    row0_px: int
-    size_texels: int
-    lod: int            # map pixels per texel side
-
-    @property
-    def span_px(self) -> int:
-        return self.size_texels * self.lod
+def label_colour(face_class: int, run_index: int) -> tuple[int, int, int]:
+    """The label colour of a face: class (``LABEL_ROOF`` or ``LABEL_WALL[face]``) and run index."""
+    return face_class, run_index % 256, (run_index // 256) % 256
 
 
-def _pow2_floor(x: float) -> int:
-    return 1 << max(0, int(math.floor(math.log2(max(x, 1.0)))))
+def height_runs(heights_m: np.ndarray, col_lo: int, col_hi: int, row_lo: int, row_hi: int) -> np.ndarray:
+    """Runs of equal-height raised pixels in each row of the map window [row_lo, row_hi) x [col_lo, col_hi).
+
+    Returns (runs, heights): (K, 3) int64 rows of (row, first col, last col + 1) and their (K,) heights;
+    a run's index is its position in the arrays.
+    """
+    runs = []
+    hts = []
+    for r in range(row_lo, row_hi):
+        row = heights_m[r, col_lo:col_hi]
+        change = np.flatnonzero(np.diff(row) != 0) + 1
+        starts = np.concatenate(([0], change))
+        ends = np.concatenate((change, [row.shape[0]]))
+        for a, b in zip(starts, ends, strict=True):
+            if row[a] > 0.0:
+                runs.append((r, col_lo + a, col_lo + b))
+                hts.append(float(row[a]))
+    return np.array(runs, dtype=np.int64).reshape(-1, 3), np.array(hts, dtype=np.float64)
 
 
-def _pow2_ceil(x: float) -> int:
-    return 1 << max(0, int(math.ceil(math.log2(max(x, 1.0)))))
+def run_index_map(shape: tuple[int, int], runs: np.ndarray) -> np.ndarray:
+    """(H, W) int64 run index of every map pixel (-1 where not raised) for ``height_runs`` output."""
+    out = np.full(shape, -1, dtype=np.int64)
+    for k, (r, a, b) in enumerate(runs):
+        out[r, a:b] = k
+    return out
 
 
-class GroundCamera:
-    """Renders (h, w, 3) uint8 RGB images of the orthophoto from a vehicle pose.
+def hit_labels(rgb: np.ndarray, surface: np.ndarray, wall_face: np.ndarray, col: np.ndarray, row: np.ndarray,
+               run_index: np.ndarray) -> np.ndarray:
+    """The label image of a ray-cast render (``CityRenderer.render`` + ``last_hits``) in the colours
+    ``box_colours="labels"`` gives: ground and sky keep their rendered colour, roofs and walls get the
+    label colour of their face class and run (``run_index`` from ``run_index_map``)."""
+    out = rgb.copy()
+    rows, cols = run_index.shape
+    raised = (surface == 2) | (surface == 3)
+    inside = raised & (col >= 0) & (col < cols) & (row >= 0) & (row < rows)
+    k = np.where(inside, run_index[np.clip(row, 0, rows - 1), np.clip(col, 0, cols - 1)], 0)
+    cls = np.zeros(surface.shape, dtype=np.int64)
+    cls[surface == 2] = LABEL_ROOF
+    for face, code in LABEL_WALL.items():
+        cls[(surface == 3) & (wall_face == face)] = code
+    out[inside, 0] = cls[inside]
+    out[inside, 1] = k[inside] % 256
+    out[inside, 2] = (k[inside] // 256) % 256
+    return out
+
+
+def agreement_share(labels: np.ndarray, reference: np.ndarray) -> float:
+    """Share of pixels whose label (colour) the reference has at the same pixel or one of its 8
+    neighbours: the "agrees within 1 px" measure of the renderer checks."""
+    h, w = labels.shape[:2]
+    pad = np.pad(reference, ((1, 1), (1, 1), (0, 0)), mode="edge")
+    ok = np.zeros((h, w), dtype=bool)
+    for dy in (-1, 0, 1):
+        for dx in (-1, 0, 1):
+            ok |= np.all(labels == pad[1 + dy:1 + dy + h, 1 + dx:1 + dx + w], axis=2)
+    return float(ok.mean())
+
+
+class MeshCamera:
+    """Renders (h, w, 3) uint8 RGB images of the orthophoto (and the DSM as boxes) with TinyRenderer.
 
     Args:
-        client_id: the simulator's physics client. Kept for the node's API; the ground is drawn in a
-            private DIRECT client owned by the camera (see the module docstring for why).
         orthophoto_rgb: (H, W, 3) uint8 map, row 0 = north edge; kept by reference, not copied.
         m_per_px: ground size of one map pixel, m.
-        cfg: camera configuration.
-        rng: when given, ``render`` applies ``CameraEffects(cfg, rng)``; otherwise images are ideal.
+        cfg: camera configuration (image size, field of view, mount, window size, outside grey).
+        heights_m: (H, W) DSM, m above ground (None: flat).
+        facade_rgb: (H, W, 3) wall colours (black: none), for ``box_colours="shaded"``.
+        box_colours: "shaded" or "labels" (see the module docstring).
     """
 
-    def __init__(self, client_id: int, orthophoto_rgb: np.ndarray, m_per_px: float, cfg: CameraConfig,
-                 rng: np.random.Generator | None = None) -> None:
+    def __init__(self, orthophoto_rgb: np.ndarray, m_per_px: float, cfg: CameraConfig,
+                 heights_m: np.ndarray | None = None, facade_rgb: np.ndarray | None = None,
+                 box_colours: str = "shaded") -> None:
         ortho = np.asarray(orthophoto_rgb)
         if ortho.ndim == 2:
             ortho = np.repeat(ortho[:, :, None], 3, axis=2)
@@ -114,14 +147,15 @@ class GroundCamera:
             raise ValueError(f"orthophoto: shape {ortho.shape} dtype {ortho.dtype}: expected (H, W, 3) uint8")
         if not (m_per_px > 0.0 and math.isfinite(m_per_px)):
             raise ValueError(f"m_per_px = {m_per_px}: expected a number > 0")
-        self.physics_client_id = client_id
+        if box_colours not in ("shaded", "labels"):
+            raise ValueError(f"box_colours = {box_colours!r}: expected 'shaded' or 'labels'")
         self.cfg = cfg
         self.m_per_px = float(m_per_px)
         self._map = ortho
         self._map_h, self._map_w = ortho.shape[:2]
-        self.effects = CameraEffects(cfg, rng) if rng is not None else None
-        self.window: GroundWindow | None = None
-        self.window_builds = 0
+        self._heights = None if heights_m is None else np.asarray(heights_m, dtype=np.float32)
+        self._facade = facade_rgb
+        self._box_colours = box_colours
         self._render_client = -1
         self._closed = False
         self._tmpdir = tempfile.mkdtemp(prefix="scenenav-ground-")
@@ -129,28 +163,37 @@ class GroundCamera:
         self._finalizer = weakref.finalize(self, _cleanup, self._tmpdir, self._client_box)
         self._tan_x = math.tan(math.radians(cfg.fov_deg) / 2.0)
         self._tan_y = self._tan_x * cfg.height_px / cfg.width_px
-        self._projection = self._projection_matrix()
-        self._margin_texels = max(2, cfg.ground_window_px // 32)
+        self._projection = projection_matrix(self._tan_x, self._tan_y, cfg.width_px, cfg.height_px)
+        self._tracker = WindowTracker(self._map_w, self._map_h, self.m_per_px, cfg.ground_window_px,
+                                      cfg.width_px, self._tan_x, self._tan_y)
+        self.box_count = 0
+
+    @property
+    def window(self) -> GroundWindow | None:
+        return self._tracker.window
+
+    @property
+    def window_builds(self) -> int:
+        return self._tracker.builds
 
     # ------------------------------------------------------------------ public
     def render(self, position_enu_m: np.ndarray, q_wxyz: np.ndarray) -> np.ndarray:
         """(height_px, width_px, 3) uint8 RGB image seen from the vehicle pose (ENU m, body->ENU quat)."""
-        image = self.render_ideal(position_enu_m, q_wxyz)
-        if self.effects is not None:
-            image = self.effects.apply(image)
-        return image
-
-    def render_ideal(self, position_enu_m: np.ndarray, q_wxyz: np.ndarray) -> np.ndarray:
-        """The image without camera effects."""
-        if self._closed:
-            raise RuntimeError("GroundCamera.render after close()")
         x, y, z = (float(c) for c in position_enu_m)
         if not (math.isfinite(x) and math.isfinite(y) and math.isfinite(z)):
             raise ValueError(f"camera position {position_enu_m!r}: expected finite ENU metres")
-        eye = (x, y, max(z, _MIN_HEIGHT_M))
-        right, up, back = self._camera_axes(q_wxyz)
-        self._ensure_window(eye, right, up, back)
-        view = self._view_matrix(eye, right, up, back)
+        eye = (x, y, max(z, MIN_HEIGHT_M))
+        right, up, back = camera_axes(q_wxyz, self.cfg.mount)
+        return self.render_view(eye, right, up, back)
+
+    def render_view(self, eye, right, up, back) -> np.ndarray:
+        """The image from an optical centre and the camera axes (as ``CityRenderer.render``)."""
+        if self._closed:
+            raise RuntimeError("MeshCamera.render after close()")
+        if self._tracker.update(eye, right, up, back):
+            assert self._tracker.window is not None
+            self._build(self._tracker.window)
+        view = view_matrix(eye, right, up, back)
         cfg = self.cfg
         out = p.getCameraImage(cfg.width_px, cfg.height_px, view, self._projection,
                                lightAmbientCoeff=1.0, lightDiffuseCoeff=0.0, lightSpecularCoeff=0.0,
@@ -159,132 +202,19 @@ class GroundCamera:
         rgba = np.asarray(out[2], dtype=np.uint8).reshape(cfg.height_px, cfg.width_px, 4)
         return np.ascontiguousarray(rgba[:, :, :3])
 
-    def footprint_m(self, height_m: float) -> tuple[float, float]:
-        """Ground size (width, height) in metres of a nadir image taken ``height_m`` above the ground."""
-        h = max(height_m, _MIN_HEIGHT_M)
-        return 2.0 * h * self._tan_x, 2.0 * h * self._tan_y
-
     def close(self) -> None:
         """Disconnect the private render client and remove the temporary directory (idempotent)."""
         self._finalizer()
         self._render_client = -1
         self._closed = True
 
-    def __enter__(self) -> "GroundCamera":
+    def __enter__(self) -> "MeshCamera":
         return self
 
     def __exit__(self, *exc_info: object) -> None:
         self.close()
 
-    # ------------------------------------------------------------------ geometry
-    def _camera_axes(self, q_wxyz: np.ndarray) -> tuple[tuple[float, float, float], ...]:
-        """World directions of the image right, image up, and the camera back (-optical axis)."""
-        (r00, r01, r02), (r10, r11, r12), (r20, r21, r22) = rotation_rows(q_wxyz)
-        if self.cfg.mount is CameraMount.FIXED:
-            # Image right = body -y, image up = body +x, back = body +z.
-            return (-r01, -r11, -r21), (r00, r10, r20), (r02, r12, r22)
-        # GIMBAL: nadir; image up = body +x projected on the ground. With body +x vertical (pitch
-        # +-90 deg) the nose has no heading: use the body z axis, which then points forward (nose
-        # down) or backward (nose up).
-        fx, fy = r00, r10
-        if fx * fx + fy * fy < 1e-12:
-            fx, fy = -r20 * r02, -r20 * r12
-        yaw = math.atan2(fy, fx)
-        c, s = math.cos(yaw), math.sin(yaw)
-        return (s, -c, 0.0), (c, s, 0.0), (0.0, 0.0, 1.0)
-
-    @staticmethod
-    def _view_matrix(eye, right, up, back) -> list[float]:
-        """OpenGL view matrix (world -> camera), column-major as pybullet expects."""
-        tr = -(right[0] * eye[0] + right[1] * eye[1] + right[2] * eye[2])
-        tu = -(up[0] * eye[0] + up[1] * eye[1] + up[2] * eye[2])
-        tb = -(back[0] * eye[0] + back[1] * eye[1] + back[2] * eye[2])
-        return [right[0], up[0], back[0], 0.0,
-                right[1], up[1], back[1], 0.0,
-                right[2], up[2], back[2], 0.0,
-                tr, tu, tb, 1.0]
-
-    def _projection_matrix(self) -> list[float]:
-        """OpenGL perspective projection, column-major, principal point at the image centre.
-
-        TinyRenderer rasterises pixel (i, j) at the integer viewport point (i, j), i.e. at a pixel
-        corner, not its centre: the image would be shifted by half a pixel (measured). The third
-        column shifts NDC by -1/w and -1/h so that every pixel samples the ray through its centre.
-        """
-        n, f = _NEAR_M, _FAR_M
-        return [1.0 / self._tan_x, 0.0, 0.0, 0.0,
-                0.0, 1.0 / self._tan_y, 0.0, 0.0,
-                1.0 / self.cfg.width_px, 1.0 / self.cfg.height_px, (f + n) / (n - f), -1.0,
-                0.0, 0.0, 2.0 * f * n / (n - f), 0.0]
-
-    def _footprint(self, eye, right, up, back) -> tuple[float, float, float, float, float]:
-        """(u_min, u_max, v_min, v_max, map px per image px) of the ground seen, map pixel coordinates."""
-        h = eye[2]
-        max_range = _MAX_RANGE_HEIGHTS * h
-        xs, ys = [], []
-        centre_range = h
-        for a, b in ((-1.0, -1.0), (1.0, -1.0), (1.0, 1.0), (-1.0, 1.0), (0.0, 0.0)):
-            ax, by = a * self._tan_x, b * self._tan_y
-            d = (-back[0] + ax * right[0] + by * up[0],
-                 -back[1] + ax * right[1] + by * up[1],
-                 -back[2] + ax * right[2] + by * up[2])
-            horiz = math.hypot(d[0], d[1])
-            if d[2] < 0.0 and horiz * h <= -d[2] * max_range:
-                t = h / -d[2]
-                gx, gy = d[0] * t, d[1] * t
-                dist = math.sqrt(gx * gx + gy * gy + h * h)
-            elif horiz > 0.0:       # toward or above the horizon: clip at the maximum range
-                gx, gy = d[0] / horiz * max_range, d[1] / horiz * max_range
-                dist = math.hypot(max_range, h)
-            else:
-                gx = gy = 0.0
-                dist = h
-            if a == 0.0 and b == 0.0:
-                centre_range = dist
-            xs.append(eye[0] + gx)
-            ys.append(eye[1] + gy)
-        m = self.m_per_px
-        u = [x / m + self._map_w / 2.0 for x in xs]
-        v = [self._map_h / 2.0 - y / m for y in ys]
-        # Ground sampling along the optical axis, in map pixels per image pixel.
-        ratio = 2.0 * centre_range * self._tan_x / m / self.cfg.width_px
-        return min(u), max(u), min(v), max(v), ratio
-
     # ------------------------------------------------------------------ ground window
-    def _ensure_window(self, eye, right, up, back) -> None:
-        u0, u1, v0, v1, ratio = self._footprint(eye, right, up, back)
-        n = self.cfg.ground_window_px
-        extent = max(u1 - u0, v1 - v0)
-        lod_fit = _pow2_ceil(extent / (0.5 * n))
-        win = self.window
-        if win is not None:
-            lod = win.lod
-            margin = self._margin_texels * lod
-            inside = (u0 >= win.col0_px + margin and u1 <= win.col0_px + win.span_px - margin
-                      and v0 >= win.row0_px + margin and v1 <= win.row0_px + win.span_px - margin)
-            too_fine = ratio >= _LOD_TOO_FINE * lod
-            too_coarse = lod > 1 and lod > lod_fit and ratio < _LOD_TOO_COARSE * lod
-            if inside and not too_fine and not too_coarse:
-                return
-        lod = max(_pow2_floor(ratio), lod_fit)
-        span = n * lod
-        margin = self._margin_texels * lod
-        col0 = self._place_axis(u0, u1, self._map_w, span, lod, margin)
-        row0 = self._place_axis(v0, v1, self._map_h, span, lod, margin)
-        self._build(GroundWindow(col0, row0, n, lod))
-
-    @staticmethod
-    def _place_axis(lo: float, hi: float, map_size: int, span: int, lod: int, margin: int) -> int:
-        """First map pixel of the window along one axis (a multiple of ``lod``).
-
-        Centred on the map when that still holds the footprint (a map smaller than the window then
-        never needs another re-centre along this axis), otherwise centred on the footprint.
-        """
-        on_map = lod * int(round((map_size - span) / 2.0 / lod))
-        if lo >= on_map + margin and hi <= on_map + span - margin:
-            return on_map
-        return lod * int(round(((lo + hi) / 2.0 - span / 2.0) / lod))
-
     def _window_texture(self, win: GroundWindow) -> np.ndarray:
         """(N, N, 3) uint8 texels of the window: block means of the map, grey outside it."""
         n, lod, span = win.size_texels, win.lod, win.span_px
@@ -309,8 +239,17 @@ class GroundCamera:
         tex[j0:j1, i0:i1] = crop
         return tex
 
+    def _load_texture(self, cid: int, name: str, rgb: np.ndarray) -> int:
+        path = os.path.join(self._tmpdir, f"{name}_{self._tracker.builds:06d}.bmp")
+        if not cv2.imwrite(path, rgb[:, :, ::-1]):
+            raise RuntimeError(f"{path}: cannot write a texture")
+        try:
+            return p.loadTexture(path, physicsClientId=cid)
+        finally:
+            os.remove(path)
+
     def _build(self, win: GroundWindow) -> None:
-        """Rebuild the ground scene around ``win`` in a fresh private client."""
+        """Rebuild the scene around ``win`` in a fresh private client."""
         tex = self._window_texture(win)
         self._disconnect()
         cid = p.connect(p.DIRECT)
@@ -319,42 +258,114 @@ class GroundCamera:
         self._render_client = cid
         self._client_box[0] = cid
         m = self.m_per_px
-        half = 0.5 * win.span_px * m
-        centre_x = (win.col0_px + 0.5 * win.span_px - 0.5 * self._map_w) * m
-        centre_y = (0.5 * self._map_h - win.row0_px - 0.5 * win.span_px) * m
+        half = win.half_m(m)
+        centre_x, centre_y = win.centre_m(self._map_w, self._map_h, m)
+        verts, idx, uvs = window_meshes(half)
         up_normal = [0.0, 0.0, 1.0]
-        # Window quad, counter-clockwise seen from above: SW, SE, NE, NW. TinyRenderer stores loaded
-        # images bottom row first, so v = 0 is the south (last) texel row and v = 1 the north (first).
-        quad = p.createVisualShape(
-            p.GEOM_MESH, vertices=[[-half, -half, 0.0], [half, -half, 0.0], [half, half, 0.0], [-half, half, 0.0]],
-            indices=[0, 1, 2, 0, 2, 3], uvs=[[0.0, 0.0], [1.0, 0.0], [1.0, 1.0], [0.0, 1.0]],
-            normals=[up_normal] * 4, physicsClientId=cid)
+        quad = p.createVisualShape(p.GEOM_MESH, vertices=verts[:4].tolist(), indices=idx[:6].tolist(),
+                                   uvs=uvs[:4].tolist(), normals=[up_normal] * 4, physicsClientId=cid)
         window_body = p.createMultiBody(0.0, -1, quad, [centre_x, centre_y, 0.0], physicsClientId=cid)
-        path = os.path.join(self._tmpdir, f"window_{self.window_builds:06d}.bmp")
-        if not cv2.imwrite(path, tex[:, :, ::-1]):
-            raise RuntimeError(f"{path}: cannot write the ground-window texture")
-        try:
-            texture = p.loadTexture(path, physicsClientId=cid)
-        finally:
-            os.remove(path)
+        texture = self._load_texture(cid, "window", tex)
         p.changeVisualShape(window_body, -1, textureUniqueId=texture, rgbaColor=[1.0, 1.0, 1.0, 1.0],
                             physicsClientId=cid)
         # Grey frame around the window (a square annulus), drawn after the window.
-        outer = half + _FRAME_MARGIN_M
         grey = self.cfg.outside_grey_level / 255.0
         frame = p.createVisualShape(
-            p.GEOM_MESH,
-            vertices=[[-outer, -outer, 0.0], [outer, -outer, 0.0], [outer, outer, 0.0], [-outer, outer, 0.0],
-                      [-half, -half, 0.0], [half, -half, 0.0], [half, half, 0.0], [-half, half, 0.0]],
-            indices=[0, 1, 5, 0, 5, 4, 1, 2, 6, 1, 6, 5, 2, 3, 7, 2, 7, 6, 3, 0, 4, 3, 4, 7],
-            uvs=[[0.0, 0.0]] * 8, normals=[up_normal] * 8, rgbaColor=[grey, grey, grey, 1.0],
-            physicsClientId=cid)
+            p.GEOM_MESH, vertices=verts[4:12].tolist(), indices=(idx[6:] - 4).tolist(), uvs=uvs[4:12].tolist(),
+            normals=[up_normal] * 8, rgbaColor=[grey, grey, grey, 1.0], physicsClientId=cid)
         frame_body = p.createMultiBody(0.0, -1, frame, [centre_x, centre_y, 0.0], physicsClientId=cid)
         p.changeVisualShape(frame_body, -1, rgbaColor=[grey, grey, grey, 1.0], physicsClientId=cid)
-        self.window = win
-        self.window_builds += 1
-        logger.debug("ground window %d: map px (%d, %d), %d texels x L%d", self.window_builds,
-                     win.col0_px, win.row0_px, win.size_texels, win.lod)
+        if self._heights is not None:
+            self._build_boxes(cid, win)
+        logger.debug("ground window %d: map px (%d, %d), %d texels x L%d, %d boxes", self._tracker.builds,
+                     win.col0_px, win.row0_px, win.size_texels, win.lod, self.box_count)
+
+    def _box_palette(self, runs: np.ndarray, heights: np.ndarray) -> np.ndarray:
+        """(K, 5, 3) uint8 colours per run: roof, then walls E, W, N, S."""
+        k = runs.shape[0]
+        colours = np.zeros((k, 5, 3), dtype=np.uint8)
+        faces = (WallFace.EAST, WallFace.WEST, WallFace.NORTH, WallFace.SOUTH)
+        for i, (r, a, b) in enumerate(runs):
+            if self._box_colours == "labels":
+                colours[i, 0] = label_colour(LABEL_ROOF, i)
+                for j, f in enumerate(faces):
+                    colours[i, 1 + j] = label_colour(LABEL_WALL[f], i)
+                continue
+            roof = self._map[r, a:b].reshape(-1, 3).mean(axis=0)
+            colours[i, 0] = np.clip(np.rint(roof), 0, 255)
+            wall = None
+            if self._facade is not None:
+                fac = self._facade[r, a:b].reshape(-1, 3)
+                lit = fac[fac.any(axis=1)]
+                if lit.shape[0]:
+                    wall = lit.mean(axis=0)
+            if wall is None:
+                wall = NO_FACADE_FACTOR * roof
+            for j, f in enumerate(faces):
+                colours[i, 1 + j] = np.clip(np.rint(wall * FACE_LIGHT[f]), 0, 255)
+        return colours
+
+    def _build_boxes(self, cid: int, win: GroundWindow) -> None:
+        """The DSM inside the window as boxes (one per run of equal height in a row), one palette texture."""
+        assert self._heights is not None
+        c_lo, c_hi = max(win.col0_px, 0), min(win.col0_px + win.span_px, self._map_w)
+        r_lo, r_hi = max(win.row0_px, 0), min(win.row0_px + win.span_px, self._map_h)
+        self.box_count = 0
+        if c_hi <= c_lo or r_hi <= r_lo:
+            return
+        runs, heights = height_runs(self._heights, c_lo, c_hi, r_lo, r_hi)
+        self.box_count = runs.shape[0]
+        if not runs.shape[0]:
+            return
+        colours = self._box_palette(runs, heights).reshape(-1, 3)
+        side = int(math.ceil(math.sqrt(colours.shape[0])))
+        palette = np.zeros((side * side, 3), dtype=np.uint8)
+        palette[:colours.shape[0]] = colours
+        palette_img = palette.reshape(side, side, 3)
+        m = self.m_per_px
+        # Map pixel edges -> ENU: x = (u - W/2) m, y = (H/2 - v) m.
+        verts: list[list[float]] = []
+        uvs: list[list[float]] = []
+        normals: list[list[float]] = []
+        indices: list[int] = []
+        chunks: list[tuple[list, list, list, list]] = []
+
+        def uv_of(slot: int) -> list[float]:
+            row, col = divmod(slot, side)
+            # TinyRenderer flips loaded images: its texel row y is image row side - 1 - y.
+            return [(col + 0.5) / side, (side - 1 - row + 0.5) / side]
+
+        def quad(corners, normal, slot) -> None:
+            base = len(verts)
+            uv = uv_of(slot)
+            for c in corners:
+                verts.append(c)
+                uvs.append(uv)
+                normals.append(normal)
+            indices.extend([base, base + 1, base + 2, base, base + 2, base + 3])
+
+        for i, ((r, a, b), h) in enumerate(zip(runs, heights, strict=True)):
+            x0, x1 = (a - self._map_w / 2.0) * m, (b - self._map_w / 2.0) * m
+            y1, y0 = (self._map_h / 2.0 - r) * m, (self._map_h / 2.0 - r - 1) * m   # y1 north edge
+            s = 5 * i
+            # Counter-clockwise seen from outside (TinyRenderer culls back faces).
+            quad([[x0, y0, h], [x1, y0, h], [x1, y1, h], [x0, y1, h]], [0.0, 0.0, 1.0], s)
+            quad([[x1, y0, 0.0], [x1, y1, 0.0], [x1, y1, h], [x1, y0, h]], [1.0, 0.0, 0.0], s + 1)    # east
+            quad([[x0, y1, 0.0], [x0, y0, 0.0], [x0, y0, h], [x0, y1, h]], [-1.0, 0.0, 0.0], s + 2)   # west
+            quad([[x1, y1, 0.0], [x0, y1, 0.0], [x0, y1, h], [x1, y1, h]], [0.0, 1.0, 0.0], s + 3)    # north
+            quad([[x0, y0, 0.0], [x1, y0, 0.0], [x1, y0, h], [x0, y0, h]], [0.0, -1.0, 0.0], s + 4)   # south
+            if len(verts) >= _MAX_BOX_VERTICES:
+                chunks.append((verts, uvs, normals, indices))
+                verts, uvs, normals, indices = [], [], [], []
+        if verts:
+            chunks.append((verts, uvs, normals, indices))
+        texture = self._load_texture(cid, "palette", palette_img)
+        for cv, cu, cn, ci in chunks:
+            shape = p.createVisualShape(p.GEOM_MESH, vertices=cv, indices=ci, uvs=cu, normals=cn,
+                                        physicsClientId=cid)
+            body = p.createMultiBody(0.0, -1, shape, [0.0, 0.0, 0.0], physicsClientId=cid)
+            p.changeVisualShape(body, -1, textureUniqueId=texture, rgbaColor=[1.0, 1.0, 1.0, 1.0],
+                                physicsClientId=cid)
 
     def _disconnect(self) -> None:
         if self._render_client >= 0:
