@@ -31,9 +31,15 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass
 from enum import IntEnum
+from typing import Any
 
 import numpy as np
 from numba import njit
+
+# Kernels called once per ray or pixel are compiled without numba's reference counting (``_nrt=False``:
+# they allocate nothing): with it, every call increments and decrements the arrays passed (atomic
+# operations), which measured ~2.5x slower for the ray cast.
+NO_NRT: dict[str, Any] = {"cache": True, "_nrt": False}
 
 # Levels of the maximum mipmap (cells up to 2^MIP_LEVELS map pixels on a side).
 MIP_LEVELS = 5
@@ -200,7 +206,7 @@ def _slab(p0, d, inv_d, hi):
     return a, b
 
 
-@njit(cache=True, _nrt=False)
+@njit(**NO_NRT)
 def cast_ray(u0, v0, z0, du, dv, dz, heights, mip, mip_off, mip_w, nlev, hmax):
     """First hit of one ray. Returns (s, surface, face, col, row) — see ``RayHits``.
 
@@ -290,6 +296,9 @@ def cast_ray(u0, v0, z0, du, dv, dz, heights, mip, mip_off, mip_w, nlev, hmax):
                         col = min(col, cols - 1)
                         row = min(row, rows - 1)
                         axis = -1
+                        # Often the pixel there is the one that holds the maximum: its roof is hit.
+                        if heights[row, col] >= hm:
+                            return s_cur, 2 if hm > 0.0 else 1, 0, col, row
                     lev -= 1
                     continue
                 # A map pixel: [s_cur, s_next) inside it, reaching its height at s_h.
@@ -391,7 +400,7 @@ def window_glass(along_m, z_m):
     return lo <= fa < lo + WINDOW_WIDTH_M
 
 
-@njit(cache=True, _nrt=False)
+@njit(**NO_NRT)
 def shade_hit(surf, face, col, row, u, v, z, top_rgb, rows, cols, lod, facade_rgb, has_facade, grey, m_per_px,
               face_light, out, k):
     """Write the colour of one hit into ``out[k]`` (see ``shade``).

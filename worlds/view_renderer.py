@@ -39,7 +39,7 @@ import numpy as np
 from numba import njit
 
 from worlds.ground_window import FRAME_MARGIN_M, GroundWindow, WindowTracker
-from worlds.raycast import FACE_LIGHT, HeightField, cast_ray, lod_texture, shade_hit
+from worlds.raycast import FACE_LIGHT, NO_NRT, HeightField, cast_ray, lod_texture, shade_hit
 
 # Clip planes of the TinyRenderer camera (sitl.mesh_camera uses the same): the near plane stays below
 # the lowest camera, the far plane beyond the grey frame seen by a tilted FIXED camera.
@@ -143,7 +143,7 @@ def _clip_vertex(pmv, x, y, z):
     return c
 
 
-@njit(cache=True, _nrt=False)
+@njit(**NO_NRT)
 def _screen(vp, c):
     """Viewport transform of clip coords -> (x, y, w) as TinyRenderer: (vp * c) / (vp * c)[3]."""
     s0 = _dot4f(vp[0, 0], vp[0, 1], vp[0, 2], vp[0, 3], c[0], c[1], c[2], c[3])
@@ -278,7 +278,7 @@ def _persp(b0, b1, b2, w0, w1, w2):
     return c0 / s, c1 / s, c2 / s
 
 
-@njit(cache=True, _nrt=False)
+@njit(**NO_NRT)
 def _texel_colour(t, c0, c1, c2, uvs, idx, tex, n_tex, bcol0, brow0, level_w, level_h, grey, frame_c, out, r, c):
     """Fragment shader: uv in float32 from float32 barycentrics, int(uv * N), texel (or frame grey)."""
     if t >= 2:
@@ -324,7 +324,7 @@ def _texel_colour(t, c0, c1, c2, uvs, idx, tex, n_tex, bcol0, brow0, level_w, le
         out[r, c, 2] = tex[bj, bi, 2]
 
 
-@njit(cache=True, _nrt=False)
+@njit(**NO_NRT)
 def _emulate_pixel(px, py, clip, pts, ws, sub, nsub, vp, far32, near32, uvs, idx, tex, n_tex, bcol0, brow0,
                    level_w, level_h, grey, frame_c, width, height, out, r, c):
     """The whole TinyRenderer pipeline for one pixel (P = (px, py)): every triangle in draw order."""
@@ -382,7 +382,7 @@ def _emulate_pixel(px, py, clip, pts, ws, sub, nsub, vp, far32, near32, uvs, idx
                 zbuf = np.float32(depth)
 
 
-@njit(cache=True, _nrt=False)
+@njit(**NO_NRT)
 def _render_kernel(eye, right, up, back, width, height, tan_x, tan_y,
                    heights, mip, mip_off, mip_w, nlev, hmax, m_per_px, map_w, map_h,
                    tex, lod, facade, has_facade, grey, face_light,
