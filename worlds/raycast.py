@@ -206,7 +206,7 @@ def _slab(p0, d, inv_d, hi):
     return a, b
 
 
-@njit(**NO_NRT)
+@njit(inline="always", **NO_NRT)
 def cast_ray(u0, v0, z0, du, dv, dz, heights, mip, mip_off, mip_w, nlev, hmax):
     """First hit of one ray. Returns (s, surface, face, col, row) — see ``RayHits``.
 
@@ -260,6 +260,9 @@ def cast_ray(u0, v0, z0, du, dv, dz, heights, mip, mip_off, mip_w, nlev, hmax):
                     cy = row >> lev
                     hm = mip[mip_off[lev] + cy * mip_w[lev] + cx]
                     s_hm = (z0 - hm) * inv_dz
+                    if s_cur >= s_hm:
+                        lev -= 1     # already below this cell's maximum: look at the finer level
+                        continue
                     st_u = ((cx + ou) * size - u0) * inv_du if du != 0.0 else _INF
                     st_v = ((cy + ov) * size - v0) * inv_dv if dv != 0.0 else _INF
                     st_exit = min(st_u, st_v)
@@ -285,20 +288,17 @@ def cast_ray(u0, v0, z0, du, dv, dz, heights, mip, mip_off, mip_w, nlev, hmax):
                         continue
                     # The ray comes below this cell's maximum inside it: nothing can be hit before it
                     # reaches that height, so advance to there, then look at the finer level.
-                    if s_hm > s_cur:
-                        if s_hm >= s_end:
-                            break
-                        s_cur = s_hm
-                        um = u0 + du * s_cur
-                        vm = v0 + dv * s_cur
-                        col = min(max(int(math.floor(um)), cx * size), cx * size + size - 1)
-                        row = min(max(int(math.floor(vm)), cy * size), cy * size + size - 1)
-                        col = min(col, cols - 1)
-                        row = min(row, rows - 1)
-                        axis = -1
-                        # Often the pixel there is the one that holds the maximum: its roof is hit.
-                        if heights[row, col] >= hm:
-                            return s_cur, 2 if hm > 0.0 else 1, 0, col, row
+                    if s_hm >= s_end:
+                        break
+                    s_cur = s_hm
+                    um = u0 + du * s_cur
+                    vm = v0 + dv * s_cur
+                    col = min(max(int(math.floor(um)), cx * size), cx * size + size - 1, cols - 1)
+                    row = min(max(int(math.floor(vm)), cy * size), cy * size + size - 1, rows - 1)
+                    axis = -1
+                    # Often the pixel there is the one that holds the maximum: its roof is hit.
+                    if heights[row, col] >= hm:
+                        return s_cur, 2 if hm > 0.0 else 1, 0, col, row
                     lev -= 1
                     continue
                 # A map pixel: [s_cur, s_next) inside it, reaching its height at s_h.
@@ -336,7 +336,7 @@ def cast_ray(u0, v0, z0, du, dv, dz, heights, mip, mip_off, mip_w, nlev, hmax):
     return s_ground, 1, 0, int(math.floor(ug)), int(math.floor(vg))
 
 
-@njit(cache=True)
+@njit(**NO_NRT)
 def _first_hits_kernel(u0, v0, z0, du, dv, dz, heights, mip, mip_off, mip_w, nlev, hmax,
                        out_s, out_surf, out_face, out_col, out_row):
     for i in range(u0.shape[0]):
@@ -462,7 +462,7 @@ def shade_hit(surf, face, col, row, u, v, z, top_rgb, rows, cols, lod, facade_rg
     out[k, 2] = min(255, int(b * f + 0.5))
 
 
-@njit(cache=True)
+@njit(**NO_NRT)
 def _shade_kernel(surf, face, col, row, u, v, z, top_rgb, rows, cols, lod, facade_rgb, has_facade, grey,
                   m_per_px, face_light, out):
     for k in range(surf.shape[0]):

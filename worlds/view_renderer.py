@@ -383,17 +383,41 @@ def _emulate_pixel(px, py, clip, pts, ws, sub, nsub, vp, far32, near32, uvs, idx
 
 
 @njit(**NO_NRT)
-def _render_kernel(eye, right, up, back, width, height, tan_x, tan_y,
-                   heights, mip, mip_off, mip_w, nlev, hmax, m_per_px, map_w, map_h,
+def _cast_kernel(eye, right, up, back, width, height, tan_x, tan_y, heights, mip, mip_off, mip_w, nlev, hmax,
+                 m_per_px, map_w, map_h, s_out, surf_out, face_out, col_out, row_out):
+    """Pass 1 (relief only): the first hit of every pixel's ray (a tight loop: better code than one
+    loop doing everything, measured)."""
+    ex, ey, ez = eye[0], eye[1], eye[2]
+    inv_m = 1.0 / m_per_px
+    u0 = ex * inv_m + map_w / 2.0
+    v0 = map_h / 2.0 - ey * inv_m
+    for r in range(height):
+        b = (1.0 - (2.0 * r + 1.0) / height) * tan_y
+        for c in range(width):
+            a = ((2.0 * c + 1.0) / width - 1.0) * tan_x
+            dx = -back[0] + a * right[0] + b * up[0]
+            dy = -back[1] + a * right[1] + b * up[1]
+            dz = -back[2] + a * right[2] + b * up[2]
+            s, sf, face, hc, hr = cast_ray(u0, v0, ez, dx * inv_m, -dy * inv_m, dz, heights, mip, mip_off,
+                                           mip_w, nlev, hmax)
+            s_out[r, c] = s
+            surf_out[r, c] = sf
+            face_out[r, c] = face
+            col_out[r, c] = hc
+            row_out[r, c] = hr
+
+
+@njit(**NO_NRT)
+def _render_kernel(eye, right, up, back, width, height, tan_x, tan_y, relief, m_per_px, map_w, map_h,
                    tex, lod, facade, has_facade, grey, face_light,
                    win_cx, win_cy, half, outer, n_tex, bcol0, brow0, level_w, level_h, frame_c,
                    clip, pts, ws, inv_w, sub, nsub, vp, far32, near32, uvs, idx,
-                   out, out_flat, surf_out, face_out, col_out, row_out):
+                   out, out_flat, s_in, surf_out, face_out, col_out, row_out):
+    """Pass 2: roofs and walls shaded from the hits of pass 1 (``relief``), the ground as TinyRenderer."""
     ex, ey, ez = eye[0], eye[1], eye[2]
-    u0 = ex / m_per_px + map_w / 2.0
-    v0 = map_h / 2.0 - ey / m_per_px
-    relief = hmax > 0.0
     inv_m = 1.0 / m_per_px
+    u0 = ex * inv_m + map_w / 2.0
+    v0 = map_h / 2.0 - ey * inv_m
     scale = abs(ex) + abs(ey) + abs(win_cx) + abs(win_cy) + half + ez
     # Window triangle 0 = SW, SE, NE (below the SW-NE diagonal, ly < lx), 1 = SW, NE, NW.
     for r in range(height):
@@ -404,18 +428,14 @@ def _render_kernel(eye, right, up, back, width, height, tan_x, tan_y,
             dy = -back[1] + a * right[1] + b * up[1]
             dz = -back[2] + a * right[2] + b * up[2]
             if relief:
-                s, sf, face, hc, hr = cast_ray(u0, v0, ez, dx * inv_m, -dy * inv_m, dz, heights, mip, mip_off,
-                                                 mip_w, nlev, hmax)
-                surf_out[r, c] = sf
-                face_out[r, c] = face
-                col_out[r, c] = hc
-                row_out[r, c] = hr
+                sf = surf_out[r, c]
                 if sf == 2 or sf == 3:
+                    s = s_in[r, c]
                     hu = u0 + dx * inv_m * s
                     hv = v0 - dy * inv_m * s
                     hz = ez + dz * s
-                    shade_hit(sf, face, hc, hr, hu, hv, hz, tex, map_h, map_w, lod, facade, has_facade, grey,
-                              m_per_px, face_light, out_flat, r * width + c)
+                    shade_hit(sf, face_out[r, c], col_out[r, c], row_out[r, c], hu, hv, hz, tex, map_h, map_w, lod,
+                              facade, has_facade, grey, m_per_px, face_light, out_flat, r * width + c)
                     continue
             else:
                 surf_out[r, c] = 1 if dz < 0.0 else 0
@@ -617,15 +637,17 @@ class CityRenderer:
         if buf is None:
             buf = (np.empty((height, width, 3), np.uint8), np.empty((height, width), np.uint8),
                    np.empty((height, width), np.uint8), np.empty((height, width), np.int64),
-                   np.empty((height, width), np.int64))
+                   np.empty((height, width), np.int64), np.empty((height, width), np.float64))
             self._buffers[key] = buf
-        out, surf, face, col, row = buf
-        _render_kernel(np.array(eye), np.array(right), np.array(up), np.array(back), width, height, tan_x, tan_y,
-                       self._heights, self._mip, self._mip_off, self._mip_w, self._nlev, self._hmax, m, self.map_w, self.map_h,
+        out, surf, face, col, row, s_buf = buf
+        e, rt, u, b = np.array(eye), np.array(right), np.array(up), np.array(back)
+        if self.field is not None:
+            _cast_kernel(e, rt, u, b, width, height, tan_x, tan_y, self._heights, self._mip, self._mip_off,
+                         self._mip_w, self._nlev, self._hmax, m, self.map_w, self.map_h, s_buf, surf, face, col, row)
+        _render_kernel(e, rt, u, b, width, height, tan_x, tan_y, self.field is not None, m, self.map_w, self.map_h,
                        tex, win.lod, self._facade, self._has_facade, self.grey, FACE_LIGHT,
                        cx, cy, half, half + FRAME_MARGIN_M, win.size_texels, win.col0_px // win.lod,
                        win.row0_px // win.lod, tex.shape[1], tex.shape[0], self._frame_c,
                        clip, pts, ws, 1.0 / ws.astype(np.float64), sub, nsub, vp, far32, near32,
-                       uvs.astype(np.float32), idx,
-                       out, out.reshape(height * width, 3), surf, face, col, row)
+                       uvs.astype(np.float32), idx, out, out.reshape(height * width, 3), s_buf, surf, face, col, row)
         return out.copy()
