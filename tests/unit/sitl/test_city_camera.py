@@ -208,3 +208,21 @@ def test_city_patch_agrees_with_the_mesh_reference():
                  ((-10.0, 15.0, 80.0), _quat(2.0, pitch=0.3, roll=0.25), CameraMount.FIXED)):
         within_1px, _ = _agreement(dsm, top, pose)
         assert within_1px >= 0.99, pose
+
+
+def test_render_worker_draws_the_relief():
+    from sitl.render_worker import CameraPipeline
+    heights, top = _box_world()
+    pos, q, _ = POSES["off-nadir"]
+    cfg = CameraConfig(ground_window_px=256)
+    with GroundCamera(-1, top, M, cfg, heights_m=heights) as cam:
+        want = cam.render(np.array(pos), q)
+    pipeline = CameraPipeline(top, M, cfg, heights_m=heights)      # forked worker (render_in_worker)
+    try:
+        pipeline.request(1, np.array(pos), q)
+        got = pipeline.result(1)
+    finally:
+        pipeline.close()
+    np.testing.assert_array_equal(got, want)
+    with GroundCamera(-1, top, M, cfg) as flat:
+        assert not np.array_equal(flat.render(np.array(pos), q), want)
