@@ -211,8 +211,15 @@ def cast_ray(u0, v0, z0, du, dv, dz, heights, mip, mip_off, mip_w, nlev, hmax):
     """First hit of one ray. Returns (s, surface, face, col, row) — see ``RayHits``.
 
     ``heights`` (H, W) float32; ``mip``/``mip_off``/``mip_w``/``nlev`` the maximum mipmap
-    (``HeightField``); ``hmax`` the global maximum height.
+    (``HeightField``); ``hmax`` the global maximum height (or any upper bound of the heights the ray
+    can meet).
     """
+    return cast_ray_from(u0, v0, z0, du, dv, dz, heights, mip, mip_off, mip_w, nlev, hmax, nlev)
+
+
+@njit(inline="always", **NO_NRT)
+def cast_ray_from(u0, v0, z0, du, dv, dz, heights, mip, mip_off, mip_w, nlev, hmax, lev0):
+    """``cast_ray`` starting its walk at mipmap level ``lev0`` (0 .. nlev; any level gives the same hit)."""
     rows, cols = heights.shape
     if not dz < 0.0:
         return np.nan, 0, 0, -1, -1
@@ -252,7 +259,7 @@ def cast_ray(u0, v0, z0, du, dv, dz, heights, mip, mip_off, mip_w, nlev, hmax):
             ou = 1 if du > 0.0 else 0
             ov = 1 if dv > 0.0 else 0
             s_cur = s_a
-            lev = nlev
+            lev = lev0
             while True:
                 if lev > 0:
                     size = 1 << lev

@@ -56,6 +56,8 @@ _EDGE_TOL_ABS_M = 1e-3
 # double) picks the same texel as TinyRenderer's float32 uv (whose rounding error is ~1e-4 texel at
 # N = 2048); nearer pixels are recomputed with the exact emulation.
 _UV_TOL = 4e-3
+# Image tiles (pixels on a side) that bound their rays' start height together (_cast_kernel).
+_TILE = 8
 
 _F32 = np.float32
 
@@ -382,29 +384,102 @@ def _emulate_pixel(px, py, clip, pts, ws, sub, nsub, vp, far32, near32, uvs, idx
                 zbuf = np.float32(depth)
 
 
+@njit(cache=True, inline="always")
+def _region_max(mip, mip_off, mip_w, nlev, heights, u_lo, u_hi, v_lo, v_hi):
+    """An upper bound of the heights over map pixels [u_lo, u_hi] x [v_lo, v_hi] (continuous, clipped to
+    the map; 0 when outside), from the coarsest-enough mipmap level (at most 3 x 3 cells)."""
+    rows, cols = heights.shape
+    c0 = max(int(math.floor(u_lo)), 0)
+    c1 = min(int(math.floor(u_hi)), cols - 1)
+    r0 = max(int(math.floor(v_lo)), 0)
+    r1 = min(int(math.floor(v_hi)), rows - 1)
+    if c1 < c0 or r1 < r0:
+        return 0.0
+    ext = max(c1 - c0, r1 - r0) + 1
+    lev = 0
+    while lev < nlev and (1 << lev) < ext:
+        lev += 1
+    best = 0.0
+    if lev == 0:
+        for r in range(r0, r1 + 1):
+            for c in range(c0, c1 + 1):
+                best = max(best, heights[r, c])
+        return best
+    base = mip_off[lev]
+    w = mip_w[lev]
+    for cy in range(r0 >> lev, (r1 >> lev) + 1):
+        for cx in range(c0 >> lev, (c1 >> lev) + 1):
+            best = max(best, mip[base + cy * w + cx])
+    return best
+
+
 @njit(**NO_NRT)
 def _cast_kernel(eye, right, up, back, width, height, tan_x, tan_y, heights, mip, mip_off, mip_w, nlev, hmax,
                  m_per_px, map_w, map_h, s_out, surf_out, face_out, col_out, row_out):
-    """Pass 1 (relief only): the first hit of every pixel's ray (a tight loop: better code than one
-    loop doing everything, measured)."""
+    """Pass 1 (relief only): the first hit of every pixel's ray.
+
+    Image tiles of _TILE x _TILE pixels first bound their rays' start height: every ray of a tile, between
+    heights h and 0, stays over the map rectangle spanned by the tile's corner rays at h and at 0 (the
+    beam is convex), so nothing above the highest height there can be hit (two refinements).
+    """
     ex, ey, ez = eye[0], eye[1], eye[2]
     inv_m = 1.0 / m_per_px
     u0 = ex * inv_m + map_w / 2.0
     v0 = map_h / 2.0 - ey * inv_m
-    for r in range(height):
-        b = (1.0 - (2.0 * r + 1.0) / height) * tan_y
-        for c in range(width):
-            a = ((2.0 * c + 1.0) / width - 1.0) * tan_x
-            dx = -back[0] + a * right[0] + b * up[0]
-            dy = -back[1] + a * right[1] + b * up[1]
-            dz = -back[2] + a * right[2] + b * up[2]
-            s, sf, face, hc, hr = cast_ray(u0, v0, ez, dx * inv_m, -dy * inv_m, dz, heights, mip, mip_off,
-                                           mip_w, nlev, hmax)
-            s_out[r, c] = s
-            surf_out[r, c] = sf
-            face_out[r, c] = face
-            col_out[r, c] = hc
-            row_out[r, c] = hr
+    for tr in range(0, height, _TILE):
+        for tc in range(0, width, _TILE):
+            r_hi = min(tr + _TILE, height) - 1
+            c_hi = min(tc + _TILE, width) - 1
+            # Corner rays of the tile (pixel centres): their map points at heights ht and 0.
+            h_tile = hmax
+            ok = True
+            for _ in range(2):
+                u_lo = 1e300
+                u_hi = -1e300
+                v_lo = 1e300
+                v_hi = -1e300
+                for rr in (tr, r_hi):
+                    b = (1.0 - (2.0 * rr + 1.0) / height) * tan_y
+                    for cc in (tc, c_hi):
+                        a = ((2.0 * cc + 1.0) / width - 1.0) * tan_x
+                        dx = -back[0] + a * right[0] + b * up[0]
+                        dy = -back[1] + a * right[1] + b * up[1]
+                        dz = -back[2] + a * right[2] + b * up[2]
+                        if not dz < 0.0:
+                            ok = False
+                            break
+                        for zz in (h_tile, 0.0):
+                            t = (ez - zz) / -dz
+                            if t < 0.0:
+                                t = 0.0
+                            pu = u0 + dx * inv_m * t
+                            pv = v0 - dy * inv_m * t
+                            u_lo = min(u_lo, pu)
+                            u_hi = max(u_hi, pu)
+                            v_lo = min(v_lo, pv)
+                            v_hi = max(v_hi, pv)
+                    if not ok:
+                        break
+                if not ok:
+                    break
+                h_tile = min(h_tile, _region_max(mip, mip_off, mip_w, nlev, heights, u_lo - 1.0, u_hi + 1.0,
+                                                 v_lo - 1.0, v_hi + 1.0))
+            if not ok:
+                h_tile = hmax
+            for r in range(tr, r_hi + 1):
+                b = (1.0 - (2.0 * r + 1.0) / height) * tan_y
+                for c in range(tc, c_hi + 1):
+                    a = ((2.0 * c + 1.0) / width - 1.0) * tan_x
+                    dx = -back[0] + a * right[0] + b * up[0]
+                    dy = -back[1] + a * right[1] + b * up[1]
+                    dz = -back[2] + a * right[2] + b * up[2]
+                    s, sf, face, hc, hr = cast_ray(u0, v0, ez, dx * inv_m, -dy * inv_m, dz, heights, mip, mip_off,
+                                                   mip_w, nlev, h_tile)
+                    s_out[r, c] = s
+                    surf_out[r, c] = sf
+                    face_out[r, c] = face
+                    col_out[r, c] = hc
+                    row_out[r, c] = hr
 
 
 @njit(**NO_NRT)
@@ -429,7 +504,15 @@ def _render_kernel(eye, right, up, back, width, height, tan_x, tan_y, relief, m_
             dz = -back[2] + a * right[2] + b * up[2]
             if relief:
                 sf = surf_out[r, c]
-                if sf == 2 or sf == 3:
+                if sf == 2:
+                    # A roof: the nearest texel of the level-of-detail texture (shade_hit's TOP case).
+                    hc = col_out[r, c] // lod if lod > 1 else col_out[r, c]
+                    hr = row_out[r, c] // lod if lod > 1 else row_out[r, c]
+                    out[r, c, 0] = tex[hr, hc, 0]
+                    out[r, c, 1] = tex[hr, hc, 1]
+                    out[r, c, 2] = tex[hr, hc, 2]
+                    continue
+                if sf == 3:
                     s = s_in[r, c]
                     hu = u0 + dx * inv_m * s
                     hv = v0 - dy * inv_m * s

@@ -226,3 +226,28 @@ def test_render_worker_draws_the_relief():
     np.testing.assert_array_equal(got, want)
     with GroundCamera(-1, top, M, cfg) as flat:
         assert not np.array_equal(flat.render(np.array(pos), q), want)
+
+
+@pytest.mark.parametrize("mount", [CameraMount.GIMBAL, CameraMount.FIXED])
+def test_camera_hits_are_first_hits_of_the_pixel_rays(mount):
+    """The camera's cast pass (image tiles bounding their rays' start height) finds exactly the hits
+    ``worlds.raycast.first_hits`` finds for the same pixel-centre rays."""
+    from worlds.raycast import HeightField, first_hits
+    dsm, facade = synthetic_dsm(SIDE, SIDE, M, seed=4)
+    _, top = _box_world()
+    pos, q = (8.0, -6.0, 90.0), _quat(0.9, pitch=0.25, roll=-0.2)
+    cfg = CameraConfig(mount=mount, ground_window_px=256)
+    right, up, back = (np.array(a) for a in camera_axes(q, mount))
+    with GroundCamera(-1, top, M, cfg, heights_m=dsm, facade_rgb=facade) as cam:
+        cam.render(np.array(pos), q)
+        surface, face, col, row = (a.copy() for a in cam.renderer.last_hits(W, H))
+    rr, cc = np.mgrid[0:H, 0:W]
+    a = ((2.0 * cc + 1.0) / W - 1.0) * TAN
+    b = (1.0 - (2.0 * rr + 1.0) / H) * TAN
+    d = -back + a.reshape(-1, 1) * right + b.reshape(-1, 1) * up
+    hits = first_hits(HeightField(dsm, M), np.tile(pos, (W * H, 1)), d)
+    assert (surface == Surface.WALL).any() and (surface == Surface.TOP).any()
+    np.testing.assert_array_equal(surface.ravel(), hits.surface)
+    np.testing.assert_array_equal(face.ravel(), hits.wall_face)
+    np.testing.assert_array_equal(col.ravel(), hits.col_px)
+    np.testing.assert_array_equal(row.ravel(), hits.row_px)
