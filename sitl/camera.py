@@ -52,6 +52,20 @@ def camera_axes(q_wxyz: np.ndarray, mount: CameraMount) -> tuple[Vec3, Vec3, Vec
     return (s, -c, 0.0), (c, s, 0.0), (0.0, 0.0, 1.0)
 
 
+def warm_up() -> None:
+    """Load (or compile once) the renderer's numba kernels by rendering throwaway frames of a tiny flat
+    and a tiny relief world; the kernels' types do not depend on the map, so the real camera's first
+    frame then costs what any frame does. Touches no camera's state."""
+    top = np.zeros((16, 16, 3), np.uint8)
+    heights = np.zeros((16, 16), np.float32)
+    heights[4:8, 4:8] = 5.0
+    cfg = CameraConfig(width_px=8, height_px=8, ground_window_px=64)
+    for h in (None, heights):
+        for facade in (None, top):
+            GroundCamera(-1, top, 1.0, cfg, heights_m=h, facade_rgb=facade).render_ideal(
+                np.array([0.0, 0.0, 20.0]), np.array([1.0, 0.0, 0.0, 0.0]))
+
+
 class GroundCamera:
     """Renders (h, w, 3) uint8 RGB images of the world from a vehicle pose.
 

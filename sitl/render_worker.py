@@ -43,9 +43,10 @@ def die_with_parent(parent_pid: int, sig: int = signal.SIGKILL) -> None:
 
 def _serve(conn, parent_conn, parent_pid: int, orthophoto: np.ndarray, m_per_px: float,
            cfg: CameraConfig, heights_m: np.ndarray | None, facade_rgb: np.ndarray | None) -> None:
-    from sitl.camera import GroundCamera
+    from sitl.camera import GroundCamera, warm_up
     die_with_parent(parent_pid)
     parent_conn.close()   # else this copy keeps the pipe open after the simulator died: no EOF
+    warm_up()             # kernels loaded while the simulator starts, not at its first frame
     camera = GroundCamera(-1, orthophoto, m_per_px, cfg, heights_m=heights_m, facade_rgb=facade_rgb)
     try:
         while True:
