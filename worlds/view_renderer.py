@@ -397,7 +397,7 @@ def _region_max(mip, mip_off, mip_w, nlev, heights, u_lo, u_hi, v_lo, v_hi):
         return 0.0
     ext = max(c1 - c0, r1 - r0) + 1
     lev = 0
-    while lev < nlev and (1 << lev) < ext:
+    while lev < nlev and (1 << lev) * 8 < ext:
         lev += 1
     best = 0.0
     if lev == 0:
