@@ -658,6 +658,8 @@ class CityRenderer:
         self._trackers: dict[tuple[int, int, float, float], WindowTracker] = {}
         self._buffers: dict[tuple[int, int], tuple[np.ndarray, ...]] = {}
         self._frame_c = frame_grey(self.grey)
+        self._mesh_key: tuple | None = None
+        self._mesh: tuple = ()
 
     @property
     def relief(self) -> bool:
@@ -707,11 +709,15 @@ class CityRenderer:
         m = self.m_per_px
         cx, cy = win.centre_m(self.map_w, self.map_h, m)
         half = win.half_m(m)
-        verts, idx, uvs = window_meshes(half)
+        mesh_key = (half, width, height, tan_x, tan_y)
+        if self._mesh_key != mesh_key:    # per window and camera geometry, not per frame
+            verts, idx, uvs = window_meshes(half)
+            self._mesh = (verts.astype(np.float32), idx, uvs.astype(np.float32),
+                          np.array(projection_matrix(tan_x, tan_y, width, height), dtype=np.float32))
+            self._mesh_key = mesh_key
+        verts32, idx, uvs32, proj = self._mesh
         view = np.array(view_matrix(eye, right, up, back), dtype=np.float32)
-        proj = np.array(projection_matrix(tan_x, tan_y, width, height), dtype=np.float32)
-        clip, pts, ws, sub, nsub, vp = _tr_setup(view, proj, _F32(cx), _F32(cy), verts.astype(np.float32), idx,
-                                                 width, height)
+        clip, pts, ws, sub, nsub, vp = _tr_setup(view, proj, _F32(cx), _F32(cy), verts32, idx, width, height)
         far32 = _F32(proj[14] / (proj[10] + _F32(1.0)))
         near32 = _F32(proj[14] / (proj[10] - _F32(1.0)))
         tex = self.level(win.lod)
@@ -732,5 +738,5 @@ class CityRenderer:
                        cx, cy, half, half + FRAME_MARGIN_M, win.size_texels, win.col0_px // win.lod,
                        win.row0_px // win.lod, tex.shape[1], tex.shape[0], self._frame_c,
                        clip, pts, ws, 1.0 / ws.astype(np.float64), sub, nsub, vp, far32, near32,
-                       uvs.astype(np.float32), idx, out, out.reshape(height * width, 3), s_buf, surf, face, col, row)
+                       uvs32, idx, out, out.reshape(height * width, 3), s_buf, surf, face, col, row)
         return out.copy()
