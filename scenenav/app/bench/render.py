@@ -44,6 +44,7 @@ WARMUP_FRAMES = 5
 DEFAULT_FRAMES = 150
 MAP_SIZES = ((900, 1000), (2400, 2400), (8000, 8000))
 PATCH_PX = 240
+DEFAULT_IDENTITY_POSES = 40
 
 
 def _quat_heading(heading_rad: float) -> np.ndarray:
@@ -165,7 +166,7 @@ def flat_identity(top: np.ndarray, m_per_px: float, n_poses: int = 40, seed: int
     for mount in (CameraMount.GIMBAL, CameraMount.FIXED):
         cfg = CameraConfig(mount=mount)
         with MeshCamera(top, m_per_px, cfg) as ref, GroundCamera(-1, top, m_per_px, cfg) as cam:
-            for _ in range(n_poses // 2):
+            for _ in range(max(1, n_poses // 2)):
                 pos = np.array([rng.uniform(-half_x, half_x), rng.uniform(-half_y, half_y),
                                 rng.choice([3.0, 30.0, 100.0, 300.0, 1000.0])])
                 q = np.asarray(quat_from_euler_zyx(rng.uniform(0, 2 * math.pi), rng.choice([0.0, 0.3, -0.8]),
@@ -177,8 +178,8 @@ def flat_identity(top: np.ndarray, m_per_px: float, n_poses: int = 40, seed: int
     return {"identical_share": same / total, "worst_frame_identical_share": worst, "poses": n_poses}
 
 
-def run_render_bench(frames: int = DEFAULT_FRAMES, sizes=MAP_SIZES, json_out: bool = False,
-                     out: TextIO | None = None) -> dict:
+def run_render_bench(frames: int = DEFAULT_FRAMES, sizes=MAP_SIZES, identity_poses: int = DEFAULT_IDENTITY_POSES,
+                     json_out: bool = False, out: TextIO | None = None) -> dict:
     """Run the benchmark; write a table (or the JSON) to ``out`` and return the results."""
     from tqdm import tqdm
     top, dsm, facade, m, world_desc = bench_world()
@@ -200,7 +201,7 @@ def run_render_bench(frames: int = DEFAULT_FRAMES, sizes=MAP_SIZES, json_out: bo
         bar.update(1)
     agree = agreement(dsm, m)
     bar.update(1)
-    ident = flat_identity(top, m)
+    ident = flat_identity(top, m, n_poses=max(2, identity_poses))
     bar.update(1)
     bar.close()
     report = {
@@ -248,8 +249,22 @@ def format_table(r: dict) -> str:
     return "\n".join(lines) + "\n"
 
 
+def _size_list(text: str) -> tuple[tuple[int, int], ...]:
+    """``900x1000,2400x2400`` -> ((900, 1000), (2400, 2400))."""
+    sizes = []
+    for part in text.split(","):
+        try:
+            w, h = (int(v) for v in part.strip().lower().split("x"))
+        except ValueError:
+            raise argparse.ArgumentTypeError(f"{part!r}: expected WIDTHxHEIGHT in pixels, e.g. 900x1000") from None
+        if not (64 <= w <= 20000 and 64 <= h <= 20000):
+            raise argparse.ArgumentTypeError(f"{part!r}: expected sides of 64 to 20000 pixels")
+        sizes.append((w, h))
+    return tuple(sizes)
+
+
 def _cmd_bench_render(args: argparse.Namespace) -> int:
-    run_render_bench(frames=args.frames, json_out=args.json)
+    run_render_bench(frames=args.frames, sizes=args.sizes, identity_poses=args.identity_poses, json_out=args.json)
     return 0
 
 
@@ -265,4 +280,9 @@ def register_bench(bench_subparsers) -> None:
     p.add_argument("--json", action="store_true", help="print only the results as JSON on stdout")
     p.add_argument("--frames", type=positive_int, default=DEFAULT_FRAMES,
                    help=f"timed frames per case (default {DEFAULT_FRAMES})")
+    p.add_argument("--sizes", type=_size_list, default=MAP_SIZES, metavar="WxH,...",
+                   help="synthetic city sizes for the cost vs map size, px (default "
+                        + ",".join(f"{w}x{h}" for w, h in MAP_SIZES) + ")")
+    p.add_argument("--identity-poses", type=positive_int, default=DEFAULT_IDENTITY_POSES, metavar="N",
+                   help=f"poses of the flat-world identity check, half per mount (default {DEFAULT_IDENTITY_POSES})")
     p.set_defaults(func=_cmd_bench_render)
