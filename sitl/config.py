@@ -124,7 +124,7 @@ class GpsConfig:
 
 @dataclass(frozen=True)
 class CameraConfig:
-    """Downward camera rendered from the orthophoto (see sitl.camera.GroundCamera)."""
+    """Downward camera rendering the world's orthophoto and DSM (see sitl.camera.GroundCamera)."""
 
     width_px: int = 200
     height_px: int = 200
@@ -138,6 +138,7 @@ class CameraConfig:
     outside_grey_level: int = 128  # grey level of the ground outside the map
     latency_s: float = 0.05        # capture-to-publication delay; rendering overlaps the physics meanwhile
     render_in_worker: bool = True  # render in a separate process (pipelined with the simulation loop)
+    relief: bool = True            # render the world's DSM (buildings, trees) when it has one; False = flat
 
     def __post_init__(self) -> None:
         check(isinstance(self.width_px, int) and 8 <= self.width_px <= 4096, "width_px",
@@ -161,6 +162,7 @@ class CameraConfig:
               "outside_grey_level", self.outside_grey_level, "an integer in [0, 255]")
         check(_non_negative(self.latency_s) and self.latency_s <= 1.0, "latency_s", self.latency_s,
               "a number in [0, 1] seconds")
+        check(isinstance(self.relief, bool), "relief", self.relief, "true or false")
 
 
 @dataclass(frozen=True)

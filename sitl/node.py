@@ -81,7 +81,8 @@ class SimStats:
 
 
 class SimulatorNode:
-    """The simulator on the bus. ``world`` gives the orthophoto, ``m_per_px`` and the geodetic origin
+    """The simulator on the bus. ``world`` gives the orthophoto, the surface model (``dsm_m``,
+    ``facade_rgb``, None on a flat world), ``m_per_px`` and the geodetic origin
     (``world.manifest.origin_lat_deg`` / ``origin_lon_deg``)."""
 
     def __init__(self, cfg: SimNodeConfig, world, bus_cfg: BusConfig):
@@ -93,7 +94,8 @@ class SimulatorNode:
         m = world.manifest
         self.core = SimulatorCore(cfg.sim, cfg.clock.tick_rate_hz, cfg.seed, m.origin_lat_deg,
                                   m.origin_lon_deg)
-        self.camera = CameraPipeline(world.orthophoto, world.m_per_px, cfg.sim.camera)
+        self.camera = CameraPipeline(world.orthophoto, world.m_per_px, cfg.sim.camera,
+                                     heights_m=world.dsm_m, facade_rgb=world.facade_rgb)
         if cfg.scripted is not None:
             self.core.start_scripted(cfg.scripted)
         else:

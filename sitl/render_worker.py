@@ -2,12 +2,11 @@
 
 ``CameraPipeline.request(seq, position, q)`` hands a capture pose to the renderer and returns at
 once; ``CameraPipeline.result(seq)`` returns that frame's image, blocking only if it is not ready.
-The simulator requests at the capture tick and collects ``latency_s`` later, so the TinyRenderer
-work (about 8 ms a frame) overlaps the physics and the bus on the second core. The image depends
+The simulator requests at the capture tick and collects ``latency_s`` later, so the rendering
+(``sitl.camera``, a few ms a frame) overlaps the physics and the bus on the second core. The image depends
 only on the capture pose, so lockstep runs stay deterministic.
 
-With ``render_in_worker`` the renderer lives in a forked child process that owns its own pybullet
-client; otherwise it renders in-process at request time. The child never outlives the simulator,
+With ``render_in_worker`` the renderer lives in a forked child process; otherwise it renders in-process at request time. The child never outlives the simulator,
 even one killed by SIGKILL: it closes its inherited copy of the simulator's end of the pipe (so the
 simulator's death closes the pipe and the child sees EOF), and it asks the kernel for SIGKILL when
 its parent dies (``PR_SET_PDEATHSIG``, which ``fork()`` does not inherit from the simulator).
@@ -43,11 +42,12 @@ def die_with_parent(parent_pid: int, sig: int = signal.SIGKILL) -> None:
 
 
 def _serve(conn, parent_conn, parent_pid: int, orthophoto: np.ndarray, m_per_px: float,
-           cfg: CameraConfig) -> None:
-    from sitl.camera import GroundCamera
+           cfg: CameraConfig, heights_m: np.ndarray | None, facade_rgb: np.ndarray | None) -> None:
+    from sitl.camera import GroundCamera, warm_up
     die_with_parent(parent_pid)
     parent_conn.close()   # else this copy keeps the pipe open after the simulator died: no EOF
-    camera = GroundCamera(-1, orthophoto, m_per_px, cfg)
+    warm_up()             # kernels loaded while the simulator starts, not at its first frame
+    camera = GroundCamera(-1, orthophoto, m_per_px, cfg, heights_m=heights_m, facade_rgb=facade_rgb)
     try:
         while True:
             try:
@@ -63,7 +63,11 @@ def _serve(conn, parent_conn, parent_pid: int, orthophoto: np.ndarray, m_per_px:
 
 
 class CameraPipeline:
-    def __init__(self, orthophoto: np.ndarray, m_per_px: float, cfg: CameraConfig):
+    """Renders capture poses with ``sitl.camera.GroundCamera`` (of the orthophoto and, when given and
+    ``cfg.relief``, the DSM ``heights_m`` and facade colours), in a worker or in-process."""
+
+    def __init__(self, orthophoto: np.ndarray, m_per_px: float, cfg: CameraConfig,
+                 heights_m: np.ndarray | None = None, facade_rgb: np.ndarray | None = None):
         self.cfg = cfg
         self._done: OrderedDict[int, np.ndarray] = OrderedDict()
         self._in_flight: list[int] = []
@@ -73,13 +77,15 @@ class CameraPipeline:
             ctx = mp.get_context("fork")   # the child inherits the orthophoto without a copy
             self._conn, child = ctx.Pipe()
             self._proc = ctx.Process(target=_serve,
-                                     args=(child, self._conn, os.getpid(), orthophoto, m_per_px, cfg),
+                                     args=(child, self._conn, os.getpid(), orthophoto, m_per_px, cfg,
+                                           heights_m, facade_rgb),
                                      name="camera-render", daemon=True)
             self._proc.start()
             child.close()
         else:
             from sitl.camera import GroundCamera
-            self._camera = GroundCamera(-1, orthophoto, m_per_px, cfg)
+            self._camera = GroundCamera(-1, orthophoto, m_per_px, cfg, heights_m=heights_m,
+                                        facade_rgb=facade_rgb)
 
     def request(self, seq: int, position_enu_m, q_wxyz) -> None:
         pos = np.asarray(position_enu_m, dtype=float).copy()

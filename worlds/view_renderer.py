@@ -39,7 +39,7 @@ import numpy as np
 from numba import njit
 
 from worlds.ground_window import FRAME_MARGIN_M, GroundWindow, WindowTracker
-from worlds.raycast import FACE_LIGHT, HeightField, cast_ray, lod_texture, shade_hit
+from worlds.raycast import FACE_LIGHT, NO_NRT, HeightField, cast_ray, lod_texture, shade_hit
 
 # Clip planes of the TinyRenderer camera (sitl.mesh_camera uses the same): the near plane stays below
 # the lowest camera, the far plane beyond the grey frame seen by a tilted FIXED camera.
@@ -52,6 +52,12 @@ SKY_LEVEL = 255
 # full emulation. float32 epsilon is 6e-8; this is ~3000 times that.
 _EDGE_TOL_REL = 2e-4
 _EDGE_TOL_ABS_M = 1e-3
+# Fast texel path: distance (texels) from a texel edge beyond which the approximate uv (reciprocals,
+# double) picks the same texel as TinyRenderer's float32 uv (whose rounding error is ~1e-4 texel at
+# N = 2048); nearer pixels are recomputed with the exact emulation.
+_UV_TOL = 4e-3
+# Image tiles (pixels on a side) that bound their rays' start height together (_cast_kernel).
+_TILE = 8
 
 _F32 = np.float32
 
@@ -139,14 +145,13 @@ def _clip_vertex(pmv, x, y, z):
     return c
 
 
-@njit(cache=True)
+@njit(**NO_NRT)
 def _screen(vp, c):
     """Viewport transform of clip coords -> (x, y, w) as TinyRenderer: (vp * c) / (vp * c)[3]."""
-    s = np.empty(4, dtype=np.float32)
-    for i in range(4):
-        s[i] = _dot4f(vp[i, 0], vp[i, 1], vp[i, 2], vp[i, 3], c[0], c[1], c[2], c[3])
-    w = s[3]
-    return s[0] / w, s[1] / w, w
+    s0 = _dot4f(vp[0, 0], vp[0, 1], vp[0, 2], vp[0, 3], c[0], c[1], c[2], c[3])
+    s1 = _dot4f(vp[1, 0], vp[1, 1], vp[1, 2], vp[1, 3], c[0], c[1], c[2], c[3])
+    w = _dot4f(vp[3, 0], vp[3, 1], vp[3, 2], vp[3, 3], c[0], c[1], c[2], c[3])
+    return s0 / w, s1 / w, w
 
 
 @njit(cache=True)
@@ -253,6 +258,20 @@ def _bary(ax, ay, bx, by, cx, cy, px, py):
 
 
 @njit(cache=True, inline="always")
+def _bary_cross(pts, t, px, py):
+    """The cross product of ``_bary`` for triangle t (same operations, for the fast path)."""
+    ax = np.float64(pts[t, 0, 0])
+    ay = np.float64(pts[t, 0, 1])
+    s0x = np.float64(pts[t, 2, 0]) - ax
+    s0y = np.float64(pts[t, 1, 0]) - ax
+    s0z = ax - px
+    s1x = np.float64(pts[t, 2, 1]) - ay
+    s1y = np.float64(pts[t, 1, 1]) - ay
+    s1z = ay - py
+    return s0y * s1z - s0z * s1y, s0z * s1x - s0x * s1z, s0x * s1y - s0y * s1x
+
+
+@njit(cache=True, inline="always")
 def _persp(b0, b1, b2, w0, w1, w2):
     c0 = b0 / np.float64(w0)
     c1 = b1 / np.float64(w1)
@@ -261,7 +280,7 @@ def _persp(b0, b1, b2, w0, w1, w2):
     return c0 / s, c1 / s, c2 / s
 
 
-@njit(cache=True, inline="always")
+@njit(**NO_NRT)
 def _texel_colour(t, c0, c1, c2, uvs, idx, tex, n_tex, bcol0, brow0, level_w, level_h, grey, frame_c, out, r, c):
     """Fragment shader: uv in float32 from float32 barycentrics, int(uv * N), texel (or frame grey)."""
     if t >= 2:
@@ -307,7 +326,7 @@ def _texel_colour(t, c0, c1, c2, uvs, idx, tex, n_tex, bcol0, brow0, level_w, le
         out[r, c, 2] = tex[bj, bi, 2]
 
 
-@njit(cache=True)
+@njit(**NO_NRT)
 def _emulate_pixel(px, py, clip, pts, ws, sub, nsub, vp, far32, near32, uvs, idx, tex, n_tex, bcol0, brow0,
                    level_w, level_h, grey, frame_c, width, height, out, r, c):
     """The whole TinyRenderer pipeline for one pixel (P = (px, py)): every triangle in draw order."""
@@ -365,17 +384,115 @@ def _emulate_pixel(px, py, clip, pts, ws, sub, nsub, vp, far32, near32, uvs, idx
                 zbuf = np.float32(depth)
 
 
-@njit(cache=True)
-def _render_kernel(eye, right, up, back, width, height, tan_x, tan_y,
-                   heights, tiles, hmax, m_per_px, map_w, map_h,
+@njit(cache=True, inline="always")
+def _region_max(mip, mip_off, mip_w, nlev, heights, u_lo, u_hi, v_lo, v_hi):
+    """An upper bound of the heights over map pixels [u_lo, u_hi] x [v_lo, v_hi] (continuous, clipped to
+    the map; 0 when outside), from the coarsest-enough mipmap level (at most 3 x 3 cells)."""
+    rows, cols = heights.shape
+    c0 = max(int(math.floor(u_lo)), 0)
+    c1 = min(int(math.floor(u_hi)), cols - 1)
+    r0 = max(int(math.floor(v_lo)), 0)
+    r1 = min(int(math.floor(v_hi)), rows - 1)
+    if c1 < c0 or r1 < r0:
+        return 0.0
+    ext = max(c1 - c0, r1 - r0) + 1
+    lev = 0
+    while lev < nlev and (1 << lev) * 8 < ext:
+        lev += 1
+    best = 0.0
+    if lev == 0:
+        for r in range(r0, r1 + 1):
+            for c in range(c0, c1 + 1):
+                best = max(best, heights[r, c])
+        return best
+    base = mip_off[lev]
+    w = mip_w[lev]
+    for cy in range(r0 >> lev, (r1 >> lev) + 1):
+        for cx in range(c0 >> lev, (c1 >> lev) + 1):
+            best = max(best, mip[base + cy * w + cx])
+    return best
+
+
+@njit(**NO_NRT)
+def _cast_kernel(eye, right, up, back, width, height, tan_x, tan_y, heights, mip, mip_off, mip_w, nlev, hmax,
+                 m_per_px, map_w, map_h, s_out, surf_out, face_out, col_out, row_out):
+    """Pass 1 (relief only): the first hit of every pixel's ray.
+
+    Image tiles of _TILE x _TILE pixels first bound their rays' start height: every ray of a tile, between
+    heights h and 0, stays over the map rectangle spanned by the tile's corner rays at h and at 0 (the
+    beam is convex), so nothing above the highest height there can be hit (two refinements).
+    """
+    ex, ey, ez = eye[0], eye[1], eye[2]
+    inv_m = 1.0 / m_per_px
+    u0 = ex * inv_m + map_w / 2.0
+    v0 = map_h / 2.0 - ey * inv_m
+    for tr in range(0, height, _TILE):
+        for tc in range(0, width, _TILE):
+            r_hi = min(tr + _TILE, height) - 1
+            c_hi = min(tc + _TILE, width) - 1
+            # Corner rays of the tile (pixel centres): their map points at heights ht and 0.
+            h_tile = hmax
+            ok = True
+            for _ in range(2):
+                u_lo = 1e300
+                u_hi = -1e300
+                v_lo = 1e300
+                v_hi = -1e300
+                for rr in (tr, r_hi):
+                    b = (1.0 - (2.0 * rr + 1.0) / height) * tan_y
+                    for cc in (tc, c_hi):
+                        a = ((2.0 * cc + 1.0) / width - 1.0) * tan_x
+                        dx = -back[0] + a * right[0] + b * up[0]
+                        dy = -back[1] + a * right[1] + b * up[1]
+                        dz = -back[2] + a * right[2] + b * up[2]
+                        if not dz < 0.0:
+                            ok = False
+                            break
+                        for zz in (h_tile, 0.0):
+                            t = (ez - zz) / -dz
+                            if t < 0.0:
+                                t = 0.0
+                            pu = u0 + dx * inv_m * t
+                            pv = v0 - dy * inv_m * t
+                            u_lo = min(u_lo, pu)
+                            u_hi = max(u_hi, pu)
+                            v_lo = min(v_lo, pv)
+                            v_hi = max(v_hi, pv)
+                    if not ok:
+                        break
+                if not ok:
+                    break
+                h_tile = min(h_tile, _region_max(mip, mip_off, mip_w, nlev, heights, u_lo - 1.0, u_hi + 1.0,
+                                                 v_lo - 1.0, v_hi + 1.0))
+            if not ok:
+                h_tile = hmax
+            for r in range(tr, r_hi + 1):
+                b = (1.0 - (2.0 * r + 1.0) / height) * tan_y
+                for c in range(tc, c_hi + 1):
+                    a = ((2.0 * c + 1.0) / width - 1.0) * tan_x
+                    dx = -back[0] + a * right[0] + b * up[0]
+                    dy = -back[1] + a * right[1] + b * up[1]
+                    dz = -back[2] + a * right[2] + b * up[2]
+                    s, sf, face, hc, hr = cast_ray(u0, v0, ez, dx * inv_m, -dy * inv_m, dz, heights, mip, mip_off,
+                                                   mip_w, nlev, h_tile)
+                    s_out[r, c] = s
+                    surf_out[r, c] = sf
+                    face_out[r, c] = face
+                    col_out[r, c] = hc
+                    row_out[r, c] = hr
+
+
+@njit(**NO_NRT)
+def _render_kernel(eye, right, up, back, width, height, tan_x, tan_y, relief, m_per_px, map_w, map_h,
                    tex, lod, facade, has_facade, grey, face_light,
                    win_cx, win_cy, half, outer, n_tex, bcol0, brow0, level_w, level_h, frame_c,
-                   clip, pts, ws, sub, nsub, vp, far32, near32, uvs, idx,
-                   out, out_flat, surf_out, col_out, row_out):
+                   clip, pts, ws, inv_w, sub, nsub, vp, far32, near32, uvs, idx,
+                   out, out_flat, s_in, surf_out, face_out, col_out, row_out):
+    """Pass 2: roofs and walls shaded from the hits of pass 1 (``relief``), the ground as TinyRenderer."""
     ex, ey, ez = eye[0], eye[1], eye[2]
-    u0 = ex / m_per_px + map_w / 2.0
-    v0 = map_h / 2.0 - ey / m_per_px
-    relief = hmax > 0.0
+    inv_m = 1.0 / m_per_px
+    u0 = ex * inv_m + map_w / 2.0
+    v0 = map_h / 2.0 - ey * inv_m
     scale = abs(ex) + abs(ey) + abs(win_cx) + abs(win_cy) + half + ez
     # Window triangle 0 = SW, SE, NE (below the SW-NE diagonal, ly < lx), 1 = SW, NE, NW.
     for r in range(height):
@@ -386,19 +503,26 @@ def _render_kernel(eye, right, up, back, width, height, tan_x, tan_y,
             dy = -back[1] + a * right[1] + b * up[1]
             dz = -back[2] + a * right[2] + b * up[2]
             if relief:
-                s, sf, face, hc, hr = cast_ray(u0, v0, ez, dx / m_per_px, -dy / m_per_px, dz, heights, tiles, hmax)
-                surf_out[r, c] = sf
-                col_out[r, c] = hc
-                row_out[r, c] = hr
-                if sf == 2 or sf == 3:
-                    hu = u0 + dx / m_per_px * s
-                    hv = v0 - dy / m_per_px * s
+                sf = surf_out[r, c]
+                if sf == 2:
+                    # A roof: the nearest texel of the level-of-detail texture (shade_hit's TOP case).
+                    hc = col_out[r, c] // lod if lod > 1 else col_out[r, c]
+                    hr = row_out[r, c] // lod if lod > 1 else row_out[r, c]
+                    out[r, c, 0] = tex[hr, hc, 0]
+                    out[r, c, 1] = tex[hr, hc, 1]
+                    out[r, c, 2] = tex[hr, hc, 2]
+                    continue
+                if sf == 3:
+                    s = s_in[r, c]
+                    hu = u0 + dx * inv_m * s
+                    hv = v0 - dy * inv_m * s
                     hz = ez + dz * s
-                    shade_hit(sf, face, hc, hr, hu, hv, hz, tex, map_h, map_w, lod, facade, has_facade, grey,
-                              m_per_px, face_light, out_flat, r * width + c)
+                    shade_hit(sf, face_out[r, c], col_out[r, c], row_out[r, c], hu, hv, hz, tex, map_h, map_w, lod,
+                              facade, has_facade, grey, m_per_px, face_light, out_flat, r * width + c)
                     continue
             else:
                 surf_out[r, c] = 1 if dz < 0.0 else 0
+                face_out[r, c] = 0
                 col_out[r, c] = -1
                 row_out[r, c] = -1
             # The ground, as TinyRenderer draws it.
@@ -441,11 +565,43 @@ def _render_kernel(eye, right, up, back, width, height, tan_x, tan_y,
                     out[r, c, 1] = frame_c
                     out[r, c, 2] = frame_c
                 else:
-                    b0, b1, b2 = _bary(pts[t, 0, 0], pts[t, 0, 1], pts[t, 1, 0], pts[t, 1, 1], pts[t, 2, 0],
-                                       pts[t, 2, 1], np.float64(c), np.float64(py))
-                    c0, c1, c2 = _persp(b0, b1, b2, ws[t, 0], ws[t, 1], ws[t, 2])
-                    _texel_colour(t, c0, c1, c2, uvs, idx, tex, n_tex, bcol0, brow0, level_w, level_h, grey,
-                                  frame_c, out, r, c)
+                    # The uv with 2 divisions instead of 9; the exact float32 emulation only when it lies
+                    # within _UV_TOL texels of a texel edge (where the rounding could change the texel).
+                    ux, uy, uz = _bary_cross(pts, t, np.float64(c), np.float64(py))
+                    exact = True
+                    if abs(uz) > 1e-2:
+                        iz = 1.0 / uz
+                        q1 = uy * iz * inv_w[t, 1]
+                        q2 = ux * iz * inv_w[t, 2]
+                        q0 = (1.0 - (ux + uy) * iz) * inv_w[t, 0]
+                        iq = 1.0 / (q0 + q1 + q2)
+                        i0 = idx[3 * t]
+                        i1 = idx[3 * t + 1]
+                        i2 = idx[3 * t + 2]
+                        au = (uvs[i0, 0] * q0 + uvs[i1, 0] * q1 + uvs[i2, 0] * q2) * iq * n_tex
+                        av = (uvs[i0, 1] * q0 + uvs[i1, 1] * q1 + uvs[i2, 1] * q2) * iq * n_tex
+                        if (_UV_TOL < au < n_tex - _UV_TOL and _UV_TOL < av < n_tex - _UV_TOL
+                                and abs(au - math.floor(au + 0.5)) > _UV_TOL
+                                and abs(av - math.floor(av + 0.5)) > _UV_TOL):
+                            exact = False
+                            x = int(au)
+                            y = int(av)
+                            bi = bcol0 + x
+                            bj = brow0 + (n_tex - 1 - y)
+                            if bi < 0 or bj < 0 or bi >= level_w or bj >= level_h:
+                                out[r, c, 0] = grey
+                                out[r, c, 1] = grey
+                                out[r, c, 2] = grey
+                            else:
+                                out[r, c, 0] = tex[bj, bi, 0]
+                                out[r, c, 1] = tex[bj, bi, 1]
+                                out[r, c, 2] = tex[bj, bi, 2]
+                    if exact:
+                        b0, b1, b2 = _bary(pts[t, 0, 0], pts[t, 0, 1], pts[t, 1, 0], pts[t, 1, 1], pts[t, 2, 0],
+                                           pts[t, 2, 1], np.float64(c), np.float64(py))
+                        c0, c1, c2 = _persp(b0, b1, b2, ws[t, 0], ws[t, 1], ws[t, 2])
+                        _texel_colour(t, c0, c1, c2, uvs, idx, tex, n_tex, bcol0, brow0, level_w, level_h, grey,
+                                      frame_c, out, r, c)
             else:
                 _emulate_pixel(c, py, clip, pts, ws, sub, nsub, vp, far32, near32, uvs, idx, tex, n_tex, bcol0,
                                brow0, level_w, level_h, grey, frame_c, width, height, out, r, c)
@@ -486,7 +642,10 @@ class CityRenderer:
         else:
             self.field = None
         self._heights = self.field.heights_m if self.field else np.zeros((1, 1), np.float32)
-        self._tiles = self.field.tile_max_m if self.field else np.zeros((1, 1), np.float32)
+        self._mip = self.field.mip if self.field else np.zeros(1, np.float32)
+        self._mip_off = self.field.mip_off if self.field else np.zeros(1, np.int64)
+        self._mip_w = self.field.mip_w if self.field else np.ones(1, np.int64)
+        self._nlev = self.field.levels if self.field else 0
         self._hmax = self.field.max_height_m if self.field else 0.0
         if facade_rgb is not None:
             fac = np.ascontiguousarray(facade_rgb, dtype=np.uint8)
@@ -499,6 +658,8 @@ class CityRenderer:
         self._trackers: dict[tuple[int, int, float, float], WindowTracker] = {}
         self._buffers: dict[tuple[int, int], tuple[np.ndarray, ...]] = {}
         self._frame_c = frame_grey(self.grey)
+        self._mesh_key: tuple | None = None
+        self._mesh: tuple = ()
 
     @property
     def relief(self) -> bool:
@@ -537,21 +698,26 @@ class CityRenderer:
         assert win is not None
         return self._render(eye, r3, u3, b3, int(width_px), int(height_px), float(tan_x), float(tan_y), win)
 
-    def last_hits(self, width_px: int, height_px: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        """(surface, col, row) per pixel of the last image of this size (``worlds.raycast.Surface``
-        values; the map pixel hit, for the ground of a flat world the pixel under the ground point)."""
+    def last_hits(self, width_px: int, height_px: int) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+        """(surface, wall_face, col, row) per pixel of the last image of this size (``worlds.raycast``
+        ``Surface``/``WallFace`` values and the map pixel hit; for the ground, the pixel under the ground
+        point; -1 for sky). Views of internal buffers: the next render overwrites them."""
         buf = self._buffers[(int(width_px), int(height_px))]
-        return buf[1], buf[2], buf[3]
+        return buf[1], buf[2], buf[3], buf[4]
 
     def _render(self, eye, right, up, back, width, height, tan_x, tan_y, win: GroundWindow) -> np.ndarray:
         m = self.m_per_px
         cx, cy = win.centre_m(self.map_w, self.map_h, m)
         half = win.half_m(m)
-        verts, idx, uvs = window_meshes(half)
+        mesh_key = (half, width, height, tan_x, tan_y)
+        if self._mesh_key != mesh_key:    # per window and camera geometry, not per frame
+            verts, idx, uvs = window_meshes(half)
+            self._mesh = (verts.astype(np.float32), idx, uvs.astype(np.float32),
+                          np.array(projection_matrix(tan_x, tan_y, width, height), dtype=np.float32))
+            self._mesh_key = mesh_key
+        verts32, idx, uvs32, proj = self._mesh
         view = np.array(view_matrix(eye, right, up, back), dtype=np.float32)
-        proj = np.array(projection_matrix(tan_x, tan_y, width, height), dtype=np.float32)
-        clip, pts, ws, sub, nsub, vp = _tr_setup(view, proj, _F32(cx), _F32(cy), verts.astype(np.float32), idx,
-                                                 width, height)
+        clip, pts, ws, sub, nsub, vp = _tr_setup(view, proj, _F32(cx), _F32(cy), verts32, idx, width, height)
         far32 = _F32(proj[14] / (proj[10] + _F32(1.0)))
         near32 = _F32(proj[14] / (proj[10] - _F32(1.0)))
         tex = self.level(win.lod)
@@ -559,14 +725,18 @@ class CityRenderer:
         buf = self._buffers.get(key)
         if buf is None:
             buf = (np.empty((height, width, 3), np.uint8), np.empty((height, width), np.uint8),
-                   np.empty((height, width), np.int64), np.empty((height, width), np.int64))
+                   np.empty((height, width), np.uint8), np.empty((height, width), np.int64),
+                   np.empty((height, width), np.int64), np.empty((height, width), np.float64))
             self._buffers[key] = buf
-        out, surf, col, row = buf
-        _render_kernel(np.array(eye), np.array(right), np.array(up), np.array(back), width, height, tan_x, tan_y,
-                       self._heights, self._tiles, self._hmax, m, self.map_w, self.map_h,
+        out, surf, face, col, row, s_buf = buf
+        e, rt, u, b = np.array(eye), np.array(right), np.array(up), np.array(back)
+        if self.field is not None:
+            _cast_kernel(e, rt, u, b, width, height, tan_x, tan_y, self._heights, self._mip, self._mip_off,
+                         self._mip_w, self._nlev, self._hmax, m, self.map_w, self.map_h, s_buf, surf, face, col, row)
+        _render_kernel(e, rt, u, b, width, height, tan_x, tan_y, self.field is not None, m, self.map_w, self.map_h,
                        tex, win.lod, self._facade, self._has_facade, self.grey, FACE_LIGHT,
                        cx, cy, half, half + FRAME_MARGIN_M, win.size_texels, win.col0_px // win.lod,
                        win.row0_px // win.lod, tex.shape[1], tex.shape[0], self._frame_c,
-                       clip, pts, ws, sub, nsub, vp, far32, near32, uvs.astype(np.float32), idx,
-                       out, out.reshape(height * width, 3), surf, col, row)
+                       clip, pts, ws, 1.0 / ws.astype(np.float64), sub, nsub, vp, far32, near32,
+                       uvs32, idx, out, out.reshape(height * width, 3), s_buf, surf, face, col, row)
         return out.copy()

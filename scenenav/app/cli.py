@@ -270,6 +270,7 @@ def _register_domain_commands(sub, bsub) -> None:
     from scenenav.app.bench.campaign import register_bench as register_campaign_bench
     from scenenav.app.bench.e2e import register_bench as register_e2e_bench
     from scenenav.app.bench.plan import register_bench as register_plan_bench
+    from scenenav.app.bench.render import register_bench as register_render_bench
     from scenenav.app.bench.soak import register_bench as register_soak_bench
     from scenenav.app.commands import assistant_map, campaign, perception, plan, world
     for module in (world, plan, perception, assistant_map, campaign):
@@ -279,6 +280,7 @@ def _register_domain_commands(sub, bsub) -> None:
     register_e2e_bench(bsub)
     register_campaign_bench(bsub)
     register_soak_bench(bsub)
+    register_render_bench(bsub)
 
 
 _NEGATIVE_LIST = re.compile(r"^-\d[\d.eE+-]*(,\s*[-+]?[\d.eE+-]+)+$")

@@ -16,6 +16,7 @@ COMMANDS = {
     ("bench", "sim"): (["--seconds", "1", "--sizes", "200x200"], "real_time_factor"),
     ("bench", "perception"): (["--frames", "5", "--stride-px", "60", "--map-sizes", "1000"], "methods"),
     ("bench", "plan"): (["--size", "64x64"], "results"),
+    ("bench", "render"): (["--frames", "3", "--sizes", "200x200", "--identity-poses", "2"], "render_ms_median"),
     ("bench", "autopilot"): (["--hold-s", "0.2", "--settle-s", "0", "--leg-m", "10"], "hold_rms_m"),
     ("bench", "e2e"): (["--duration-s", "3", "--quiet"], "real_time_factor"),
     ("bench", "campaign"): (["--flights", "1", "--duration-s", "2"], "runs"),

@@ -1,6 +1,6 @@
 """``scenenav bench perception``: per-fix time by stage and method, beside raw cv2.matchTemplate.
 
-Captures are rendered by the simulator's camera (pybullet TinyRenderer) along a straight 10 m/s
+Captures are rendered by the simulator's camera (``sitl.camera``, with the world's DSM) along a straight 10 m/s
 path at 100 m over the default world (10 Hz). Every method processes the same frames; the raw
 baseline runs ``cv2.matchTemplate`` (TM_CCOEFF_NORMED) of the same aligned template on the same
 window the tracker searched, in the same run. One thread for OpenCV and torch ("one core").
@@ -27,7 +27,8 @@ METHODS = ("none", "statistical", "assistant-map", "cnn")
 def _captures(world, n: int, altitude_m: float = 100.0, speed_m_s: float = 10.0, rate_hz: float = 10.0):
     from sitl.camera import GroundCamera
     from sitl.config import CameraConfig
-    cam = GroundCamera(-1, world.orthophoto, world.m_per_px, CameraConfig())
+    cam = GroundCamera(-1, world.orthophoto, world.m_per_px, CameraConfig(), heights_m=world.dsm_m,
+                       facade_rgb=world.facade_rgb)
     half_w = world.width_px * world.m_per_px / 2 - 70.0
     heading = math.radians(80.0)   # a slightly skewed track: the image is rotated
     yaw = math.pi / 2 - heading

@@ -42,8 +42,8 @@ def synthetic_world(width_px: int, height_px: int, m_per_px: float = 0.53, seed:
     manifest = SimpleNamespace(name=f"synthetic-{width_px}x{height_px}", width_px=width_px,
                                height_px=height_px, m_per_px=m_per_px,
                                origin_lat_deg=48.0, origin_lon_deg=11.0)
-    return SimpleNamespace(orthophoto=img, reference=img, m_per_px=m_per_px, manifest=manifest,
-                           width_px=width_px, height_px=height_px)
+    return SimpleNamespace(orthophoto=img, reference=img, dsm_m=None, facade_rgb=None, m_per_px=m_per_px,
+                           manifest=manifest, width_px=width_px, height_px=height_px)
 
 
 def responder(namespace: str, hub_port: int, hover: float) -> None:
@@ -135,7 +135,7 @@ def format_table(result: dict) -> str:
         lines.append(f"{r['world_px']:>12} {r['real_time_factor']:>6.1f} {r['ms_render_wait_per_frame']:>10.2f} "
                      f"{r['us_per_physics_step']:>8.1f} {s['physics']:>8.0%} {s['render']:>7.0%} "
                      f"{s['publish']:>8.0%} {s['bus_wait']:>9.0%}")
-    lines.append("lockstep, control tick 100 Hz, physics 400 Hz, camera 200x200 at 10 Hz, TinyRenderer; "
+    lines.append("lockstep, control tick 100 Hz, physics 400 Hz, camera 200x200 at 10 Hz, flat world; "
                  "target >= 10x real time (gym-pybullet-drones: 1.3x with TinyRenderer, 10.8x with OpenGL)")
     return "\n".join(lines) + "\n"
 
