@@ -33,8 +33,14 @@ lint: install
 	echo '== mypy'; $(VENV)/bin/mypy || status=1; \
 	exit $$status
 
+# Two pytest workers (pytest-xdist): most tests are real runs whose processes wait on each other, the
+# bus or the wall clock (MAVProxy, MAVSDK and the failsafe tests fly in real time), so one worker
+# leaves a core idle much of the time. --dist loadscope keeps each module on one worker, so a module's
+# shared flights (module-scoped fixtures) are flown once. TEST_WORKERS=0 runs the suite in one process.
+TEST_WORKERS ?= 2
+
 test: install lint
-	$(PY) -m pytest -q -ra
+	$(PY) -m pytest -q -ra -n $(TEST_WORKERS) --dist loadscope
 
 bench: install
 	$(VENV)/bin/scenenav bench sim
