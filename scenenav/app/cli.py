@@ -106,7 +106,15 @@ def _sitl(args: argparse.Namespace) -> int:
     return 0 if not (summary.get("failed_nodes") or summary.get("aborted")) else 1
 
 
-def build_parser() -> argparse.ArgumentParser:
+# Commands defined in this module alone: for these main() leaves out the domain packages' commands,
+# whose registration imports torch, scipy and the planner (1.5-2 s of CPU), so the launcher and every
+# node of a run (``scenenav node sim ...``) start without them. The parser of each of these commands
+# is the same either way; ``scenenav --help`` and every other command get the whole parser.
+_OWN_COMMANDS = frozenset({"run", "summarize", "node", "sitl"})
+
+
+def build_parser(domain_commands: bool = True) -> argparse.ArgumentParser:
+    """The ``scenenav`` parser; without ``domain_commands`` only the commands of this module."""
     p = argparse.ArgumentParser(
         prog="scenenav",
         description="Software-in-the-loop stack for GPS-denied drone navigation by scene matching: "
@@ -260,7 +268,8 @@ def build_parser() -> argparse.ArgumentParser:
     bp.add_argument("--map-sizes", type=_side_list, default=(1000, 4000, 8000), metavar="N,N,...",
                     help="square map sides for the per-fix time vs map size, px (default 1000,4000,8000)")
     bp.set_defaults(func=_bench)
-    _register_domain_commands(sub, bsub)
+    if domain_commands:
+        _register_domain_commands(sub, bsub)
     return p
 
 
@@ -313,9 +322,24 @@ def _side_list(text: str) -> tuple[int, ...]:
     return sides
 
 
+def _command_of(argv: list[str]) -> str | None:
+    """The subcommand named in ``argv`` (it follows the global ``--log-level``), or None."""
+    i = 0
+    while i < len(argv):
+        a = argv[i]
+        if a == "--log-level":
+            i += 2
+        elif a.startswith("--log-level="):
+            i += 1
+        else:
+            return None if a.startswith("-") else a
+    return None
+
+
 def main(argv: list[str] | None = None) -> int:
-    parser = build_parser()
-    args = parser.parse_args(glue_negative_values(list(sys.argv[1:] if argv is None else argv)))
+    argv = glue_negative_values(list(sys.argv[1:] if argv is None else argv))
+    parser = build_parser(domain_commands=_command_of(argv) not in _OWN_COMMANDS)
+    args = parser.parse_args(argv)
     logging.basicConfig(level=getattr(logging, args.log_level),
                         format="%(asctime)s %(levelname)s %(name)s: %(message)s")
     return run_json_aware(args)

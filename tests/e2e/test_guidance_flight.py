@@ -16,6 +16,7 @@ from support import REPO_ROOT
 
 from guidance.node import cross_track_m
 from scenenav.app.evaluation import fix_table, read_csv
+from scenenav.core.bus import free_port
 
 ROOT = REPO_ROOT
 SCENARIO = ROOT / "scenarios" / "guided_route.yaml"
@@ -26,6 +27,8 @@ pytestmark = pytest.mark.timeout(1200)
 
 
 def _run(out: Path, *overrides: str) -> dict:
+    # its own MAVLink port, no UDP output: other tests' flights may run beside this one
+    overrides = (*overrides, f"autopilot.mavlink_tcp_port={free_port()}", "autopilot.mavlink_udp_out=none")
     sets = [a for o in overrides for a in ("--set", o)]
     r = subprocess.run([sys.executable, "-m", "scenenav.app.cli", "run", str(SCENARIO), "--out", str(out),
                         "--quiet", *sets], capture_output=True, text=True, timeout=900, cwd=ROOT)

@@ -13,6 +13,7 @@ import json
 import math
 
 import numpy as np
+from pymavlink import mavutil
 from support import REPO_ROOT
 from support.lineproc import MavproxyProcess, wait_until
 
@@ -48,8 +49,12 @@ def test_mavproxy_guided_takeoff_mission_and_rtl(tmp_path):
             assert wait_until(lambda name=name, value=value: sitl.param(name) == value, 30), f"{name} not set"
         monitor = monitor_connection(sitl.port)
         # GUIDED needs a position, as in ArduCopter: wait for the EKF (parameters now arrive by
-        # MAVFTP within a second, before the EKF has aligned)
-        mp.expect("EKF3 IMU0 is using")
+        # MAVFTP within a second, before the EKF has aligned). From its streamed EKF_STATUS_REPORT,
+        # as a ground station does: the one-off "EKF3 IMU0 is using GPS" text is sent only to the
+        # links connected at that moment, and a MAVProxy slow to start on a loaded machine missed it.
+        ekf = wait_for(monitor, "EKF_STATUS_REPORT", timeout_s=TIMEOUT_S,
+                       condition=lambda m: m.flags & mavutil.mavlink.EKF_POS_HORIZ_ABS)
+        assert ekf is not None, "the EKF never reported a horizontal position"
         mark = mp.send("mode GUIDED")
         mp.expect("GUIDED>", mark)
         mark = mp.send("arm throttle")

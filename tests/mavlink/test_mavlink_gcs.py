@@ -153,9 +153,10 @@ def test_sitl_heartbeats_go_on_while_the_simulator_stands_still(tmp_path):
 
 
 def ftp_get(conn, path: str):
-    """pymavlink's MAVFTP client: (error code, file bytes)."""
+    """pymavlink's MAVFTP client: (error code, file bytes). The local name ``-`` keeps the download in
+    memory (without it the client writes the file into the current directory)."""
     client = mavftp.MAVFTP(conn, 1, 1)
-    client.cmd_get([path])
+    client.cmd_get([path, "-"])
     ret = client.process_ftp_reply("OpenFileRO", timeout=10)
     return ret.error_code, client.get_result
 

@@ -11,10 +11,17 @@ from support import REPO_ROOT
 ROOT = REPO_ROOT
 
 
+# The clock is paced (realtime, 4x): the swap starts a new process at 8 s of simulated time, and it must
+# be up before the flight ends. In lockstep the flight's wall time is whatever the machine allows (70 s
+# in about 8 s on a quiet machine, less as the simulator gets faster), which a node starting on a loaded
+# machine lost: perception-2 came up after the flight had ended and the test failed.
+PACED = ["--set", "clock.mode=realtime", "--set", "clock.speed_factor=4"]
+
+
 def test_scenario_swaps_perception_in_flight(tmp_path):
     out = tmp_path / "swap"
     r = subprocess.run([sys.executable, "-m", "scenenav.app.cli", "run", str(ROOT / "scenarios" / "perception_swap.yaml"),
-                        "--out", str(out), "--quiet", "--set", "flight.mode=scripted",
+                        "--out", str(out), "--quiet", "--set", "flight.mode=scripted", *PACED,
                         "--set", "duration_s=70", "--set", "perception.swap_at_s=8",
                         "--set", "perception.method=statistical", "--set", "perception.swap_method=none"],
                        capture_output=True, text=True, timeout=600, cwd=ROOT)
