@@ -246,7 +246,8 @@ def _resolve_guidance_map(cfg: ScenarioConfig, progress: bool) -> ScenarioConfig
     path = cached_assistant_map(world_folder(cfg.world), g.assistant_map_stride_px,
                                 cfg.flight.altitude_m, cfg.sim.camera.fov_deg,
                                 cfg.perception.weights if cfg.perception.weights.endswith(".pt") else None,
-                                progress=progress and sys.stderr.isatty())
+                                progress=progress and sys.stderr.isatty(),
+                                relief=cfg.sim.camera.relief, reference=cfg.perception.reference)
     return dataclasses.replace(cfg, guidance=dataclasses.replace(g, assistant_map=str(path)))
 
 
