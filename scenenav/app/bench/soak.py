@@ -61,10 +61,15 @@ class SoakConfig:
     fuzz_frames_per_min: int = 10000    # garbage MAVLink frames a (wall) minute
     sample_period_s: float = 5.0        # wall seconds between /proc samples
     seed: int = 2
+    baseline_s: float = BASELINE_SIM_S  # simulated time of the baseline sample (issue 14: minute 5)
 
     def __post_init__(self) -> None:
-        check(math.isfinite(self.duration_s) and 360.0 <= self.duration_s <= 4 * 3600.0, "duration_s",
-              self.duration_s, "360 .. 14400 simulated s (the baseline is taken at minute 5)")
+        check(math.isfinite(self.baseline_s) and 1.0 <= self.baseline_s <= 3600.0, "baseline_s",
+              self.baseline_s, "1 .. 3600 simulated s")
+        check(math.isfinite(self.duration_s) and self.baseline_s + 10.0 <= self.duration_s <= 4 * 3600.0,
+              "duration_s", self.duration_s,
+              f"{self.baseline_s + 10.0:.0f} .. 14400 simulated s (at least 10 s after the baseline at "
+              f"{self.baseline_s:.0f} s)")
         check(10.0 <= self.swap_every_s <= self.duration_s, "swap_every_s", self.swap_every_s,
               "10 s .. the duration")
         check(0 <= self.fuzz_frames_per_min <= 600_000, "fuzz_frames_per_min", self.fuzz_frames_per_min,
@@ -228,7 +233,7 @@ class Sampler(threading.Thread):
                 fig = self.roles.setdefault(role, RoleFigures(role))
                 fig.peak_rss_mb = max(fig.peak_rss_mb, rss)
                 sample = Sample(t, rss, fds)
-                if t >= BASELINE_SIM_S and fig.at_minute_5 is None:
+                if t >= self.cfg.baseline_s and fig.at_minute_5 is None:
                     fig.at_minute_5 = sample
                 if t <= end_window_s:
                     fig.at_end = sample
@@ -300,8 +305,8 @@ def soak_scenario(cfg: SoakConfig) -> dict:
     data.setdefault("autopilot", {})["mission_end"] = "rtl"
     # both nodes run the CNN, so the navigation stays what gps_denied.yaml flies; every swap is a
     # new process
-    data["perception"] = {"method": "cnn", "swap_at_s": cfg.swap_every_s, "swap_every_s": cfg.swap_every_s,
-                          "swap_method": "cnn"}
+    data.setdefault("perception", {}).update({"method": "cnn", "swap_at_s": cfg.swap_every_s,
+                                              "swap_every_s": cfg.swap_every_s, "swap_method": "cnn"})
     return data
 
 
@@ -401,7 +406,7 @@ def _mb(s: Sample | None) -> str:
 
 def _cmd_bench_soak(args: argparse.Namespace) -> int:
     cfg = SoakConfig(duration_s=args.duration_s, swap_every_s=args.swap_every_s,
-                     fuzz_frames_per_min=args.fuzz_per_min)
+                     fuzz_frames_per_min=args.fuzz_per_min, baseline_s=args.baseline_s)
     result = run_soak(cfg, Path(args.out) if args.out else None, progress=not args.json)
     if args.json:
         emit_json(result.to_dict())
@@ -423,6 +428,8 @@ def register_bench(bench_subparsers) -> None:
                    help="simulated seconds between perception swaps (default 120)")
     p.add_argument("--fuzz-per-min", type=int, default=SoakConfig.fuzz_frames_per_min,
                    help="garbage MAVLink frames a minute on the TCP port (default 10000)")
+    p.add_argument("--baseline-s", type=float, default=SoakConfig.baseline_s,
+                   help="simulated time of the baseline sample the end is compared with (default 300)")
     p.add_argument("--out", default="", help="keep the run folder here (default: a temporary folder)")
     p.add_argument("--json", action="store_true", help="print only JSON on stdout instead of a table")
     p.set_defaults(func=_cmd_bench_soak)
