@@ -280,6 +280,19 @@ def _persp(b0, b1, b2, w0, w1, w2):
     return c0 / s, c1 / s, c2 / s
 
 
+@njit(cache=True, inline="always")
+def _put_texel(out, r, c, tex, bi, bj, level_w, level_h, grey):
+    """Pixel (r, c) takes texel (bi, bj) of the level, or the outside grey beyond the level."""
+    if bi < 0 or bj < 0 or bi >= level_w or bj >= level_h:
+        out[r, c, 0] = grey
+        out[r, c, 1] = grey
+        out[r, c, 2] = grey
+    else:
+        out[r, c, 0] = tex[bj, bi, 0]
+        out[r, c, 1] = tex[bj, bi, 1]
+        out[r, c, 2] = tex[bj, bi, 2]
+
+
 @njit(**NO_NRT)
 def _texel_colour(t, c0, c1, c2, uvs, idx, tex, n_tex, bcol0, brow0, level_w, level_h, grey, frame_c, out, r, c):
     """Fragment shader: uv in float32 from float32 barycentrics, int(uv * N), texel (or frame grey)."""
@@ -314,16 +327,7 @@ def _texel_colour(t, c0, c1, c2, uvs, idx, tex, n_tex, bcol0, brow0, level_w, le
     x = min(max(x, 0), n_tex - 1)
     y = min(max(y, 0), n_tex - 1)
     # Loaded textures are flipped vertically: TinyRenderer row y is image row N - 1 - y.
-    bi = bcol0 + x
-    bj = brow0 + (n_tex - 1 - y)
-    if bi < 0 or bj < 0 or bi >= level_w or bj >= level_h:
-        out[r, c, 0] = grey
-        out[r, c, 1] = grey
-        out[r, c, 2] = grey
-    else:
-        out[r, c, 0] = tex[bj, bi, 0]
-        out[r, c, 1] = tex[bj, bi, 1]
-        out[r, c, 2] = tex[bj, bi, 2]
+    _put_texel(out, r, c, tex, bcol0 + x, brow0 + (n_tex - 1 - y), level_w, level_h, grey)
 
 
 @njit(**NO_NRT)
@@ -586,16 +590,8 @@ def _render_kernel(eye, right, up, back, width, height, tan_x, tan_y, relief, m_
                             exact = False
                             x = int(au)
                             y = int(av)
-                            bi = bcol0 + x
-                            bj = brow0 + (n_tex - 1 - y)
-                            if bi < 0 or bj < 0 or bi >= level_w or bj >= level_h:
-                                out[r, c, 0] = grey
-                                out[r, c, 1] = grey
-                                out[r, c, 2] = grey
-                            else:
-                                out[r, c, 0] = tex[bj, bi, 0]
-                                out[r, c, 1] = tex[bj, bi, 1]
-                                out[r, c, 2] = tex[bj, bi, 2]
+                            _put_texel(out, r, c, tex, bcol0 + x, brow0 + (n_tex - 1 - y), level_w,
+                                       level_h, grey)
                     if exact:
                         b0, b1, b2 = _bary(pts[t, 0, 0], pts[t, 0, 1], pts[t, 1, 0], pts[t, 1, 1], pts[t, 2, 0],
                                            pts[t, 2, 1], np.float64(c), np.float64(py))
