@@ -81,7 +81,7 @@ from perception.dataset_samples import (
     select_base_samples,
     select_by_label,
 )
-from perception.matchability import MatchabilityConfig, footprint_px, matchability, validate_windowed
+from perception.matchability import MatchabilityConfig, matchability, validate_windowed
 from scenenav.core.errors import UserError
 
 log = logging.getLogger(__name__)
@@ -97,7 +97,7 @@ def build_dataset(out_dir: str | Path, cfg: DatasetConfig, progress: bool = Fals
     if out.exists() and any(out.iterdir()):
         raise UserError(f"{out}: folder exists and is not empty (expected a new or empty folder)")
     t0 = time.perf_counter()
-    crop_px = footprint_px(cfg.altitude_m, cfg.fov_deg, cfg.m_per_px)
+    crop_px = cfg.crop_px()
     seeds = cfg.world_seeds()
     worlds: list[WorldData] = []
     for seed in tqdm(seeds, desc="worlds", unit="world", disable=not progress):
@@ -204,6 +204,7 @@ def build_dataset(out_dir: str | Path, cfg: DatasetConfig, progress: bool = Fals
         "reserved_eval_world_seeds": list(EVAL_WORLD_SEEDS),
         "world_size_px": [cfg.world_width_px, cfg.world_height_px],
         "m_per_px": cfg.m_per_px,
+        "crop": cfg.crop.value,
         "crop_px": crop_px,
         "crop_m": crop_px * cfg.m_per_px,
         "image_px": cfg.image_px,
@@ -270,5 +271,6 @@ def _generator_digest() -> dict[str, str]:
 def _config_dict(cfg: DatasetConfig) -> dict:
     d = asdict(cfg)
     d["labelling"] = cfg.labelling.value
+    d["crop"] = cfg.crop.value
     d["capture"] = {"relief": cfg.capture.relief, "reference": cfg.capture.reference.value}
     return d

@@ -7,6 +7,7 @@ from __future__ import annotations
 
 import logging
 from dataclasses import dataclass, field
+from enum import Enum
 
 from perception.capture import CaptureSettings
 from perception.cnn import PAPER_INPUT_PX, Labelling, MatchClass
@@ -21,6 +22,19 @@ EVAL_WORLD_SEEDS: tuple[int, ...] = (9001, 9002)
 
 
 WORLD_SEEDS_PER_DATASET_SEED = 1000
+
+
+class CropGeometry(str, Enum):
+    """How a base crop is cut (docs/cnn.md, "Two ways to cut the crops").
+
+    ``FOOTPRINT``: the camera footprint at the flight altitude (217 px = 115 m at 100 m, 60 deg,
+    0.53 m/px), what the network sees in flight; in a city grid it holds several junctions.
+    ``INTERSECTION``: the paper's way (5.2, "cropped ... for real intersections"): a smaller square
+    around one junction with no other junction inside it, so the arm count is the image's.
+    """
+
+    FOOTPRINT = "footprint"
+    INTERSECTION = "intersection"
 
 
 @dataclass(frozen=True)
@@ -54,6 +68,11 @@ class DatasetConfig:
     image_px: int = PAPER_INPUT_PX
     bad_min_share: float = 0.6
     junction_jitter_px: float = 40.0
+    crop: CropGeometry = CropGeometry.FOOTPRINT
+    # INTERSECTION crops: side in metres (median junction spacing in generated cities is ~59 m, so a
+    # 50 m square holds one junction ~96 % of the time) and the centre jitter in map pixels.
+    intersection_crop_m: float = 50.0
+    intersection_jitter_px: float = 10.0
     max_crops_per_junction: int = 3
     bad_min_spacing_px: int = 24
     validate_global_n: int = 16
@@ -66,6 +85,20 @@ class DatasetConfig:
 
     def world_seeds(self) -> tuple[int, ...]:
         return training_world_seeds(self.seed, self.n_worlds)
+
+    def crop_px(self) -> int:
+        """Side of a base crop in map pixels."""
+        if self.crop is CropGeometry.INTERSECTION:
+            return max(8, round(self.intersection_crop_m / self.m_per_px))
+        return footprint_px(self.altitude_m, self.fov_deg, self.m_per_px)
+
+    def jitter_px(self) -> float:
+        """Uniform jitter of a junction crop's centre, map pixels."""
+        return self.intersection_jitter_px if self.crop is CropGeometry.INTERSECTION else self.junction_jitter_px
+
+    def isolated_junctions_only(self) -> bool:
+        """Junction crops only where no other junction lies inside the crop."""
+        return self.crop is CropGeometry.INTERSECTION
 
 
 def training_world_seeds(seed: int, n_worlds: int) -> tuple[int, ...]:
@@ -87,7 +120,13 @@ def check_config(cfg: DatasetConfig) -> None:
         raise UserError(f"--base-crops = {cfg.base_crops}: expected at least {len(MatchClass)}")
     if cfg.augment_to < cfg.base_crops:
         raise UserError(f"--augment-to = {cfg.augment_to}: expected >= --base-crops ({cfg.base_crops})")
-    crop = footprint_px(cfg.altitude_m, cfg.fov_deg, cfg.m_per_px)
-    if min(cfg.world_width_px, cfg.world_height_px) < crop + 2 * cfg.junction_jitter_px + 8:
+    if cfg.crop is CropGeometry.INTERSECTION and cfg.labelling is Labelling.MATCHABILITY:
+        raise UserError("--crop intersection with --labelling matchability: the matchability labelling scores "
+                        "camera footprints; use --crop footprint (or --labelling paper)")
+    if cfg.crop is CropGeometry.INTERSECTION and not 5.0 <= cfg.intersection_crop_m <= 500.0:
+        raise UserError(f"--intersection-crop-m = {cfg.intersection_crop_m}: expected metres in [5, 500]")
+    crop = cfg.crop_px()
+    jitter = cfg.jitter_px()
+    if min(cfg.world_width_px, cfg.world_height_px) < crop + 2 * jitter + 8:
         raise UserError(f"world size {cfg.world_width_px}x{cfg.world_height_px} px: expected both sides > "
-                        f"{crop + 2 * cfg.junction_jitter_px + 8:.0f} px (the camera footprint is {crop} px)")
+                        f"{crop + 2 * jitter + 8:.0f} px (a crop is {crop} px)")

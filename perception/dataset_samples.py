@@ -101,13 +101,21 @@ def _inside(u: float, v: float, half: float, w: int, h: int) -> bool:
     return half <= u <= w - half and half <= v <= h - half
 
 
-def _junction_candidates(wd: WorldData, crop_px: int, jitter: float) -> list[BaseSample]:
+def _junction_candidates(wd: WorldData, crop_px: int, jitter: float, isolated: bool = False) -> list[BaseSample]:
+    """Junctions whose crop (+ jitter) fits in the world; with ``isolated``, only those with no other
+    junction inside their crop square (grown by the jitter)."""
     h, w = wd.landcover.shape
     out = []
-    for j in wd.junctions:
+    uv = np.array([[j.u_px, j.v_px] for j in wd.junctions], dtype=float).reshape(-1, 2)
+    for k, j in enumerate(wd.junctions):
         cls = arm_class(int(j.arms))
         if cls is None or not _inside(j.u_px, j.v_px, crop_px / 2.0 + jitter, w, h):
             continue
+        if isolated:
+            cheb = np.max(np.abs(uv - uv[k]), axis=1)
+            cheb[k] = np.inf
+            if np.any(cheb <= crop_px / 2.0 + jitter):
+                continue
         kind = j.kind.value if isinstance(j.kind, Enum) else str(j.kind)
         out.append(BaseSample(world_seed=wd.seed, source=CropSource.JUNCTION, u_px=float(j.u_px),
                               v_px=float(j.v_px), label=cls, arms=int(j.arms), kind=kind))
@@ -200,7 +208,7 @@ def select_base_samples(worlds: list[WorldData], cfg: DatasetConfig, crop_px: in
     junctions = {c: [] for c in MatchClass if c is not MatchClass.BAD}
     bad: list[BaseSample] = []
     for wd in worlds:
-        for s in _junction_candidates(wd, crop_px, cfg.junction_jitter_px):
+        for s in _junction_candidates(wd, crop_px, cfg.jitter_px(), cfg.isolated_junctions_only()):
             junctions[s.label].append(s)
         bad.extend(_bad_candidates(wd, crop_px, cfg.bad_min_share))
     avail = {c: len(v) * cfg.max_crops_per_junction for c, v in junctions.items()}
@@ -210,7 +218,7 @@ def select_base_samples(worlds: list[WorldData], cfg: DatasetConfig, crop_px: in
     picked: list[BaseSample] = []
     picked += _pick_bad(bad, quotas[MatchClass.BAD], cfg.bad_min_spacing_px, rng)
     for c in (MatchClass.FOUR_ARM, MatchClass.THREE_ARM, MatchClass.TWO_ARM):
-        picked += _pick_junctions(junctions[c], quotas[c], cfg.max_crops_per_junction, cfg.junction_jitter_px, rng)
+        picked += _pick_junctions(junctions[c], quotas[c], cfg.max_crops_per_junction, cfg.jitter_px(), rng)
     short = cfg.base_crops - len(picked)
     if short > 0:
         log.warning("only %d base crops available (asked %d): generate more worlds (--worlds)",

@@ -184,7 +184,7 @@ def fix_height_splits(fx: dict[str, np.ndarray], world, fov_deg: float,
 def fix_metrics(fx: dict[str, np.ndarray]) -> dict[str, Any]:
     if not fx:
         return {"fixes_total": 0, "fixes_valid": 0, "fixes_accepted": 0, "false_fixes": 0,
-                "false_fixes_rejected": 0, "true_fixes_rejected": 0, "fix_time_ms_median": None,
+                "false_fixes_accepted": 0, "false_fixes_rejected": 0, "true_fixes_rejected": 0, "fix_time_ms_median": None,
                 "fix_rms_error_accepted_m": None, "fix_rms_error_all_m": None}
     valid = fx["valid"] > 0.5
     acc = (fx["accepted"] > 0.5) & valid
@@ -200,6 +200,7 @@ def fix_metrics(fx: dict[str, np.ndarray]) -> dict[str, Any]:
         "fixes_accepted": int(acc.sum()),
         "fixes_accepted_true": int((acc & ~false).sum()),
         "false_fixes": int(false.sum()),
+        "false_fixes_accepted": int((false & acc).sum()),
         "false_fixes_rejected": int((false & rejected).sum()),
         "true_fixes_rejected": int((~false & valid & rejected).sum()),
         "fix_time_ms_median": float(np.nanmedian(fx["time_total_ms"])) if len(valid) else None,

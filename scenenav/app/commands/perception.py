@@ -12,7 +12,7 @@ import shlex
 import sys
 from pathlib import Path
 
-from scenenav.app.arg_types import nonneg_int, positive_int
+from scenenav.app.arg_types import nonneg_int, positive_float, positive_int
 from scenenav.app.json_output import emit_json, run_json_aware
 from scenenav.core.errors import UserError
 
@@ -47,11 +47,12 @@ def _dataset(args: argparse.Namespace) -> int:
     from perception.capture import CaptureSettings
     from perception.cnn import Labelling
     from perception.dataset import build_dataset
-    from perception.dataset_config import DatasetConfig
+    from perception.dataset_config import CropGeometry, DatasetConfig
     w, h = args.world_size
     cfg = DatasetConfig(n_worlds=args.worlds, seed=args.seed, labelling=Labelling(args.labelling),
                         base_crops=args.base_crops, augment_to=args.augment_to, world_width_px=w,
-                        world_height_px=h,
+                        world_height_px=h, crop=CropGeometry(args.crop),
+                        intersection_crop_m=args.intersection_crop_m,
                         capture=CaptureSettings(relief=not args.no_relief, reference=args.reference))
     man = build_dataset(args.out, cfg, progress=not args.quiet, command=_command_line())
     print(f"dataset {args.out}: {man['n_images']} images ({man['n_base_crops']} base crops), "
@@ -194,6 +195,13 @@ def register(subparsers) -> None:
                    help=f"total images after augmentation (default {dc.augment_to}, the paper's 3920)")
     d.add_argument("--world-size", type=_size, default=(dc.world_width_px, dc.world_height_px), metavar="WxH",
                    help=f"world size in px (default {dc.world_width_px}x{dc.world_height_px})")
+    d.add_argument("--crop", choices=["footprint", "intersection"], default=dc.crop.value,
+                   help="footprint: the camera footprint at 100 m (217 px = 115 m, what the network sees in "
+                        "flight; several junctions in a city grid); intersection: the paper's crops of single "
+                        "intersections, a --intersection-crop-m square with no other junction inside "
+                        "(paper labelling only; docs/cnn.md compares both) (default footprint)")
+    d.add_argument("--intersection-crop-m", type=positive_float, default=dc.intersection_crop_m, metavar="M",
+                   help=f"side of an intersection crop in metres (default {dc.intersection_crop_m:g})")
     d.add_argument("--no-relief", action="store_true",
                    help="flat crops of the orthophoto even where the world has a DSM (default: nadir "
                         "captures rendered with relief there; flat worlds give the same images either way)")

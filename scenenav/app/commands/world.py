@@ -10,6 +10,7 @@ from pathlib import Path
 import cv2
 import numpy as np
 
+from scenenav.app.arg_types import positive_float
 from scenenav.core.errors import UserError
 from worlds.ground import DEFAULT_GROUND_WINDOW_M, DsmKind
 from worlds.landcover import LANDCOVER_COLOURS_RGB, JunctionKind, LandCover, colourise, cover_shares
@@ -172,16 +173,6 @@ def _preview(args: argparse.Namespace) -> int:
     return 0
 
 
-def _positive_float(text: str) -> float:
-    try:
-        value = float(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"{text!r} is not a number") from None
-    if not value > 0:
-        raise argparse.ArgumentTypeError(f"{text!r}: expected a positive number")
-    return value
-
-
 def register(subparsers) -> None:
     """Add ``world`` and its subcommands to the top-level ``scenenav`` parser."""
     legend = ", ".join(f"{c.value}={c.name.lower()}" for c in LandCover)
@@ -206,7 +197,7 @@ def register(subparsers) -> None:
                    help="map width in pixels (default 900; 256..16384)")
     g.add_argument("--height-px", type=int, default=None, metavar="PX",
                    help="map height in pixels (default 1000; 256..16384)")
-    g.add_argument("--m-per-px", type=_positive_float, default=None, metavar="M",
+    g.add_argument("--m-per-px", type=positive_float, default=None, metavar="M",
                    help="ground resolution in metres per pixel (default 0.53, as in the seed paper)")
     g.add_argument("--origin", default=None, metavar="LAT,LON",
                    help="geodetic position of the map centre in degrees (default 48.1372,11.5755)")
@@ -217,7 +208,7 @@ def register(subparsers) -> None:
                         "everywhere (roofs over their footprints); 'perspective' (default, as the seed "
                         "paper's) = reference_perspective.png, the other day seen from "
                         "--reference-height-m above the map centre, roofs leaning away from the centre")
-    g.add_argument("--reference-height-m", type=_positive_float, default=None, metavar="M",
+    g.add_argument("--reference-height-m", type=positive_float, default=None, metavar="M",
                    help="height of the perspective reference's eye above the map centre in metres "
                         "(default 500, the seed paper's section 6.1; 50..20000)")
     g.add_argument("--season", choices=("summer", "winter"), default=None,
@@ -239,7 +230,7 @@ def register(subparsers) -> None:
                     "See docs/worlds.md, 'Real places'.")
     i.add_argument("image", metavar="IMAGE",
                    help="orthophoto: a GeoTIFF with a CRS, or a north-up PNG/JPEG/TIFF (>= 256 px a side)")
-    i.add_argument("--m-per-px", type=_positive_float, default=None, metavar="M",
+    i.add_argument("--m-per-px", type=positive_float, default=None, metavar="M",
                    help="ground resolution of the world in metres per pixel (required for plain images; "
                         "GeoTIFF default: the source's ground resolution at its centre)")
     i.add_argument("--out", required=True, metavar="DIR", help="world folder to write")
@@ -258,7 +249,7 @@ def register(subparsers) -> None:
     i.add_argument("--dtm", default=None, metavar="RASTER",
                    help="ground elevations under a --dsm-kind dsm raster (default: estimated from the DSM "
                         "by a morphological opening, see --ground-window-m)")
-    i.add_argument("--ground-window-m", type=_positive_float, default=DEFAULT_GROUND_WINDOW_M, metavar="M",
+    i.add_argument("--ground-window-m", type=positive_float, default=DEFAULT_GROUND_WINDOW_M, metavar="M",
                    help=f"window of the ground estimate of a DSM without --dtm: objects narrower than this "
                         f"are raised above the ground (default {DEFAULT_GROUND_WINDOW_M:g} m)")
     i.add_argument("--name", default=None, help="world name (default: the image file name)")

@@ -13,7 +13,13 @@ import pytest
 from perception.capture import CaptureScene
 from perception.cnn import Labelling, MatchClass
 from perception.dataset import build_dataset
-from perception.dataset_config import EVAL_WORLD_SEEDS, AugmentRecipe, DatasetConfig, training_world_seeds
+from perception.dataset_config import (
+    EVAL_WORLD_SEEDS,
+    AugmentRecipe,
+    CropGeometry,
+    DatasetConfig,
+    training_world_seeds,
+)
 from perception.dataset_files import INDEX_FILE, MANIFEST_FILE, load_dataset, read_manifest
 from perception.dataset_images import augment_image, render_crop
 from perception.dataset_samples import BaseSample, CropSource, allocate_augmentation, arm_class
@@ -108,6 +114,28 @@ def test_bad_area_candidates_need_dominant_bad_cover_and_no_junction():
         assert c.cover == "water" and c.label is MatchClass.BAD and c.source is CropSource.BAD_AREA
         assert c.u_px < 300 - 217 * 0.1                 # footprint at least 60 % water
         assert not (abs(c.u_px - 150) < 217 / 4 and abs(c.v_px - 150) < 217 / 4)   # not on the tee
+
+
+def test_intersection_crops_hold_one_junction_each():
+    """The paper's way of cutting crops: a square around one junction with no other one inside it."""
+    from perception.dataset_samples import WorldData, _junction_candidates
+    from worlds.landcover import Junction, JunctionKind, LandCover
+    lc = np.full((600, 600), int(LandCover.ROAD), np.uint8)
+    junctions = (Junction(200.0, 200.0, 4, JunctionKind.CROSS), Junction(250.0, 210.0, 3, JunctionKind.TEE),
+                 Junction(450.0, 400.0, 3, JunctionKind.TEE))
+    gray = np.zeros((600, 600), np.float32)
+    wd = WorldData(seed=1, scene=CaptureScene.flat(gray, gray, 0.53), junctions=junctions, landcover=lc)
+    cfg = DatasetConfig(crop=CropGeometry.INTERSECTION, intersection_crop_m=50.0, intersection_jitter_px=10.0)
+    crop = cfg.crop_px()
+    assert crop == round(50.0 / 0.53)
+    isolated = _junction_candidates(wd, crop, cfg.jitter_px(), isolated=True)
+    assert [(c.u_px, c.arms) for c in isolated] == [(450.0, 3)]       # the two 50 px apart share a crop
+    assert len(_junction_candidates(wd, crop, cfg.jitter_px(), isolated=False)) == 3
+    footprint = DatasetConfig()
+    assert footprint.crop_px() == 217 and footprint.jitter_px() == footprint.junction_jitter_px
+    with pytest.raises(UserError, match="matchability"):
+        build_dataset("/nonexistent-never-created", DatasetConfig(crop=CropGeometry.INTERSECTION,
+                                                                  labelling=Labelling.MATCHABILITY))
 
 
 @pytest.fixture(scope="module")
