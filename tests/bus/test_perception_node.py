@@ -10,7 +10,7 @@ import numpy as np
 import pytest
 
 from scenenav.core.bus import Bus, BusConfig, free_port
-from scenenav.core.camera_geometry import ground_footprint_m
+from scenenav.core.camera_geometry import NO_DISTORTION, ground_footprint_m, intrinsics_px
 from scenenav.core.contracts import BaroSample, CameraFrame, CompassSample, LockstepAck, VisionFix, encode
 from scenenav.core.keys import Keys
 
@@ -28,7 +28,8 @@ def _frame(world, seq, t_us, size=200, fov_deg=60.0, altitude_m=100.0):
     cu, cv = world.width_px // 2, world.height_px // 2
     crop = world.orthophoto[cv - fp // 2:cv + fp // 2, cu - fp // 2:cu + fp // 2]
     img = cv2.resize(crop, (size, size), interpolation=cv2.INTER_AREA)
-    return CameraFrame(t_us, seq, size, size, "rgb8", fov_deg, "gimbal", np.ascontiguousarray(img))
+    return CameraFrame(t_us, seq, size, size, "rgb8", fov_deg, "gimbal", intrinsics_px(size, size, fov_deg),
+                       NO_DISTORTION, np.ascontiguousarray(img))
 
 
 @contextlib.contextmanager
