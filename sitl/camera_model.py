@@ -52,6 +52,25 @@ from scenenav.core.rotations import (
 from sitl.config import CameraConfig, CameraMount
 from sitl.dynamics import rotation_rows
 
+#: The camera keys of the ``realistic`` realism profile (``sim.camera``; docs/realism.md "Camera and
+#: mount" gives each value's basis). The perception side of it: ``perception.alignment: homography``.
+REALISTIC_CAMERA: dict[str, object] = {
+    "mount": "fixed",
+    "distortion_k1_k2_p1_p2": (-0.10, 0.02, 0.0005, -0.0005),
+    "exposure_time_s": 0.002,
+    "auto_exposure_time_constant_s": 0.5,
+    "auto_exposure_gain_noise_std": 0.02,
+    "jpeg_quality": 85,
+    "capture_jitter_std_s": 0.002,
+    "clock_offset_s": 0.01,
+}
+#: The gimbal model's keys for a ``realistic`` run that chooses ``mount: gimbal``.
+REALISTIC_GIMBAL: dict[str, object] = {
+    "gimbal_time_constant_s": 0.1,
+    "gimbal_bias_roll_pitch_deg": (0.5, -0.3),
+    "gimbal_noise_std_deg": 0.3,
+}
+
 Vec3 = tuple[float, float, float]
 Axes = tuple[Vec3, Vec3, Vec3]
 
