@@ -22,9 +22,12 @@ image. With the body's roll and pitch (the autopilot's *estimate*, never truth),
 height, every template pixel (a north-up ground point at map scale, the template centre at the nadir
 point) is projected into the capture, ``H = P A`` (``A``: template pixel -> ground offset from the
 nadir point, ``P``: the pinhole projection of the fixed mount), and the capture is resampled once with
-``cv2.warpPerspective``. The template is the largest square centred on the nadir point inside the
-ground footprint (the image corners projected on the ground); at zero tilt this is the rotation +
-scale alignment's inscribed square. ``distortion`` (the frame's Brown-Conrady calibration) undistorts
+``cv2.warpPerspective``. The template is centred on the ground point of the image centre (where the
+optical axis meets the ground) and is the largest square around it inside the ground footprint (the
+image corners projected on the ground); ``AlignedCapture.centre_offset_px`` says where that centre is
+from the nadir point, and the tracker (``perception.tracker.MatchTracker.match(offset_px=...)``)
+subtracts it, so fixes stay the drone's position. At zero tilt this is the rotation + scale
+alignment's inscribed square, offset zero. ``distortion`` (the frame's Brown-Conrady calibration) undistorts
 the capture first (``undistort``, one remap with a cached map).
 """
 
@@ -85,6 +88,9 @@ class AlignedCapture:
     heading_rad: float
     altitude_m: float
     gray: np.ndarray
+    #: where the template centre lies relative to the nadir point, map pixels (u east, v south): zero
+    #: for the rotation + scale alignment; the image centre's ground point for the homography one.
+    centre_offset_px: tuple[float, float] = (0.0, 0.0)
 
     @property
     def side_px(self) -> int:
@@ -224,7 +230,12 @@ def _align_homography(gray: np.ndarray, heading: float, altitude: float, tilt: t
     cam_mpp = foot / w_src
     scale = cam_mpp / mpp
     h0 = ground_to_capture_homography(tilt, heading, altitude, intrinsics, mpp, (0.0, 0.0))
-    poly = _footprint_in_template(np.linalg.inv(h0), w_src, h_src)
+    h_inv = np.linalg.inv(h0)
+    g = h_inv @ np.array([intrinsics[2] - 0.5, intrinsics[3] - 0.5, 1.0])   # the principal point
+    if g[2] == 0.0 or not np.all(np.isfinite(g)):
+        raise BadInput("camera attitude: the optical axis does not meet the ground")
+    off = (float(g[0] / g[2]), float(g[1] / g[2]))
+    poly = _footprint_in_template(h_inv, w_src, h_src) - np.array(off)
     if crop_mode is CropMode.INSCRIBED_SQUARE:
         half = _inscribed_half_side(poly)
         side = max(1, int(math.floor(2.0 * half + 1e-6)))
@@ -236,7 +247,7 @@ def _align_homography(gray: np.ndarray, heading: float, altitude: float, tilt: t
         raise TemplateTooLarge(f"template {out_w}x{out_h} px at {altitude:.1f} m exceeds "
                                f"{max_template_px[0]}x{max_template_px[1]} px")
     hm = ground_to_capture_homography(tilt, heading, altitude, intrinsics, mpp,
-                                      ((out_w - 1) / 2.0, (out_h - 1) / 2.0))
+                                      ((out_w - 1) / 2.0 - off[0], (out_h - 1) / 2.0 - off[1]))
     src = gray
     if scale < 1.0:
         sigma = 0.5 * math.sqrt(1.0 / (scale * scale) - 1.0)
@@ -254,7 +265,8 @@ def _align_homography(gray: np.ndarray, heading: float, altitude: float, tilt: t
         mask = mask_u8.astype(bool)
         template[~mask] = 0.0
     return AlignedCapture(template=template, mask=mask, scale=float(scale), camera_m_per_px=float(cam_mpp),
-                          footprint_m=float(foot), heading_rad=heading, altitude_m=altitude, gray=gray)
+                          footprint_m=float(foot), heading_rad=heading, altitude_m=altitude, gray=gray,
+                          centre_offset_px=off)
 
 
 #: Below this Gaussian sigma (pixels) the anti-aliasing pre-blur is skipped.

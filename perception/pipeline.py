@@ -245,7 +245,8 @@ class PerceptionPipeline:
         predicted = (self.tracker.state is TrackState.TRACKING
                      and self.tracker.velocity_px_s is not None)
         track_fixes = self.tracker.track_fixes if predicted else 0
-        match = self.tracker.match(aligned.template, t_s, mask=mask, prior_uv=prior_uv)
+        match = self.tracker.match(aligned.template, t_s, mask=mask, prior_uv=prior_uv,
+                                   offset_px=aligned.centre_offset_px)
         pred = self.tracker.last_prediction
         innovation_px = _NAN
         if predicted and pred is not None:

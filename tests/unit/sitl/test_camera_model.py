@@ -231,8 +231,8 @@ def test_everything_off_is_the_ideal_image():
 
 
 def test_camera_frame_clock_offset_jpeg_and_calibration():
-    from sitl.core import CameraRelease, SimulatorCore
     from sitl.config import SimConfig
+    from sitl.core import CameraRelease, SimulatorCore
     cam = CameraConfig(width_px=32, height_px=32, clock_offset_s=0.012, jpeg_quality=50,
                        distortion_k1_k2_p1_p2=K)
     core = SimulatorCore(SimConfig(camera=cam), 100.0, 0, 0.0, 0.0)
