@@ -68,7 +68,10 @@ def undistort_normalized(xd, yd, k: Distortion, iterations: int = UNDISTORT_ITER
     return x, y
 
 
-def fixed_mount_axes(rows) -> tuple[tuple[float, float, float], ...]:
+Vec3 = tuple[float, float, float]
+
+
+def fixed_mount_axes(rows) -> tuple[Vec3, Vec3, Vec3]:
     """World directions (image right, image up, camera back = -optical axis) of a camera fixed to the
     body, from the rows of the body -> world rotation matrix: image right = body -y, image up = body
     +x, back = body +z (FLU body)."""
