@@ -14,6 +14,21 @@ single ``cv2.warpAffine`` (bilinear); the image centre (the nadir point) maps ex
 centre, so the matched template centre is the drone's horizontal position.
 
 Only the sensor values passed in are used (heading from the compass, altitude from the barometer).
+
+**Homography alignment** (``tilt_rad`` given: a camera fixed to a tilted body). A camera looking
+off-nadir sees the ground through a homography, not a rotation and scale: the nadir point is no longer
+the image centre (27 m off at 15 degrees of pitch from 100 m) and the ground scale varies across the
+image. With the body's roll and pitch (the autopilot's *estimate*, never truth), the heading and the
+height, every template pixel (a north-up ground point at map scale, the template centre at the nadir
+point) is projected into the capture, ``H = P A`` (``A``: template pixel -> ground offset from the
+nadir point, ``P``: the pinhole projection of the fixed mount), and the capture is resampled once with
+``cv2.warpPerspective``. The template is centred on the ground point of the image centre (where the
+optical axis meets the ground) and is the largest square around it inside the ground footprint (the
+image corners projected on the ground); ``AlignedCapture.centre_offset_px`` says where that centre is
+from the nadir point, and the tracker (``perception.tracker.MatchTracker.match(offset_px=...)``)
+subtracts it, so fixes stay the drone's position. At zero tilt this is the rotation + scale
+alignment's inscribed square, offset zero. ``distortion`` (the frame's Brown-Conrady calibration) undistorts
+the capture first (``undistort``, one remap with a cached map).
 """
 
 from __future__ import annotations
@@ -26,7 +41,15 @@ import cv2
 import numpy as np
 
 from perception.config import CropMode
-from scenenav.core.camera_geometry import ground_footprint_m
+from scenenav.core.camera_geometry import (
+    NO_DISTORTION,
+    Distortion,
+    distort_normalized,
+    fixed_mount_axes,
+    focal_length_px,
+    ground_footprint_m,
+)
+from scenenav.core.rotations import quat_from_aviation_euler, quat_to_rotation_matrix
 
 log = logging.getLogger(__name__)
 
@@ -65,6 +88,9 @@ class AlignedCapture:
     heading_rad: float
     altitude_m: float
     gray: np.ndarray
+    #: where the template centre lies relative to the nadir point, map pixels (u east, v south): zero
+    #: for the rotation + scale alignment; the image centre's ground point for the homography one.
+    centre_offset_px: tuple[float, float] = (0.0, 0.0)
 
     @property
     def side_px(self) -> int:
@@ -122,10 +148,142 @@ def finite_number(name: str, value: float) -> float:
     return v
 
 
+_UNDISTORT_MAPS: dict[tuple, tuple[np.ndarray, np.ndarray]] = {}
+_UNDISTORT_CACHE_MAX = 8
+
+
+def undistort(gray: np.ndarray, intrinsics_px: tuple[float, float, float, float],
+              distortion: Distortion) -> np.ndarray:
+    """The ideal pinhole image (same size and intrinsics) of a capture taken through the lens
+    ``distortion`` (Brown-Conrady; ``scenenav.core.camera_geometry``): every output pixel samples the
+    capture where the lens put it (bilinear). The map is computed once per calibration."""
+    h, w = gray.shape[:2]
+    key = (w, h, tuple(intrinsics_px), tuple(distortion))
+    maps = _UNDISTORT_MAPS.get(key)
+    if maps is None:
+        fx, fy, cx, cy = intrinsics_px
+        u, v = np.meshgrid(np.arange(w, dtype=float) + 0.5, np.arange(h, dtype=float) + 0.5)
+        xd, yd = distort_normalized((u - cx) / fx, (v - cy) / fy, distortion)
+        maps = ((cx + fx * xd - 0.5).astype(np.float32), (cy + fy * yd - 0.5).astype(np.float32))
+        if len(_UNDISTORT_MAPS) >= _UNDISTORT_CACHE_MAX:
+            _UNDISTORT_MAPS.clear()
+        _UNDISTORT_MAPS[key] = maps
+    return cv2.remap(gray, maps[0], maps[1], interpolation=cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE)
+
+
+def ground_to_capture_homography(tilt_rad: tuple[float, float], heading_rad: float, altitude_m: float,
+                                 intrinsics_px: tuple[float, float, float, float], map_m_per_px: float,
+                                 centre_px: tuple[float, float]) -> np.ndarray:
+    """3 x 3 ``H``: template pixel-index (i, j, 1) -> capture pixel-index (homogeneous), for a camera
+    fixed to a body at (roll, pitch) = ``tilt_rad``, ``heading_rad`` and ``altitude_m`` above flat
+    ground; the template is north-up at ``map_m_per_px`` with the nadir point at ``centre_px``."""
+    roll, pitch = tilt_rad
+    rows = quat_to_rotation_matrix(quat_from_aviation_euler(roll, pitch, heading_rad))
+    right, up, back = (np.asarray(a, dtype=float) for a in fixed_mount_axes(rows))
+    fx, fy, cx, cy = intrinsics_px
+    # camera pixel-index = (fx (right.d) / z + cx - 0.5, -fy (up.d) / z + cy - 0.5), z = -back.d
+    p = np.vstack([fx * right - (cx - 0.5) * back, -fy * up - (cy - 0.5) * back, -back])
+    ci, cj = centre_px
+    a = np.array([[map_m_per_px, 0.0, -map_m_per_px * ci],     # east offset of template column i
+                  [0.0, -map_m_per_px, map_m_per_px * cj],     # north offset of template row j
+                  [0.0, 0.0, -altitude_m]])                    # ground 'altitude' below the eye
+    return p @ a
+
+
+def _footprint_in_template(h_inv: np.ndarray, w_src: int, h_src: int) -> np.ndarray:
+    """The capture's corners on the ground, as template-pixel offsets from the nadir point."""
+    corners = np.array([[-0.5, -0.5, 1.0], [w_src - 0.5, -0.5, 1.0], [w_src - 0.5, h_src - 0.5, 1.0],
+                        [-0.5, h_src - 0.5, 1.0]]).T
+    g = h_inv @ corners
+    if np.any(g[2] * np.sign(g[2, 0]) <= 1e-12) or np.any(np.sign(g[2]) != np.sign(g[2, 0])):
+        raise BadInput("camera attitude: an image corner looks above the horizon (tilt too large)")
+    return (g[:2] / g[2]).T
+
+
+def _inscribed_half_side(poly: np.ndarray) -> float:
+    """Half side of the largest axis-aligned square centred at the origin inside a convex polygon
+    (a square of half side a is inside n.x <= d for all its corners when a (|nx| + |ny|) <= d)."""
+    best = math.inf
+    n = len(poly)
+    area2 = sum(poly[i, 0] * poly[(i + 1) % n, 1] - poly[(i + 1) % n, 0] * poly[i, 1] for i in range(n))
+    for i in range(n):
+        p0, p1 = poly[i], poly[(i + 1) % n]
+        ex, ey = p1 - p0
+        nx, ny = (ey, -ex) if area2 > 0 else (-ey, ex)   # outward normal
+        norm = math.hypot(nx, ny)
+        if norm == 0.0:
+            continue
+        nx, ny = nx / norm, ny / norm
+        d = nx * p0[0] + ny * p0[1]
+        best = min(best, d / (abs(nx) + abs(ny)))
+    return best
+
+
+def _align_homography(gray: np.ndarray, heading: float, altitude: float, tilt: tuple[float, float],
+                      fov: float, mpp: float, crop_mode: CropMode, max_template_px,
+                      intrinsics: tuple[float, float, float, float] | None) -> AlignedCapture:
+    h_src, w_src = gray.shape
+    if intrinsics is None:
+        f = focal_length_px(w_src, fov)
+        intrinsics = (f, f, 0.5 * w_src, 0.5 * h_src)
+    foot = ground_footprint_m(altitude, fov)
+    cam_mpp = foot / w_src
+    scale = cam_mpp / mpp
+    h0 = ground_to_capture_homography(tilt, heading, altitude, intrinsics, mpp, (0.0, 0.0))
+    h_inv = np.linalg.inv(h0)
+    g = h_inv @ np.array([intrinsics[2] - 0.5, intrinsics[3] - 0.5, 1.0])   # the principal point
+    if g[2] == 0.0 or not np.all(np.isfinite(g)):
+        raise BadInput("camera attitude: the optical axis does not meet the ground")
+    off = (float(g[0] / g[2]), float(g[1] / g[2]))
+    poly = _footprint_in_template(h_inv, w_src, h_src) - np.array(off)
+    if crop_mode is CropMode.INSCRIBED_SQUARE:
+        half = _inscribed_half_side(poly)
+        side = max(1, int(math.floor(2.0 * half + 1e-6)))
+        out_w = out_h = side
+    else:
+        out_w = max(1, int(math.ceil(2.0 * float(np.max(np.abs(poly[:, 0]))) - 1e-6)))
+        out_h = max(1, int(math.ceil(2.0 * float(np.max(np.abs(poly[:, 1]))) - 1e-6)))
+    if max_template_px is not None and (out_w > max_template_px[0] or out_h > max_template_px[1]):
+        raise TemplateTooLarge(f"template {out_w}x{out_h} px at {altitude:.1f} m exceeds "
+                               f"{max_template_px[0]}x{max_template_px[1]} px")
+    hm = ground_to_capture_homography(tilt, heading, altitude, intrinsics, mpp,
+                                      ((out_w - 1) / 2.0 - off[0], (out_h - 1) / 2.0 - off[1]))
+    src = gray
+    if scale < 1.0:
+        sigma = 0.5 * math.sqrt(1.0 / (scale * scale) - 1.0)
+        if sigma > _MIN_PREBLUR_SIGMA:
+            src = cv2.GaussianBlur(gray, (0, 0), sigma, borderType=cv2.BORDER_REPLICATE)
+    flags = cv2.INTER_LINEAR | cv2.WARP_INVERSE_MAP
+    template = cv2.warpPerspective(src, hm, (out_w, out_h), flags=flags, borderMode=cv2.BORDER_REPLICATE)
+    if crop_mode is CropMode.INSCRIBED_SQUARE:
+        mask = np.ones(template.shape, dtype=bool)
+    else:
+        ones = np.ones(gray.shape, dtype=np.uint8)
+        mask_u8 = cv2.warpPerspective(ones, hm, (out_w, out_h), flags=cv2.INTER_NEAREST | cv2.WARP_INVERSE_MAP,
+                                      borderMode=cv2.BORDER_CONSTANT, borderValue=0)
+        mask_u8 = cv2.erode(mask_u8, np.ones((3, 3), np.uint8), borderType=cv2.BORDER_CONSTANT, borderValue=0)
+        mask = mask_u8.astype(bool)
+        template[~mask] = 0.0
+    return AlignedCapture(template=template, mask=mask, scale=float(scale), camera_m_per_px=float(cam_mpp),
+                          footprint_m=float(foot), heading_rad=heading, altitude_m=altitude, gray=gray,
+                          centre_offset_px=off)
+
+
+#: Below this Gaussian sigma (pixels) the anti-aliasing pre-blur is skipped.
+_MIN_PREBLUR_SIGMA = 0.3
+
+
 def align_capture(image: np.ndarray, heading_rad: float, altitude_m: float, fov_deg: float,
                   map_m_per_px: float, crop_mode: CropMode = CropMode.INSCRIBED_SQUARE,
-                  max_template_px: tuple[int, int] | None = None) -> AlignedCapture:
+                  max_template_px: tuple[int, int] | None = None, *,
+                  tilt_rad: tuple[float, float] | None = None,
+                  intrinsics_px: tuple[float, float, float, float] | None = None,
+                  distortion: Distortion = NO_DISTORTION) -> AlignedCapture:
     """Grey, rotate north-up and scale a capture to the map resolution with one warpAffine.
+
+    ``tilt_rad`` = (roll, pitch) of the body a FIXED camera is mounted on (the autopilot's estimate):
+    align with the ground homography instead (module docstring). ``distortion`` (with the frame's
+    ``intrinsics_px``; None: from ``fov_deg``, principal point at the centre): undistort first.
 
     ``crop_mode`` INSCRIBED_SQUARE (default) returns the largest axis-aligned square inside the
     rotated image, side ``scale * min(W, H) / (|cos h| + |sin h|)`` (the full image at multiples of
@@ -147,6 +305,15 @@ def align_capture(image: np.ndarray, heading_rad: float, altitude_m: float, fov_
         raise BadInput(f"map_m_per_px = {map_m_per_px!r}: expected > 0")
 
     gray = to_gray_float32(image)
+    if tuple(distortion) != NO_DISTORTION:
+        if intrinsics_px is None:
+            f = focal_length_px(gray.shape[1], fov)
+            intrinsics_px = (f, f, 0.5 * gray.shape[1], 0.5 * gray.shape[0])
+        gray = undistort(gray, intrinsics_px, distortion)
+    if tilt_rad is not None:
+        tilt = (finite_number("roll_rad", tilt_rad[0]), finite_number("pitch_rad", tilt_rad[1]))
+        return _align_homography(gray, heading, altitude, tilt, fov, mpp, crop_mode, max_template_px,
+                                 intrinsics_px)
     h_src, w_src = gray.shape
     foot = ground_footprint_m(altitude, fov)
     cam_mpp = foot / w_src
@@ -175,7 +342,7 @@ def align_capture(image: np.ndarray, heading_rad: float, altitude_m: float, fov_
     if scale < 1.0:
         # Anti-alias before shrinking: blur to the target sampling (bilinear alone would alias).
         sigma = 0.5 * math.sqrt(1.0 / (scale * scale) - 1.0)
-        if sigma > 0.3:
+        if sigma > _MIN_PREBLUR_SIGMA:
             src = cv2.GaussianBlur(gray, (0, 0), sigma, borderType=cv2.BORDER_REPLICATE)
 
     template = cv2.warpAffine(src, m, (out_w, out_h), flags=cv2.INTER_LINEAR,

@@ -153,6 +153,10 @@ class PerceptionConfig:
               self.true_match_tolerance_m, "a positive number")
 
 
+#: ``PerceptionNodeConfig.alignment`` values: how a FIXED-mount capture is aligned with the map.
+ALIGNMENTS = ("rotation-scale", "homography")
+
+
 @dataclass(frozen=True)
 class PerceptionNodeConfig:
     """The ``perception`` section of a scenario: which perception node(s) a run starts and how."""
@@ -170,6 +174,8 @@ class PerceptionNodeConfig:
     swap_method: str = "statistical"   # method of that second node (perception-2)
     swap_every_s: float = 0.0          # > 0 (with swap_at_s > 0): swap again every this many simulated s,
                                        # back and forth between the two nodes and their methods
+    alignment: str = "rotation-scale"  # FIXED-mount frames: rotation-scale (as if nadir) or homography
+                                       # (from the autopilot's estimated roll and pitch; docs/perception.md)
 
     def __post_init__(self) -> None:
         methods = ("cnn", "assistant-map", "statistical", "none")
@@ -184,6 +190,7 @@ class PerceptionNodeConfig:
         check(self.swap_at_s >= 0, "swap_at_s", self.swap_at_s, ">= 0 s (0 = no swap)")
         check(self.swap_method in methods, "swap_method", self.swap_method,
               "one of cnn, assistant-map, statistical, none")
+        check(self.alignment in ALIGNMENTS, "alignment", self.alignment, "one of " + ", ".join(ALIGNMENTS))
         check(self.swap_every_s == 0 or (self.swap_every_s >= 10.0 and self.swap_at_s > 0),
               "swap_every_s", self.swap_every_s,
               "0 (one swap at most) or >= 10 simulated s, with swap_at_s > 0 (the first swap)")

@@ -5,6 +5,8 @@ Inputs
                                          FOV and size must be the configured camera's)
   ``sensors/compass``   CompassSample   (newest before the frame is used for alignment)
   ``sensors/baro``      BaroSample      (newest before the frame is used for scale)
+  ``autopilot/estimate`` NavEstimate    (alignment homography: the estimated roll and pitch at or just
+                                         before the frame, for FIXED-mount frames; never truth)
 Outputs
   ``perception/fix/<node_id>``   VisionFix  (one per frame; ``valid`` false when no match)
   ``lockstep/ack/<node_id>``     LockstepAck (role camera, after the fix) when in lockstep
@@ -15,7 +17,11 @@ A frame whose FOV or size contradicts the configured camera (``ExpectedCamera``)
 (``stats["refused_camera_mismatch"]``), logged once, and answered with an invalid fix (and the ack)
 so that neither lockstep nor the autopilot waits for it. NaN headings/altitudes or undecodable
 bytes are dropped and counted (``stats``), logged, and the node keeps running. Work happens on a
-worker thread, so Zenoh's callback threads never block on matching.
+worker thread, so Zenoh's callback threads never block on matching. Every frame is undistorted with
+the calibration in its header (``CameraFrame.distortion_k1_k2_p1_p2``, ``intrinsics_fx_fy_cx_cy_px``);
+with ``alignment="homography"`` a FIXED-mount frame is aligned with the ground homography of the
+estimated attitude (``stats["homography_without_estimate"]`` counts frames aligned as nadir because
+no estimate had arrived yet).
 """
 
 from __future__ import annotations
@@ -41,11 +47,13 @@ from scenenav.core.contracts import (
     Event,
     LockstepAck,
     LockstepRole,
+    NavEstimate,
     NodeInfo,
     Severity,
     VisionFix,
 )
 from scenenav.core.keys import Keys
+from scenenav.core.rotations import aviation_euler_from_quat
 
 if TYPE_CHECKING:
     from perception.pipeline import FixResult
@@ -107,8 +115,10 @@ class PerceptionNode:
     def __init__(self, world, bus_cfg: BusConfig, node_id: str, method: str,
                  assistant_map_path: str | None = None, lockstep: bool = True,
                  out_dir: Path | None = None, camera: ExpectedCamera | None = None,
-                 weights: str | None = None, reference: str = "default"):
+                 weights: str | None = None, reference: str = "default",
+                 alignment: str = "rotation-scale"):
         self.world = world
+        self.homography = alignment == "homography"
         self.node_id = node_id
         self.method = method
         self.lockstep = lockstep
@@ -130,6 +140,7 @@ class PerceptionNode:
         # latency, so alignment uses the samples taken at or just before the capture time.
         self._headings: deque[tuple[int, float]] = deque(maxlen=200)
         self._altitudes: deque[tuple[int, float]] = deque(maxlen=200)
+        self._tilts: deque[tuple[int, tuple[float, float]]] = deque(maxlen=400)
         self._sensor_lock = threading.Lock()
         self._queue: queue.Queue = queue.Queue(maxsize=64)
         self._stop = threading.Event()
@@ -138,6 +149,8 @@ class PerceptionNode:
         self._worker.start()
         self.bus.subscribe(self.keys.compass, CompassSample, self._on_compass)
         self.bus.subscribe(self.keys.baro, BaroSample, self._on_baro)
+        if self.homography:
+            self.bus.subscribe(self.keys.nav_estimate, NavEstimate, self._on_estimate)
         self.bus.subscribe(self.keys.camera, CameraFrame, self._on_frame)
         # Announce only once subscribed, so nothing addressed to us is lost.
         self.bus.declare_token(self.keys.node_alive("perception", node_id))
@@ -154,6 +167,11 @@ class PerceptionNode:
         with self._sensor_lock:
             self._altitudes.append((msg.timestamp_us, msg.altitude_m))
 
+    def _on_estimate(self, msg: NavEstimate, _k: str) -> None:
+        roll, pitch, _heading = aviation_euler_from_quat(msg.q_wxyz)
+        with self._sensor_lock:
+            self._tilts.append((msg.timestamp_us, (roll, pitch)))
+
     @staticmethod
     def _at(history, t_us: int) -> float | None:
         """The newest sample taken at or before ``t_us`` (the oldest one if all are later)."""
@@ -167,7 +185,8 @@ class PerceptionNode:
         with self._sensor_lock:
             heading = self._at(self._headings, msg.timestamp_us)
             altitude = self._at(self._altitudes, msg.timestamp_us)
-        self._queue.put((msg, heading, altitude))
+            tilt = self._at(self._tilts, msg.timestamp_us) if self.homography and msg.mount == "fixed" else None
+        self._queue.put((msg, heading, altitude, tilt))
 
     def _drop(self, reason: str, msg: CameraFrame, detail: str = "") -> None:
         """Count a dropped frame under a fixed ``reason`` key; log the first ones with detail."""
@@ -200,7 +219,7 @@ class PerceptionNode:
                 item = self._queue.get(timeout=0.2)
             except queue.Empty:
                 continue
-            msg, heading, altitude = item
+            msg, heading, altitude, tilt = item
             try:
                 mismatch = self.camera.mismatch(msg.fov_deg, msg.width_px, msg.height_px)
                 if mismatch is not None:
@@ -210,9 +229,13 @@ class PerceptionNode:
                 elif not (math.isfinite(heading) and math.isfinite(altitude)):
                     self._drop("nan_sensor", msg)
                 else:
+                    if self.homography and msg.mount == "fixed" and tilt is None:
+                        self.stats["homography_without_estimate"] += 1
                     try:
                         res = self.pipeline.process(msg.pixels, heading, altitude,
-                                                    msg.timestamp_us * 1e-6, fov_deg=msg.fov_deg)
+                                                    msg.timestamp_us * 1e-6, fov_deg=msg.fov_deg,
+                                                    tilt_rad=tilt, intrinsics_px=msg.intrinsics_fx_fy_cx_cy_px,
+                                                    distortion=msg.distortion_k1_k2_p1_p2)
                     except BadInput as exc:
                         self._drop("bad_input", msg, str(exc))
                     else:

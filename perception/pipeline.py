@@ -59,6 +59,7 @@ from perception.match_metrics import MatchMetrics, StageTimes
 from perception.ncc_search import MatchResult, SceneMatcher, SearchMode
 from perception.statistical import StatisticalDetector
 from perception.tracker import MatchTracker, TrackState
+from scenenav.core.camera_geometry import NO_DISTORTION, Distortion
 from scenenav.core.errors import UserError
 
 __all__ = ["BadInput", "FixResult", "PerceptionPipeline", "Reason"]
@@ -201,12 +202,17 @@ class PerceptionPipeline:
     # ------------------------------------------------------------------------------ main
     def process(self, image_rgb: np.ndarray, heading_rad: float, altitude_m: float,
                 timestamp_s: float, prior_enu_m: tuple[float, float] | None = None, *,
-                fov_deg: float | None = None) -> FixResult:
+                fov_deg: float | None = None, tilt_rad: tuple[float, float] | None = None,
+                intrinsics_px: tuple[float, float, float, float] | None = None,
+                distortion: Distortion = NO_DISTORTION) -> FixResult:
         """One capture -> FixResult. Raises BadInput for unusable inputs (the node drops those).
 
         ``prior_enu_m`` (optional, e.g. the autopilot's estimate) seeds the search window when the
         tracker has no prediction of its own. ``fov_deg``: the horizontal field of view the capture
         was taken with (the node passes ``CameraFrame.fov_deg``); None: ``cfg.fov_deg``.
+        ``tilt_rad``: (roll, pitch) of the body a FIXED camera is on (the autopilot's estimate): align
+        with the ground homography (``perception.alignment``); None: rotation and scale (nadir).
+        ``intrinsics_px``, ``distortion``: the frame's calibration (the capture is undistorted first).
         """
         t_start = time.perf_counter()
         t_s = finite_number("timestamp_s", timestamp_s)
@@ -215,7 +221,8 @@ class PerceptionPipeline:
         try:
             aligned = align_capture(image_rgb, heading_rad, altitude_m,
                                     cfg.fov_deg if fov_deg is None else fov_deg, self.m_per_px,
-                                    cfg.crop_mode, (self.matcher.width_px, self.matcher.height_px))
+                                    cfg.crop_mode, (self.matcher.width_px, self.matcher.height_px),
+                                    tilt_rad=tilt_rad, intrinsics_px=intrinsics_px, distortion=distortion)
         except TemplateTooLarge as exc:
             log.debug("capture unusable: %s", exc)
             timings.total_ms = (time.perf_counter() - t_start) * _MS
@@ -238,7 +245,8 @@ class PerceptionPipeline:
         predicted = (self.tracker.state is TrackState.TRACKING
                      and self.tracker.velocity_px_s is not None)
         track_fixes = self.tracker.track_fixes if predicted else 0
-        match = self.tracker.match(aligned.template, t_s, mask=mask, prior_uv=prior_uv)
+        match = self.tracker.match(aligned.template, t_s, mask=mask, prior_uv=prior_uv,
+                                   offset_px=aligned.centre_offset_px)
         pred = self.tracker.last_prediction
         innovation_px = _NAN
         if predicted and pred is not None:

@@ -5,6 +5,7 @@ See ``MatchTracker``; the search itself is ``perception.ncc_search.SceneMatcher`
 
 from __future__ import annotations
 
+import dataclasses
 import logging
 import math
 from collections import deque
@@ -107,18 +108,27 @@ class MatchTracker:
 
     def match(self, template: np.ndarray, t_s: float, mask: np.ndarray | None = None,
               prior_uv: tuple[float, float] | None = None,
-              prior_radius_px: float | None = None) -> MatchResult:
+              prior_radius_px: float | None = None,
+              offset_px: tuple[float, float] = (0.0, 0.0)) -> MatchResult:
         """Predict, match, update. ``prior_uv`` (e.g. from the autopilot) is used only when the
-        tracker has no prediction of its own; its search radius defaults to max_search_radius_px."""
+        tracker has no prediction of its own; its search radius defaults to max_search_radius_px.
+        ``offset_px``: where the template centre lies relative to the drone (nadir) point, map px
+        (``AlignedCapture.centre_offset_px``): the window is placed at the prediction plus it and the
+        result is moved back by it, so positions and the track stay the drone's."""
         pred = self.predict(t_s)
         if pred is None and prior_uv is not None:
             radius = self.cfg.max_search_radius_px if prior_radius_px is None else prior_radius_px
             pred = Prediction(uv=prior_uv, radius_px=float(radius), movement_px=0.0)
         self.last_prediction = pred
+        du, dv = offset_px
         if pred is None:
             result = self.matcher.match(template, None, None, mask)
         else:
-            result = self.matcher.match(template, pred.uv, pred.radius_px, mask)
+            result = self.matcher.match(template, (pred.uv[0] + du, pred.uv[1] + dv), pred.radius_px, mask)
+        if du != 0.0 or dv != 0.0:
+            u, v = result.position_px[0] - du, result.position_px[1] - dv
+            result = dataclasses.replace(result, position_px=(u, v),
+                                         position_enu_m=self.matcher.pixel_to_world(u, v))
         self._update(result, t_s)
         return result
 

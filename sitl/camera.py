@@ -14,7 +14,9 @@ the image is the north-up crop under the vehicle with footprint width 2 h tan(fo
 texel colours (roofs and ground) and the shaded facades (walls).
 
 Camera effects (gain, blur, noise; ``sitl.sensors.CameraEffects``) are applied by ``render`` when the
-camera is given an ``rng``; without one ``render`` returns the ideal image.
+camera is given an ``rng``; without one ``render`` returns the ideal image. The camera and mount
+realism (``sitl.camera_model``: capture jitter, gimbal model, motion blur, lens distortion,
+auto-exposure) is applied by ``render_capture`` when the camera is given an ``optics_rng``.
 """
 
 from __future__ import annotations
@@ -23,34 +25,14 @@ import math
 
 import numpy as np
 
-from sitl.config import CameraConfig, CameraMount
-from sitl.dynamics import rotation_rows
+from sitl.camera_model import CameraOptics, camera_axes
+from sitl.config import CameraConfig
 from sitl.sensors import CameraEffects
 from worlds.ground_window import GroundWindow
 from worlds.view_renderer import CityRenderer
 
 # Lowest optical-centre height rendered (a landed vehicle's camera is about this high).
 MIN_HEIGHT_M = 0.3
-
-Vec3 = tuple[float, float, float]
-
-
-def camera_axes(q_wxyz: np.ndarray, mount: CameraMount) -> tuple[Vec3, Vec3, Vec3]:
-    """World directions of the image right, image up, and the camera back (-optical axis)."""
-    (r00, r01, r02), (r10, r11, r12), (r20, r21, r22) = rotation_rows(q_wxyz)
-    if mount is CameraMount.FIXED:
-        # Image right = body -y, image up = body +x, back = body +z.
-        return (-r01, -r11, -r21), (r00, r10, r20), (r02, r12, r22)
-    # GIMBAL: nadir; image up = body +x projected on the ground. With body +x vertical (pitch
-    # +-90 deg) the nose has no heading: use the body z axis, which then points forward (nose
-    # down) or backward (nose up).
-    fx, fy = r00, r10
-    if fx * fx + fy * fy < 1e-12:
-        fx, fy = -r20 * r02, -r20 * r12
-    yaw = math.atan2(fy, fx)
-    c, s = math.cos(yaw), math.sin(yaw)
-    return (s, -c, 0.0), (c, s, 0.0), (0.0, 0.0, 1.0)
-
 
 def warm_up() -> None:
     """Load (or compile once) the renderer's numba kernels by rendering throwaway frames of a tiny flat
@@ -75,13 +57,15 @@ class GroundCamera:
         m_per_px: ground size of one map pixel, m.
         cfg: camera configuration.
         rng: when given, ``render`` applies ``CameraEffects(cfg, rng)``; otherwise images are ideal.
+        optics_rng: when given and ``cfg.optics_enabled``, ``render_capture`` applies the camera and
+            mount realism of ``sitl.camera_model.CameraOptics`` (jitter, gimbal, blur, lens, exposure).
         heights_m: the world's DSM (``World.dsm_m``), None = flat; ignored when ``cfg.relief`` is False.
         facade_rgb: the world's wall colours (``World.facade_rgb``) or None.
     """
 
     def __init__(self, client_id: int, orthophoto_rgb: np.ndarray, m_per_px: float, cfg: CameraConfig,
                  rng: np.random.Generator | None = None, heights_m: np.ndarray | None = None,
-                 facade_rgb: np.ndarray | None = None) -> None:
+                 facade_rgb: np.ndarray | None = None, optics_rng: np.random.Generator | None = None) -> None:
         self.physics_client_id = client_id
         self.cfg = cfg
         self.m_per_px = float(m_per_px)
@@ -90,6 +74,8 @@ class GroundCamera:
                                      facade_rgb if relief else None, outside_grey_level=cfg.outside_grey_level,
                                      ground_window_px=cfg.ground_window_px)
         self.effects = CameraEffects(cfg, rng) if rng is not None else None
+        self.optics = (CameraOptics(cfg, optics_rng, MIN_HEIGHT_M)
+                       if optics_rng is not None and cfg.optics_enabled else None)
         self._tan_x = math.tan(math.radians(cfg.fov_deg) / 2.0)
         self._tan_y = self._tan_x * cfg.height_px / cfg.width_px
         self._tracker = self.renderer.tracker(cfg.width_px, cfg.height_px, self._tan_x, self._tan_y)
@@ -107,6 +93,20 @@ class GroundCamera:
     def render(self, position_enu_m: np.ndarray, q_wxyz: np.ndarray) -> np.ndarray:
         """(height_px, width_px, 3) uint8 RGB image seen from the vehicle pose (ENU m, body->ENU quat)."""
         image = self.render_ideal(position_enu_m, q_wxyz)
+        if self.effects is not None:
+            image = self.effects.apply(image)
+        return image
+
+    def render_capture(self, capture_s: float, position_enu_m: np.ndarray, q_wxyz: np.ndarray,
+                       velocity_enu_m_s=(0.0, 0.0, 0.0), body_rates_flu_rad_s=(0.0, 0.0, 0.0)) -> np.ndarray:
+        """``render`` of a capture at simulated time ``capture_s`` with the truth velocity and body rates
+        of that instant: through ``CameraOptics`` when the camera has one, else exactly ``render``."""
+        if self.optics is None:
+            return self.render(position_enu_m, q_wxyz)
+        if self._closed:
+            raise RuntimeError("GroundCamera.render after close()")
+        image = self.optics.capture(self.renderer.render, capture_s, position_enu_m, q_wxyz,
+                                    velocity_enu_m_s, body_rates_flu_rad_s)
         if self.effects is not None:
             image = self.effects.apply(image)
         return image

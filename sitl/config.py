@@ -139,6 +139,19 @@ class CameraConfig:
     latency_s: float = 0.05        # capture-to-publication delay; rendering overlaps the physics meanwhile
     render_in_worker: bool = True  # render in a separate process (pipelined with the simulation loop)
     relief: bool = True            # render the world's DSM (buildings, trees) when it has one; False = flat
+    # Camera and mount realism (sitl.camera_model; docs/realism.md "Camera and mount" gives each
+    # magnitude and its source). Every one is off at its default: the image is then the ideal one.
+    distortion_k1_k2_p1_p2: tuple[float, float, float, float] = (0.0, 0.0, 0.0, 0.0)  # Brown-Conrady, OpenCV order
+    exposure_time_s: float = 0.0   # shutter open time: motion blur from the true motion; 0 = no blur
+    auto_exposure_time_constant_s: float = 0.0   # auto-exposure lag (first order); 0 = no auto-exposure
+    auto_exposure_target_grey: float = 118.0     # mean grey level the auto-exposure steers to (0..255)
+    auto_exposure_gain_noise_std: float = 0.0    # relative gain noise per frame (0.01 = 1 %)
+    jpeg_quality: int = 0          # JPEG compression at this quality (1..100); 0 = raw pixels
+    capture_jitter_std_s: float = 0.0   # true exposure instant minus the nominal capture tick, std
+    clock_offset_s: float = 0.0    # camera clock minus simulator (IMU) clock: added to timestamp_us
+    gimbal_time_constant_s: float = 0.0   # GIMBAL: stabiliser lag (first order); 0 = ideal gimbal
+    gimbal_bias_roll_pitch_deg: tuple[float, float] = (0.0, 0.0)   # GIMBAL: constant pointing error
+    gimbal_noise_std_deg: float = 0.0     # GIMBAL: pointing noise per frame, each of roll and pitch
 
     def __post_init__(self) -> None:
         check(isinstance(self.width_px, int) and 8 <= self.width_px <= 4096, "width_px",
@@ -163,6 +176,36 @@ class CameraConfig:
         check(_non_negative(self.latency_s) and self.latency_s <= 1.0, "latency_s", self.latency_s,
               "a number in [0, 1] seconds")
         check(isinstance(self.relief, bool), "relief", self.relief, "true or false")
+        k = self.distortion_k1_k2_p1_p2
+        check(len(k) == 4 and all(_finite(c) and abs(c) <= 1.0 for c in k), "distortion_k1_k2_p1_p2", k,
+              "four numbers in [-1, 1] (Brown-Conrady k1, k2, p1, p2)")
+        for name, hi in (("exposure_time_s", 0.1), ("auto_exposure_time_constant_s", 10.0),
+                         ("auto_exposure_gain_noise_std", 0.5), ("capture_jitter_std_s", 0.05),
+                         ("gimbal_time_constant_s", 2.0), ("gimbal_noise_std_deg", 10.0)):
+            value = getattr(self, name)
+            check(_non_negative(value) and value <= hi, name, value, f"a number in [0, {hi}]")
+        check(_finite(self.auto_exposure_target_grey) and 1.0 <= self.auto_exposure_target_grey <= 254.0,
+              "auto_exposure_target_grey", self.auto_exposure_target_grey, "a number in [1, 254]")
+        check(isinstance(self.jpeg_quality, int) and 0 <= self.jpeg_quality <= 100, "jpeg_quality",
+              self.jpeg_quality, "an integer in [0, 100] (0 = no compression)")
+        check(_finite(self.clock_offset_s) and abs(self.clock_offset_s) <= 1.0, "clock_offset_s",
+              self.clock_offset_s, "a number in [-1, 1] seconds")
+        bias = self.gimbal_bias_roll_pitch_deg
+        check(len(bias) == 2 and all(_finite(b) and abs(b) <= 10.0 for b in bias),
+              "gimbal_bias_roll_pitch_deg", bias, "two numbers in [-10, 10] degrees")
+
+    @property
+    def optics_enabled(self) -> bool:
+        """Any effect of ``sitl.camera_model`` on (the render worker applies them)."""
+        return (any(c != 0.0 for c in self.distortion_k1_k2_p1_p2) or self.exposure_time_s > 0.0
+                or self.auto_exposure_time_constant_s > 0.0 or self.capture_jitter_std_s > 0.0
+                or (self.mount is CameraMount.GIMBAL and self.gimbal_enabled))
+
+    @property
+    def gimbal_enabled(self) -> bool:
+        """The gimbal model is on (lag, bias or noise set)."""
+        return (self.gimbal_time_constant_s > 0.0 or self.gimbal_noise_std_deg > 0.0
+                or any(b != 0.0 for b in self.gimbal_bias_roll_pitch_deg))
 
 
 @dataclass(frozen=True)

@@ -19,7 +19,8 @@ each ``CameraRequest`` to the render pipeline (``sitl.render_worker``/``sitl.cam
 pybullet shell) and gives the rendered image back to ``camera_frame`` for the camera effects.
 
 Randomness: ``seed`` is split (``numpy.random.SeedSequence.spawn``) into one stream per model, in
-this fixed order: wind, IMU, baro, compass, GPS, camera effects, power module; a model draws only
+this fixed order: wind, IMU, baro, compass, GPS, camera effects, power module, camera optics (drawn
+in the render worker, ``sitl.camera_model``); a model draws only
 from its own stream, so two cores with the same configuration and seed give identical outputs, and
 adding a draw to one model never changes another's.
 """
@@ -33,6 +34,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from scenenav.core.camera_geometry import intrinsics_px
 from scenenav.core.contracts import (
     BaroSample,
     CameraFrame,
@@ -50,6 +52,7 @@ from scenenav.core.rotations import (
     quat_to_rotation_matrix,
 )
 from sitl.battery import BatteryModel, PowerModuleModel, PowerReading
+from sitl.camera_model import jpeg_roundtrip
 from sitl.config import ScriptedFlight, SimConfig
 from sitl.physics import PhysicsWorld, VehicleState
 from sitl.scripted import ScriptedTrajectory
@@ -58,7 +61,7 @@ from sitl.vehicle import VehicleParams
 
 logger = logging.getLogger(__name__)
 
-RNG_STREAMS = ("wind", "imu", "baro", "compass", "gps", "camera_effects", "power")
+RNG_STREAMS = ("wind", "imu", "baro", "compass", "gps", "camera_effects", "power", "camera_optics")
 
 
 @dataclass(frozen=True)
@@ -77,12 +80,15 @@ class SensorRate:
 
 @dataclass(frozen=True, eq=False)   # numpy fields
 class CameraRequest:
-    """Render the camera at this pose (the vehicle's truth at the capture tick)."""
+    """Render the camera at this pose (the vehicle's truth at the capture tick, with its velocity and
+    body rates for the capture jitter and motion blur of ``sitl.camera_model``)."""
 
     seq: int
     capture_us: int
     position_enu_m: np.ndarray
     q_wxyz: np.ndarray
+    velocity_enu_m_s: np.ndarray
+    body_rates_flu_rad_s: np.ndarray
 
 
 @dataclass(frozen=True)
@@ -121,6 +127,9 @@ class SimulatorCore:
         self.origin_lat_deg = float(origin_lat_deg)
         self.origin_lon_deg = float(origin_lon_deg)
         seeds = np.random.SeedSequence(seed).spawn(len(RNG_STREAMS))
+        #: seed of the camera and mount realism (``sitl.camera_model``), drawn where the image is
+        #: rendered (``sitl.render_worker.CameraPipeline(optics_seed=...)``)
+        self.optics_seed = seeds[RNG_STREAMS.index("camera_optics")]
         streams = {name: np.random.default_rng(s) for name, s in zip(RNG_STREAMS, seeds, strict=True)}
         self.physics = PhysicsWorld(self.params, sim, streams["wind"])
         self.imu = ImuModel(sim.imu, streams["imu"])
@@ -135,6 +144,7 @@ class SimulatorCore:
         self.tick_us = round(1e6 / tick_rate_hz)
         self.substeps = max(1, round(sim.physics_rate_hz / tick_rate_hz))
         self.camera_latency_ticks = round(sim.camera.latency_s * tick_rate_hz)
+        self.camera_clock_offset_us = round(sim.camera.clock_offset_s * 1e6)
         self.rate_baro = SensorRate.of(sim.baro.rate_hz, tick_rate_hz)
         self.rate_compass = SensorRate.of(sim.compass.rate_hz, tick_rate_hz)
         self.rate_gps = SensorRate.of(sim.gps.rate_hz, tick_rate_hz)
@@ -220,7 +230,8 @@ class SimulatorCore:
         request = None
         if self.rate_camera.due(tick):
             self._capture_seq += 1
-            request = CameraRequest(self._capture_seq, t_us, state.position_enu_m, state.q_wxyz)
+            request = CameraRequest(self._capture_seq, t_us, state.position_enu_m, state.q_wxyz,
+                                    state.velocity_enu_m_s, state.angular_velocity_flu_rad_s)
             self._pending.append((tick + self.camera_latency_ticks,
                                   CameraRelease(self._capture_seq, t_us)))
         release = None
@@ -245,11 +256,19 @@ class SimulatorCore:
         return self._state
 
     def camera_frame(self, release: CameraRelease, image_rgb: np.ndarray) -> CameraFrame:
-        """The published frame: the camera effects applied to the rendered image of ``release``."""
+        """The published frame: the camera effects applied to the rendered image of ``release``, then
+        the JPEG compression (``jpeg_quality``); stamped with the camera's clock (the capture tick plus
+        ``clock_offset_s``); its header carries the calibration (intrinsics, distortion)."""
         image = self.effects.apply(image_rgb)
         cam = self.sim.camera
-        return CameraFrame(release.capture_us, release.seq, image.shape[1], image.shape[0],
-                           ImageEncoding.RGB8.value, cam.fov_deg, cam.mount.value, image)
+        if cam.jpeg_quality > 0:
+            image = jpeg_roundtrip(image, cam.jpeg_quality)
+        w, h = image.shape[1], image.shape[0]
+        return CameraFrame(release.capture_us + self.camera_clock_offset_us, release.seq, w, h,
+                           ImageEncoding.RGB8.value, cam.fov_deg, cam.mount.value,
+                           intrinsics_px(w, h, cam.fov_deg),
+                           tuple(float(c) for c in cam.distortion_k1_k2_p1_p2),  # type: ignore[arg-type]
+                           image)
 
     def state(self) -> VehicleState:
         """The truth of the current tick (after ``sense`` for scripted flights)."""

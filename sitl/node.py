@@ -95,7 +95,8 @@ class SimulatorNode:
         self.core = SimulatorCore(cfg.sim, cfg.clock.tick_rate_hz, cfg.seed, m.origin_lat_deg,
                                   m.origin_lon_deg)
         self.camera = CameraPipeline(world.orthophoto, world.m_per_px, cfg.sim.camera,
-                                     heights_m=world.dsm_m, facade_rgb=world.facade_rgb)
+                                     heights_m=world.dsm_m, facade_rgb=world.facade_rgb,
+                                     optics_seed=self.core.optics_seed)
         if cfg.scripted is not None:
             self.core.start_scripted(cfg.scripted)
         else:
@@ -208,7 +209,9 @@ class SimulatorNode:
             self._publish_sensors(out)
             if out.camera_request is not None:
                 req = out.camera_request
-                self.camera.request(req.seq, req.position_enu_m, req.q_wxyz)
+                self.camera.request(req.seq, req.position_enu_m, req.q_wxyz, capture_s=req.capture_us * 1e-6,
+                                    velocity_enu_m_s=req.velocity_enu_m_s,
+                                    body_rates_flu_rad_s=req.body_rates_flu_rad_s)
             frame_out = out.camera_release is not None
             render_s = 0.0
             if out.camera_release is not None:

@@ -41,13 +41,19 @@ def die_with_parent(parent_pid: int, sig: int = signal.SIGKILL) -> None:
         os._exit(0)
 
 
+def _optics_rng(seed: np.random.SeedSequence | None) -> np.random.Generator | None:
+    return np.random.default_rng(seed) if seed is not None else None
+
+
 def _serve(conn, parent_conn, parent_pid: int, orthophoto: np.ndarray, m_per_px: float,
-           cfg: CameraConfig, heights_m: np.ndarray | None, facade_rgb: np.ndarray | None) -> None:
+           cfg: CameraConfig, heights_m: np.ndarray | None, facade_rgb: np.ndarray | None,
+           optics_seed: np.random.SeedSequence | None) -> None:
     from sitl.camera import GroundCamera, warm_up
     die_with_parent(parent_pid)
     parent_conn.close()   # else this copy keeps the pipe open after the simulator died: no EOF
     warm_up()             # kernels loaded while the simulator starts, not at its first frame
-    camera = GroundCamera(-1, orthophoto, m_per_px, cfg, heights_m=heights_m, facade_rgb=facade_rgb)
+    camera = GroundCamera(-1, orthophoto, m_per_px, cfg, heights_m=heights_m, facade_rgb=facade_rgb,
+                          optics_rng=_optics_rng(optics_seed))
     try:
         while True:
             try:
@@ -56,18 +62,21 @@ def _serve(conn, parent_conn, parent_pid: int, orthophoto: np.ndarray, m_per_px:
                 return
             if msg is None:
                 return
-            seq, pos, q = msg
-            conn.send((seq, camera.render(pos, q)))
+            seq, capture_s, pos, q, vel, rates = msg
+            conn.send((seq, camera.render_capture(capture_s, pos, q, vel, rates)))
     finally:
         camera.close()
 
 
 class CameraPipeline:
     """Renders capture poses with ``sitl.camera.GroundCamera`` (of the orthophoto and, when given and
-    ``cfg.relief``, the DSM ``heights_m`` and facade colours), in a worker or in-process."""
+    ``cfg.relief``, the DSM ``heights_m`` and facade colours), in a worker or in-process.
+    ``optics_seed``: the seed of the camera and mount realism's random stream (``sitl.camera_model``;
+    the core's ``optics_seed``); None renders the ideal pinhole image."""
 
     def __init__(self, orthophoto: np.ndarray, m_per_px: float, cfg: CameraConfig,
-                 heights_m: np.ndarray | None = None, facade_rgb: np.ndarray | None = None):
+                 heights_m: np.ndarray | None = None, facade_rgb: np.ndarray | None = None,
+                 optics_seed: np.random.SeedSequence | None = None):
         self.cfg = cfg
         self._done: OrderedDict[int, np.ndarray] = OrderedDict()
         self._in_flight: list[int] = []
@@ -78,22 +87,27 @@ class CameraPipeline:
             self._conn, child = ctx.Pipe()
             self._proc = ctx.Process(target=_serve,
                                      args=(child, self._conn, os.getpid(), orthophoto, m_per_px, cfg,
-                                           heights_m, facade_rgb),
+                                           heights_m, facade_rgb, optics_seed),
                                      name="camera-render", daemon=True)
             self._proc.start()
             child.close()
         else:
             from sitl.camera import GroundCamera
             self._camera = GroundCamera(-1, orthophoto, m_per_px, cfg, heights_m=heights_m,
-                                        facade_rgb=facade_rgb)
+                                        facade_rgb=facade_rgb, optics_rng=_optics_rng(optics_seed))
 
-    def request(self, seq: int, position_enu_m, q_wxyz) -> None:
+    def request(self, seq: int, position_enu_m, q_wxyz, *, capture_s: float = 0.0,
+                velocity_enu_m_s=(0.0, 0.0, 0.0), body_rates_flu_rad_s=(0.0, 0.0, 0.0)) -> None:
+        """Render the capture ``seq`` at this truth pose (``capture_s``, velocity and body rates: for
+        the jitter, gimbal lag and motion blur of ``sitl.camera_model``)."""
         pos = np.asarray(position_enu_m, dtype=float).copy()
         q = np.asarray(q_wxyz, dtype=float).copy()
+        vel = np.asarray(velocity_enu_m_s, dtype=float).copy()
+        rates = np.asarray(body_rates_flu_rad_s, dtype=float).copy()
         if self._camera is not None:
-            self._done[seq] = self._camera.render(pos, q)
+            self._done[seq] = self._camera.render_capture(capture_s, pos, q, vel, rates)
             return
-        self._conn.send((seq, pos, q))
+        self._conn.send((seq, float(capture_s), pos, q, vel, rates))
         self._in_flight.append(seq)
 
     def result(self, seq: int) -> np.ndarray:

@@ -134,7 +134,7 @@ def run_perception(run_dir: Path | None, bus_cfg: BusConfig, method: str | None,
         assistant_map_path=assistant_map if assistant_map is not None else (pcfg.assistant_map or None),
         lockstep=pcfg.lockstep if lockstep is None else lockstep,
         out_dir=run_dir, camera=perception_camera(cfg), weights=_perception_weights(pcfg),
-        reference=pcfg.reference)
+        reference=pcfg.reference, alignment=pcfg.alignment)
     stop = stop_event()
     stop.wait()
     node.close()

@@ -165,10 +165,13 @@ class CameraFrame:
     """Downward camera image. Binary payload (see module docstring).
 
     Image top = drone forward, image right = drone right. With ``mount == "gimbal"`` the optical axis
-    is nadir whatever the attitude; with ``"fixed"`` it follows the body.
+    is nadir whatever the attitude; with ``"fixed"`` it follows the body. ``timestamp_us`` is the
+    camera's clock at the capture (docs/interfaces.md). The calibration: pinhole intrinsics (fx, fy,
+    cx, cy) in continuous pixel coordinates and the Brown-Conrady distortion (k1, k2, p1, p2, OpenCV's
+    order) of the lens the pixels were taken through (all zero: an ideal pinhole).
     """
 
-    VERSION: ClassVar[int] = 1
+    VERSION: ClassVar[int] = 2
     timestamp_us: int
     seq: int
     width_px: int
@@ -176,6 +179,8 @@ class CameraFrame:
     encoding: str                # ImageEncoding value
     fov_deg: float
     mount: str
+    intrinsics_fx_fy_cx_cy_px: tuple[float, float, float, float]
+    distortion_k1_k2_p1_p2: tuple[float, float, float, float]
     pixels: np.ndarray = field(repr=False, compare=False)
 
 

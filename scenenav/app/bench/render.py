@@ -1,7 +1,7 @@
 """``scenenav bench render``: per-frame cost of the 3-D city camera and its agreement with the reference.
 
-Cost: the simulator's camera (``sitl.camera.GroundCamera``, 200 x 200 px, 60 deg, gimbal, no effects)
-renders frames along a straight flight line at 100 m (10 m/s, 10 Hz, heading 80 deg so the image is
+Cost: the simulator's camera (``sitl.camera.GroundCamera``, 200 x 200 px, 60 deg, gimbal, no effects;
+and once more with every camera effect of ``sitl.camera_model`` on, plus sensor noise and JPEG) renders frames along a straight flight line at 100 m (10 m/s, 10 Hz, heading 80 deg so the image is
 rotated), over the 3-D city and over the same world flat (``relief: false``), and over synthetic cities
 of 900 x 1000, 2400 x 2400 and 8000 x 8000 px (the cost must not grow with the map). The figure is the
 CPU time of the rendering thread per frame (``time.thread_time``: one core, numba single-threaded,
@@ -87,15 +87,37 @@ def _line_poses(width_m: float, n: int):
     return poses
 
 
-def frame_costs_ms(top, dsm, facade, m_per_px: float, n: int, relief: bool = True) -> dict:
-    """Median / p90 CPU and wall ms per frame of GroundCamera along the flight line."""
+def frame_costs_ms(top, dsm, facade, m_per_px: float, n: int, relief: bool = True,
+                   effects: bool = False) -> dict:
+    """Median / p90 CPU and wall ms per frame of GroundCamera along the flight line. ``effects``: with
+    every camera effect of ``sitl.camera_model`` on (``REALISTIC_CAMERA``, with a 20 ms exposure so the
+    blur kernel is not skipped) and the JPEG round trip of ``SimulatorCore.camera_frame``; the sensor
+    noise of ``sitl.sensors.CameraEffects`` is not in it)."""
+    import dataclasses
+
     from sitl.camera import GroundCamera
-    from sitl.config import CameraConfig
-    cam = GroundCamera(-1, top, m_per_px, CameraConfig(relief=relief), heights_m=dsm, facade_rgb=facade)
+    from sitl.camera_model import REALISTIC_CAMERA, jpeg_roundtrip
+    from sitl.config import CameraConfig, CameraMount
+    from sitl.sensors import CameraEffects
+    cfg = CameraConfig(relief=relief)
+    rng = None
+    post = None
+    if effects:
+        keys = {**REALISTIC_CAMERA, "mount": CameraMount(REALISTIC_CAMERA["mount"]), "exposure_time_s": 0.02}
+        cfg = dataclasses.replace(cfg, **keys)   # type: ignore[arg-type]
+        rng = np.random.default_rng(0)
+        post = CameraEffects(cfg, np.random.default_rng(1))
+    cam = GroundCamera(-1, top, m_per_px, cfg, heights_m=dsm, facade_rgb=facade, optics_rng=rng)
+    vel = np.array([SPEED_M_S * math.sin(math.radians(HEADING_DEG)),
+                    SPEED_M_S * math.cos(math.radians(HEADING_DEG)), 0.0])
     cpu, wall = [], []
     for i, (pos, q) in enumerate(_line_poses(top.shape[1] * m_per_px, n)):
         t_cpu, t_wall = time.thread_time(), time.perf_counter()
-        cam.render(pos, q)
+        if post is None:
+            cam.render(pos, q)
+        else:
+            image = post.apply(cam.render_capture(i / RATE_HZ, pos, q, vel, (0.0, 0.0, 0.0)))
+            jpeg_roundtrip(image, cfg.jpeg_quality)
         if i >= WARMUP_FRAMES:
             cpu.append(time.thread_time() - t_cpu)
             wall.append(time.perf_counter() - t_wall)
@@ -183,7 +205,7 @@ def run_render_bench(frames: int = DEFAULT_FRAMES, sizes=MAP_SIZES, identity_pos
     """Run the benchmark; write a table (or the JSON) to ``out`` and return the results."""
     from tqdm import tqdm
     top, dsm, facade, m, world_desc = bench_world()
-    steps = 3 + len(sizes) + 2
+    steps = 4 + len(sizes) + 2
     bar = tqdm(total=steps, desc="bench render", file=sys.stderr, disable=json_out or not sys.stderr.isatty())
     # Warm-up: load (or compile once) every kernel before any timing.
     frame_costs_ms(top, dsm, facade, m, 3)
@@ -192,6 +214,7 @@ def run_render_bench(frames: int = DEFAULT_FRAMES, sizes=MAP_SIZES, identity_pos
     bar.update(1)
     flat = frame_costs_ms(top, dsm, facade, m, frames, relief=False)
     bar.update(1)
+    effects = frame_costs_ms(top, dsm, facade, m, frames, effects=True)
     by_size = []
     for w, h in sizes:
         t, d, f = synthetic_city(w, h, m)
@@ -215,6 +238,8 @@ def run_render_bench(frames: int = DEFAULT_FRAMES, sizes=MAP_SIZES, identity_pos
         "render_ms_p90": city["cpu_ms_p90"],
         "city_100m": city,
         "flat_100m": flat,
+        "city_100m_all_camera_effects": effects,
+        "camera_effects_ms_per_frame": round(effects["cpu_ms_median"] - city["cpu_ms_median"], 3),
         "by_map_size": by_size,
         "agreement_share": agree["agreement_share"],
         "agreement": agree["scenes"],
@@ -234,11 +259,14 @@ def format_table(r: dict) -> str:
     lines = [f"world: {r['world']}; 200x200 px, 60 deg, {r['altitude_m']:.0f} m, {r['clock']}; "
              f"load average {r['load_average_1min']}",
              f"{'case':>24} {'median ms':>10} {'p90 ms':>8} {'wall ms':>8}"]
-    for name, c in (("3-D city", r["city_100m"]), ("flat (relief: false)", r["flat_100m"])):
+    for name, c in (("3-D city", r["city_100m"]), ("flat (relief: false)", r["flat_100m"]),
+                    ("3-D city, all effects", r["city_100m_all_camera_effects"])):
         lines.append(f"{name:>24} {c['cpu_ms_median']:>10.2f} {c['cpu_ms_p90']:>8.2f} {c['wall_ms_median']:>8.2f}")
     for s in r["by_map_size"]:
         lines.append(f"{'city ' + s['world_px']:>24} {s['cpu_ms_median']:>10.2f} {s['cpu_ms_p90']:>8.2f} "
                      f"{s['wall_ms_median']:>8.2f}")
+    lines.append(f"camera effects (jitter, blur, lens, auto-exposure, JPEG): "
+                 f"+{r['camera_effects_ms_per_frame']:.2f} ms per frame (median difference)")
     lines.append("agreement with the TinyRenderer mesh reference (label within 1 px):")
     for a in r["agreement"]:
         lines.append(f"  {a['scene']:>10} {a['mount']:>6} at {tuple(round(v, 1) for v in a['position_enu_m'])}: "
