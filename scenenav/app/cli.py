@@ -21,8 +21,10 @@ log = logging.getLogger("scenenav")
 def _run(args: argparse.Namespace) -> int:
     from scenenav.app.launcher import run
     summary = run(args.scenario, args.out, tuple(args.set or ()), progress=not args.quiet)
-    from scenenav.app.evaluation import format_summary
+    from scenenav.app.evaluation import format_summary, plain_summary
     print(format_summary(summary))
+    print()
+    print(plain_summary(summary, Path(args.out)))
     print(f"run folder: {args.out}")
     return 0 if not (summary.get("failed_nodes") or summary.get("aborted")) else 1
 

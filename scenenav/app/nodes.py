@@ -96,6 +96,9 @@ def run_recorder(run_dir: Path, bus_cfg: BusConfig) -> int:
     from scenenav.app.recorder import RecorderNode
     cfg = load_scenario(run_dir / "scenario.yaml")
     node = RecorderNode(run_dir, cfg.recorder, bus_cfg)
+    # the maps of the view (viz/map/...) after the node is up: the simulator waits for it
+    from scenenav.app.viz import map_messages, run_assistant_map
+    node.set_viz_maps(map_messages(load_world_for(cfg), run_assistant_map(cfg)))
     stop = stop_event()
     stop.wait()
     info = node.close()
