@@ -106,6 +106,22 @@ def run_recorder(run_dir: Path, bus_cfg: BusConfig) -> int:
     return 0
 
 
+def run_live(run_dir: Path, bus_cfg: BusConfig, port: int) -> int:
+    from scenenav.app.live import LiveNode
+    from scenenav.app.viz import map_messages, run_assistant_map
+    cfg = load_scenario(run_dir / "scenario.yaml")
+    try:
+        node = LiveNode(run_dir, bus_cfg, port, cfg.recorder.camera_every_n,
+                        tuple(map_messages(load_world_for(cfg), run_assistant_map(cfg))))
+    except RuntimeError as exc:       # the port is taken: the run flies on without a live view
+        log.error("live view: cannot listen on port %d: %s", port, exc)
+        return 1
+    stop = stop_event()
+    node.run(stop)
+    write_stats(run_dir / "live_stats.json", node.close())
+    return 0
+
+
 def _perception_weights(pcfg) -> str | None:
     """What the perception node loads: a CNN .pt (paper rule) or a decision model .json (combined
     rule; it names the CNN it was fitted with)."""

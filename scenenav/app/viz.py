@@ -7,7 +7,7 @@ Two kinds of channel, both JSON with a JSON schema:
 * the view (:class:`VizState`), on topics without the namespace so one layout
   (``docs/foxglove-layout.json``) opens every run, recorded or live: ``viz/camera``
   (``foxglove.RawImage``, every ``recorder.camera_every_n``-th frame), ``viz/truth/pose`` and
-  ``viz/estimate/pose`` (``foxglove.PoseInFrame``), ``viz/truth/path`` and ``viz/estimate/path``
+  ``viz/estimate/pose`` (``foxglove.PoseInFrame``, at most every :data:`POSE_STEP_S`), ``viz/truth/path`` and ``viz/estimate/path``
   (``foxglove.PosesInFrame``, one pose per :data:`PATH_STEP_S` of simulated time), ``viz/fixes``
   (``foxglove.SceneUpdate``: a sphere per valid fix, green accepted, red rejected),
   ``viz/route`` (``foxglove.SceneUpdate``: the planned route, one line per route file),
@@ -43,6 +43,8 @@ from scenenav.core.contracts import (
 )
 
 FRAME_ID = "world"
+#: Simulated seconds between two poses sent on a pose channel (10 Hz: the truth comes every tick).
+POSE_STEP_S = 0.1
 #: Simulated seconds between two poses of a path (a 600 s flight: 600 poses per path).
 PATH_STEP_S = 1.0
 #: Largest side of a map grid in cells (the reference map is downsampled to it).
@@ -183,6 +185,7 @@ class VizState:
         self.camera_every_n = camera_every_n
         self._paths: dict[str, list[dict]] = {T_TRUTH_PATH: [], T_EST_PATH: []}
         self._path_next_us: dict[str, int] = {T_TRUTH_PATH: 0, T_EST_PATH: 0}
+        self._pose_next_us: dict[str, int] = {T_TRUTH_POSE: 0, T_EST_POSE: 0}
         self._routes_seen: set[str] = set()
 
     def on_message(self, msg: Any) -> list[VizMessage]:
@@ -208,6 +211,9 @@ class VizState:
         return []
 
     def _pose(self, pose_topic: str, path_topic: str, xyz, q, t: int) -> list[VizMessage]:
+        if t < self._pose_next_us[pose_topic]:
+            return []
+        self._pose_next_us[pose_topic] = t + int(POSE_STEP_S * 1e6)
         pose = _pose(xyz, q)
         out = [_msg(pose_topic, "foxglove.PoseInFrame",
                     {"timestamp": _stamp(t), "frame_id": FRAME_ID, "pose": pose}, t)]
