@@ -11,7 +11,7 @@ import re
 import sys
 from pathlib import Path
 
-from scenenav.app.arg_types import nonneg_int, positive_int
+from scenenav.app.arg_types import nonneg_int, port_number, positive_int
 
 DEFAULT_LIVE_PORT = 8765          # Foxglove's default WebSocket port (scenenav.app.live)
 from scenenav.app.json_output import emit_json, run_json_aware
@@ -128,7 +128,7 @@ def _live_args(p: argparse.ArgumentParser) -> None:
                    help="stream the run live to Foxglove: a WebSocket server (foxglove.websocket.v1) "
                         "on 127.0.0.1, camera, fixes, estimate and truth, maps, route, events, "
                         "status; open it in Foxglove with docs/foxglove-layout.json (docs/live-view.md)")
-    p.add_argument("--live-port", type=nonneg_int, default=DEFAULT_LIVE_PORT, metavar="N",
+    p.add_argument("--live-port", type=port_number, default=DEFAULT_LIVE_PORT, metavar="N",
                    help=f"with --live: the WebSocket port (default {DEFAULT_LIVE_PORT}, Foxglove's; "
                         "0: any free port; the run folder's live.json names it)")
 
@@ -183,7 +183,7 @@ def build_parser(domain_commands: bool = True) -> argparse.ArgumentParser:
     n.add_argument("--world", help="perception only: world folder (default: the scenario's)")
     n.add_argument("--assistant-map", help="perception only: assistant map .npz")
     n.add_argument("--lockstep", choices=["on", "off"], help="perception only: answer each frame in lockstep")
-    n.add_argument("--live-port", type=nonneg_int, default=DEFAULT_LIVE_PORT,
+    n.add_argument("--live-port", type=port_number, default=DEFAULT_LIVE_PORT,
                    help=f"live only: WebSocket port (default {DEFAULT_LIVE_PORT}; 0: any free port)")
     n.set_defaults(func=_node)
 

@@ -74,7 +74,7 @@ def test_mcap_readable(two_runs):
     with (out / "bus.mcap").open("rb") as f:
         for _schema, channel, _msg in make_reader(f).iter_messages():
             topics.add(channel.topic.split("/", 2)[-1])
-    assert {"clock", "sensors/imu", "sensors/camera", "truth/pose"} <= topics
+    assert {"clock", "sensors/imu", "viz/camera", "truth/pose", "viz/truth/pose", "viz/map/reference"} <= topics
     assert any(t.startswith("perception/fix/") for t in topics)
 
 
