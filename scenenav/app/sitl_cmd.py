@@ -34,9 +34,9 @@ from scenenav.app.launcher import (
     restart_on_new_hub_port,
     spawn_recorder_and_perception,
 )
-from scenenav.app.scenario import ScenarioConfig
+from scenenav.app.scenario import ScenarioConfig, scenario_yaml
 from scenenav.app.signals import interrupt_on_stop_signals
-from scenenav.core.config import apply_overrides, load_config, load_yaml, set_dotted
+from scenenav.core.config import apply_overrides, load_config, set_dotted
 from scenenav.core.errors import UserError
 
 log = logging.getLogger(__name__)
@@ -81,7 +81,7 @@ def sitl_scenario(opts: SitlOptions) -> ScenarioConfig:
     if opts.perception is not None and opts.perception not in PERCEPTION_CHOICES:
         raise UserError(f"--perception {opts.perception}: expected one of "
                         f"{', '.join(PERCEPTION_CHOICES)}")
-    data = load_yaml(opts.scenario) if opts.scenario else {}
+    data = scenario_yaml(opts.scenario) if opts.scenario else {}
     data.setdefault("name", "sitl")
     set_dotted(data, "flight.mode", "idle")
     set_dotted(data, "duration_s", SITL_DURATION_S)
