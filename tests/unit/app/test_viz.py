@@ -126,3 +126,17 @@ def test_bus_schema_names_the_message_fields():
     props = json.loads(data)["properties"]
     assert name == "scenenav.VisionFix"
     assert props["node_id"] == {"type": "string"} and props["accepted"] == {"type": "boolean"}
+
+
+def test_the_shipped_layout_is_the_generated_one_and_names_view_channels_only():
+    from pathlib import Path
+
+    from scenenav.app import viz
+    from scenenav.app.foxglove_layout import layout_json
+    shipped = Path(__file__).resolve().parents[3] / "docs" / "foxglove-layout.json"
+    assert shipped.read_text() == layout_json(), \
+        "regenerate: python -m scenenav.app.foxglove_layout > docs/foxglove-layout.json"
+    text = shipped.read_text()
+    topics = {v for k, v in vars(viz).items() if k.startswith("T_")}
+    assert all(f'"{t}' in text for t in topics)          # every view channel has a place
+    assert "scenenav/" not in text                         # no run namespace in the layout
