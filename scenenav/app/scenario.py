@@ -48,7 +48,7 @@ class FlightConfig:
 
 @dataclass(frozen=True)
 class RecorderConfig:
-    camera_every_n: int = 10           # every n-th camera frame goes to the MCAP log (0: none)
+    camera_every_n: int = 10           # every n-th camera frame goes to the MCAP log and the live view (0: none)
     truth_every_n_ticks: int = 5       # truth.csv decimation (1: every control tick)
     min_free_disk_mb: float = 200.0    # the launcher refuses to start with less free on the run's disk
     mcap_chunk_s: float = 2.0          # bus.mcap chunks close every this many wall seconds (crash loss)
