@@ -73,24 +73,27 @@ def draw(run_dir: Path, out: Path, at_s: float | None) -> None:
         for e in d["entities"]:
             for line in e["lines"]:
                 xy = np.array([(p["x"], p["y"]) for p in line["points"]])
-                ax3d.plot(xy[:, 0], xy[:, 1], "--", c="magenta", lw=1.5, label="planned route")
+                ax3d.plot(xy[:, 0], xy[:, 1], "--", c="magenta", lw=1.5, label="planned route",
+                         zorder=5)
     for topic, colour, label in ((viz.T_TRUTH_PATH, "k", "truth"), (viz.T_EST_PATH, "#1f5fff", "estimate")):
         paths = _upto(ch.get(topic, []), t)
         if paths:
             xy = np.array([(p["position"]["x"], p["position"]["y"]) for p in paths[-1]["poses"]])
-            ax3d.plot(xy[:, 0], xy[:, 1], c=colour, lw=1.6, label=f"{label} path")
+            ax3d.plot(xy[:, 0], xy[:, 1], c=colour, lw=1.0, label=f"{label} path", zorder=3)
     fixes = [e for d in _upto(ch.get(viz.T_FIXES, []), t) for e in d["entities"]]
     for accepted, colour, label in ((True, "lime", "fix accepted"), (False, "red", "fix rejected")):
         pts = np.array([(s["pose"]["position"]["x"], s["pose"]["position"]["y"]) for e in fixes
                         for s in e["spheres"] if (s["color"]["g"] > s["color"]["r"]) == accepted])
         if len(pts):
-            ax3d.scatter(pts[:, 0], pts[:, 1], s=10, c=colour, edgecolors="none", label=label)
+            ax3d.scatter(pts[:, 0], pts[:, 1], s=6, c=colour, edgecolors="none", label=label,
+                         zorder=4)
     for topic, colour in ((viz.T_TRUTH_POSE, "k"), (viz.T_EST_POSE, "#1f5fff")):
         poses = _upto(ch.get(topic, []), t)
         if poses:
             p, q = poses[-1]["pose"]["position"], poses[-1]["pose"]["orientation"]
             yaw = np.arctan2(2 * (q["w"] * q["z"] + q["x"] * q["y"]), 1 - 2 * (q["y"] ** 2 + q["z"] ** 2))
-            ax3d.arrow(p["x"], p["y"], 25 * np.cos(yaw), 25 * np.sin(yaw), width=3, color=colour)
+            ax3d.arrow(p["x"], p["y"], 25 * np.cos(yaw), 25 * np.sin(yaw), width=3, color=colour,
+                      zorder=6)
     handles, labels = ax3d.get_legend_handles_labels()
     keep = dict(zip(labels, handles, strict=True))
     ax3d.legend(keep.values(), keep.keys(), loc="upper right", fontsize=8)

@@ -21,6 +21,7 @@ Frame ``world`` is the world ENU frame in metres (origin at the map centre, see
 from __future__ import annotations
 
 import base64
+import functools
 import json
 import math
 from dataclasses import dataclass
@@ -63,6 +64,7 @@ T_STATUS = "viz/autopilot/status"
 _JSON_TYPES = {"float": "number", "int": "integer", "bool": "boolean", "str": "string"}
 
 
+@functools.lru_cache(maxsize=None)
 def bus_schema(type_name: str) -> tuple[str, bytes]:
     """Schema name and JSON schema of a bus message type as recorded (``scenenav.<Type>``)."""
     cls = message_type(type_name)
@@ -103,6 +105,7 @@ FOXGLOVE_SCHEMAS: dict[str, dict] = {
 }
 
 
+@functools.lru_cache(maxsize=None)
 def foxglove_schema(name: str) -> bytes:
     return json.dumps({"title": name, **FOXGLOVE_SCHEMAS[name]}).encode()
 
