@@ -23,7 +23,8 @@ log = logging.getLogger("scenenav")
 def _run(args: argparse.Namespace) -> int:
     from scenenav.app.launcher import run
     summary = run(args.scenario, args.out, tuple(args.set or ()), progress=not args.quiet,
-                  live_port=args.live_port if args.live else None)
+                  live_port=args.live_port if args.live else None,
+                  announce=lambda text: print(text, file=sys.stderr, flush=True))
     from scenenav.app.evaluation import format_summary, plain_summary
     print(format_summary(summary))
     print()

@@ -29,6 +29,7 @@ import time
 import uuid
 from dataclasses import dataclass, field
 from pathlib import Path
+from typing import Callable
 
 import yaml
 
@@ -300,8 +301,9 @@ def prepare_run(cfg: ScenarioConfig, world, run_dir: Path, label: str, prefix: s
 LIVE_READY_TIMEOUT_S = 30.0
 
 
-def announce_live(launch: Launch, timeout_s: float = LIVE_READY_TIMEOUT_S) -> str | None:
-    """Wait for the live node's ``live.json`` and print its URL on stderr (one line); None (and a
+def announce_live(launch: Launch, announce: Callable[[str], None],
+                  timeout_s: float = LIVE_READY_TIMEOUT_S) -> str | None:
+    """Wait for the live node's ``live.json`` and ``announce`` its URL (one line); None (and a
     warning) when it did not come up (e.g. its port is taken: the run flies on without it)."""
     path = launch.run_dir / LIVE_FILE
     live = next((c for c in launch.children if c.name == "live"), None)
@@ -312,8 +314,8 @@ def announce_live(launch: Launch, timeout_s: float = LIVE_READY_TIMEOUT_S) -> st
         except (OSError, ValueError, KeyError):
             url = None
         if url:
-            print(f"live view: {url} (Foxglove: Open connection > Foxglove WebSocket; layout "
-                  "docs/foxglove-layout.json)", file=sys.stderr, flush=True)
+            announce(f"live view: {url} (Foxglove: Open connection > Foxglove WebSocket; layout "
+                     "docs/foxglove-layout.json)")
             return url
         if live is None or live.proc.poll() is not None:
             break
@@ -379,30 +381,32 @@ def resolve_world(cfg: ScenarioConfig):
 
 
 def run(scenario_path: str | None, out_dir: str, overrides: tuple[str, ...] = (),
-        progress: bool = True, live_port: int | None = None) -> dict:
+        progress: bool = True, live_port: int | None = None,
+        announce: Callable[[str], None] = log.warning) -> dict:
     """Fly one scenario into ``out_dir``; Ctrl-C and SIGTERM stop every node cleanly (the summary is
     still written, then KeyboardInterrupt is raised again). ``live_port``: also stream the run to
-    Foxglove on that port (``scenenav run --live``)."""
+    Foxglove on that port (``scenenav run --live``); ``announce`` gets its URL."""
     with interrupt_on_stop_signals():
-        return _prepare_and_fly(scenario_path, out_dir, overrides, progress, live_port)
+        return _prepare_and_fly(scenario_path, out_dir, overrides, progress, live_port, announce)
 
 
 def _prepare_and_fly(scenario_path: str | None, out_dir: str, overrides: tuple[str, ...],
-                     progress: bool, live_port: int | None = None) -> dict:
+                     progress: bool, live_port: int | None = None,
+                     announce: Callable[[str], None] = log.warning) -> dict:
     cfg = load_scenario(scenario_path, overrides)
     world = resolve_world(cfg)          # fail early, with a one-line error, on a bad world
     cfg = _resolve_guidance_map(cfg, progress)
     validate_inputs(cfg, world)          # every file a node will read, before any node starts
     cfg, claim = _claim_sysid(cfg, Path(out_dir))
     try:
-        return _fly(cfg, world, scenario_path, out_dir, progress, live_port)
+        return _fly(cfg, world, scenario_path, out_dir, progress, live_port, announce)
     finally:
         if claim is not None:
             claim.release()
 
 
 def _fly(cfg: ScenarioConfig, world, scenario_path: str | None, out_dir: str, progress: bool,
-         live_port: int | None = None) -> dict:
+         live_port: int | None = None, announce: Callable[[str], None] = log.warning) -> dict:
     launch = prepare_run(cfg, world, Path(out_dir), scenario_path or "(defaults)", "run",
                          reserve_mb=DISK_RESERVE_MB)
     run_dir = launch.run_dir
@@ -429,7 +433,7 @@ def _fly(cfg: ScenarioConfig, world, scenario_path: str | None, out_dir: str, pr
                 break
             restart_on_new_hub_port(launch)
         if live_port is not None:
-            announce_live(launch)
+            announce_live(launch, announce)
         swap = PerceptionSwap(launch, cfg) if cfg.perception.enabled and cfg.perception.swap_at_s > 0 \
             else None
         _wait_sim(sim, launch, cfg, progress, swap, watch, disk)

@@ -194,7 +194,7 @@ def _run_sitl(opts: SitlOptions, announce: Callable[[str], None]) -> dict:
         (run_dir / "run.json").write_text(json.dumps(meta, indent=2))
         announce(_connect_text(cfg, run_dir, mavlink))
         if opts.live_port is not None:
-            announce_live(launch)
+            announce_live(launch, announce)
         reason = _supervise(launch)
         if reason:
             announce(f"scenenav sitl: {reason}; stopping")
