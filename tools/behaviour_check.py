@@ -25,7 +25,7 @@ import subprocess
 import sys
 from pathlib import Path
 
-DETERMINISTIC = ("demo", "scripted_loop", "paper_experiment", "gps_denied", "guided_route")
+DETERMINISTIC = ("logging_flight", "scripted_loop", "paper_experiment", "gps_denied", "guided_route")
 ROOT = Path(__file__).resolve().parent.parent
 
 

@@ -37,3 +37,17 @@ def positive_float(text: str) -> float:
     if not (value > 0.0 and value != float("inf")):
         raise argparse.ArgumentTypeError(f"{text!r}: expected a positive number")
     return value
+
+
+MAX_PORT = 65535
+
+
+def port_number(text: str) -> int:
+    """A TCP port, 0 to 65535 (0: any free port)."""
+    try:
+        value = int(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"{text!r}: expected a port number 0 to {MAX_PORT}") from None
+    if not 0 <= value <= MAX_PORT:
+        raise argparse.ArgumentTypeError(f"{text!r}: expected a port number 0 to {MAX_PORT}")
+    return value

@@ -11,7 +11,9 @@ import re
 import sys
 from pathlib import Path
 
-from scenenav.app.arg_types import nonneg_int, positive_int
+from scenenav.app.arg_types import nonneg_int, port_number, positive_int
+
+DEFAULT_LIVE_PORT = 8765          # Foxglove's default WebSocket port (scenenav.app.live)
 from scenenav.app.json_output import emit_json, run_json_aware
 from scenenav.core.errors import UserError
 
@@ -20,9 +22,13 @@ log = logging.getLogger("scenenav")
 
 def _run(args: argparse.Namespace) -> int:
     from scenenav.app.launcher import run
-    summary = run(args.scenario, args.out, tuple(args.set or ()), progress=not args.quiet)
-    from scenenav.app.evaluation import format_summary
+    summary = run(args.scenario, args.out, tuple(args.set or ()), progress=not args.quiet,
+                  live_port=args.live_port if args.live else None,
+                  announce=lambda text: print(text, file=sys.stderr, flush=True))
+    from scenenav.app.evaluation import format_summary, plain_summary
     print(format_summary(summary))
+    print()
+    print(plain_summary(summary, Path(args.out)))
     print(f"run folder: {args.out}")
     return 0 if not (summary.get("failed_nodes") or summary.get("aborted")) else 1
 
@@ -51,6 +57,10 @@ def _node(args: argparse.Namespace) -> int:
                                     args.assistant_map, None if args.lockstep is None else args.lockstep == "on")
     if args.kind == "autopilot":
         return nodes.run_autopilot(run_dir, bus)
+    if args.kind == "live":
+        if run_dir is None:
+            raise UserError("node live: --run-dir is required (the run's scenario.yaml names the world)")
+        return nodes.run_live(run_dir, bus, args.live_port)
     if args.kind == "guidance":
         if run_dir is None:
             raise UserError("node guidance: --run-dir is required (the run's scenario.yaml names the goals)")
@@ -99,7 +109,8 @@ def _sitl(args: argparse.Namespace) -> int:
     opts = SitlOptions(scenario=args.scenario, world=args.world, gps=not args.no_gps,
                        speedup=args.speedup, out=args.out, tcp_port=args.tcp_port,
                        udp_out=args.udp_out, perception=args.perception, lockstep=args.lockstep,
-                       overrides=tuple(args.set or ()), instance=args.instance, wipe=args.wipe)
+                       overrides=tuple(args.set or ()), instance=args.instance, wipe=args.wipe,
+                       live_port=args.live_port if args.live else None)
     summary = run_sitl(opts, announce=lambda text: print(text, flush=True))
     from scenenav.app.evaluation import format_summary
     print(format_summary(summary))
@@ -111,6 +122,16 @@ def _sitl(args: argparse.Namespace) -> int:
 # node of a run (``scenenav node sim ...``) start without them. The parser of each of these commands
 # is the same either way; ``scenenav --help`` and every other command get the whole parser.
 _OWN_COMMANDS = frozenset({"run", "summarize", "node", "sitl"})
+
+
+def _live_args(p: argparse.ArgumentParser) -> None:
+    p.add_argument("--live", action="store_true",
+                   help="stream the run live to Foxglove: a WebSocket server (foxglove.websocket.v1) "
+                        "on 127.0.0.1, camera, fixes, estimate and truth, maps, route, events, "
+                        "status; open it in Foxglove with docs/foxglove-layout.json (docs/live-view.md)")
+    p.add_argument("--live-port", type=port_number, default=DEFAULT_LIVE_PORT, metavar="N",
+                   help=f"with --live: the WebSocket port (default {DEFAULT_LIVE_PORT}, Foxglove's; "
+                        "0: any free port; the run folder's live.json names it)")
 
 
 def build_parser(domain_commands: bool = True) -> argparse.ArgumentParser:
@@ -136,6 +157,7 @@ def build_parser(domain_commands: bool = True) -> argparse.ArgumentParser:
     r.add_argument("--set", action="append", metavar="KEY=VALUE",
                    help="override a scenario key, e.g. --set duration_s=30 --set perception.method=statistical")
     r.add_argument("--quiet", action="store_true", help="no progress bar")
+    _live_args(r)
     r.set_defaults(func=_run)
 
     sm = sub.add_parser("summarize", help="rebuild summary.json and trajectory.png of a run folder",
@@ -151,7 +173,7 @@ def build_parser(domain_commands: bool = True) -> argparse.ArgumentParser:
                        description="Run a single bus node. Normally started by `scenenav run` or "
                                    "`scenenav sitl`; start one by hand to swap a node in a live run "
                                    "(same --namespace and --hub-port as the run, see its run.json).")
-    n.add_argument("kind", choices=["sim", "recorder", "perception", "autopilot", "guidance"])
+    n.add_argument("kind", choices=["sim", "recorder", "perception", "autopilot", "guidance", "live"])
     n.add_argument("--namespace", required=True, help="key namespace of the run (run.json: namespace)")
     n.add_argument("--hub-port", required=True, type=int, help="the simulator's Zenoh port (run.json: hub_port)")
     n.add_argument("--run-dir", help="run folder (reads scenario.yaml from it)")
@@ -162,6 +184,8 @@ def build_parser(domain_commands: bool = True) -> argparse.ArgumentParser:
     n.add_argument("--world", help="perception only: world folder (default: the scenario's)")
     n.add_argument("--assistant-map", help="perception only: assistant map .npz")
     n.add_argument("--lockstep", choices=["on", "off"], help="perception only: answer each frame in lockstep")
+    n.add_argument("--live-port", type=port_number, default=DEFAULT_LIVE_PORT,
+                   help=f"live only: WebSocket port (default {DEFAULT_LIVE_PORT}; 0: any free port)")
     n.set_defaults(func=_node)
 
     e = sub.add_parser("experiment", help="the paper's experiments, reproduced",
@@ -244,6 +268,7 @@ def build_parser(domain_commands: bool = True) -> argparse.ArgumentParser:
                          "--tcp-port)")
     st.add_argument("-w", "--wipe", action="store_true",
                     help="forget the instance's kept parameters before starting (sim_vehicle.py -w)")
+    _live_args(st)
     st.set_defaults(func=_sitl)
 
     b = sub.add_parser("bench", help="benchmarks that print figures (never part of the tests)",

@@ -209,6 +209,57 @@ def fix_metrics(fx: dict[str, np.ndarray]) -> dict[str, Any]:
     }
 
 
+def _node_method(node_id: str, recorded: dict, methods: np.ndarray) -> str | None:
+    """A perception node's method: what its NodeInfo said (the recorder's ``perception_nodes``),
+    else the method its fixes name most often."""
+    said = (recorded.get(node_id) or {}).get("method")
+    if said:
+        return str(said)
+    if len(methods) == 0:
+        return None
+    names, counts = np.unique(methods.astype(str), return_counts=True)
+    return str(names[int(np.argmax(counts))])
+
+
+def perception_node_metrics(fx: dict[str, np.ndarray], recorded: dict | None = None) -> list[dict]:
+    """The fix figures per perception node (fixes.csv ``node_id``), in the order of their first
+    fix: node id, method, fixes, valid, accepted, false (valid with an error over the threshold),
+    RMS error over the accepted fixes, the capture times of the first and last fix and the time
+    between them (``time_live_s``). ``recorded``: the recorder's ``perception_nodes`` (the
+    method each node's NodeInfo gave)."""
+    if not fx or "node_id" not in fx:
+        return []
+    ids = fx["node_id"].astype(str)
+    order = sorted(set(ids), key=lambda n: float(np.min(fx["t_s"][ids == n])))
+    rows = []
+    for node in order:
+        mask = ids == node
+        m = fix_metrics({k: v[mask] for k, v in fx.items()})
+        t = fx["t_s"][mask]
+        rows.append({
+            "node_id": node,
+            "method": _node_method(node, recorded or {}, fx["method"][mask] if "method" in fx
+                                   else np.zeros(0)),
+            "fixes_total": m["fixes_total"], "fixes_valid": m["fixes_valid"],
+            "fixes_accepted": m["fixes_accepted"], "false_fixes": m["false_fixes"],
+            "false_fixes_accepted": m["fixes_accepted"] - m["fixes_accepted_true"],
+            "fix_rms_error_accepted_m": m["fix_rms_error_accepted_m"],
+            "first_fix_s": float(t.min()), "last_fix_s": float(t.max()),
+            "time_live_s": float(t.max() - t.min()),
+        })
+    return rows
+
+
+def headline_method(cfg, nodes: list[dict]) -> str | None:
+    """``perception_method`` of the summary: the method of the node that gave the fixes; after a
+    swap the methods in the order they flew (``"cnn -> assistant-map"``); the scenario's when no
+    node gave a fix (null without perception)."""
+    methods = [n["method"] for n in nodes if n["method"]]
+    if methods:
+        return " -> ".join(methods)
+    return cfg.perception.method if cfg.perception.enabled else None
+
+
 def estimate_errors(run_dir: Path) -> np.ndarray:
     """Horizontal error of every autopilot estimate against truth (m); empty without an autopilot."""
     est = read_csv(Path(run_dir) / "estimates.csv")
@@ -253,6 +304,11 @@ def evaluate_run(run_dir: Path, cfg, world, wall_time_s: float | None, interrupt
     summary: dict[str, Any] = {"scenario": cfg.name, "world": world.manifest.name}
     summary.update(estimate_metrics(run_dir))
     summary.update(fix_metrics(fx))
+    rec = _read_json(run_dir / "recorder_stats.json")
+    nodes = perception_node_metrics(fx, rec.get("perception_nodes"))
+    summary["perception_nodes"] = nodes
+    # the headline fix figures pool every node's fixes: say over which nodes
+    summary["fix_metrics_nodes"] = [n["node_id"] for n in nodes]
     splits = fix_height_splits(fx, world, cfg.sim.camera.fov_deg, threshold)
     summary["world_has_dsm"] = world.manifest.has_dsm
     summary["reference_misregistration_max_m"] = (
@@ -276,12 +332,12 @@ def evaluate_run(run_dir: Path, cfg, world, wall_time_s: float | None, interrupt
         "end_reason": _end_reason(sim_stats, interrupted, failures, abort_reason),
         "aborted": abort_reason is not None,
         "flight_mode": cfg.flight.mode.value,
-        "perception_method": cfg.perception.method if cfg.perception.enabled else None,
+        "perception_method": headline_method(cfg, nodes),
         "false_fix_threshold_m": cfg.evaluation.false_fix_threshold_m,
         "distance_flown_m": _distance(truth),
     })
     summary.update(_guidance_metrics(run_dir))
-    rec = _read_json(run_dir / "recorder_stats.json")
+    summary.update(_end_position(cfg, truth, status))
     if recorder_stopped_early is None:
         recorder_stopped_early = not rec
     summary["recording_ended_early"] = bool(recorder_stopped_early or rec.get("write_failed"))
@@ -369,6 +425,22 @@ def _guidance_metrics(run_dir: Path) -> dict[str, Any]:
     return {"route_length_m": routes[0].length_m,
             "route_min_clearance_m": routes[0].min_clearance_m,
             "replans": len(routes) - 1}
+
+
+def _end_position(cfg, truth: dict, status: dict) -> dict[str, Any]:
+    """Where the vehicle ended (true position) and, for a guided flight, how far from the last
+    goal; whether it was on the ground at the end (the autopilot's last status)."""
+    if not truth or len(truth.get("x_m", [])) == 0:
+        return {}
+    end = (float(truth["x_m"][-1]), float(truth["y_m"][-1]))
+    out: dict[str, Any] = {"end_position_enu_m": [round(end[0], 2), round(end[1], 2)],
+                           "landed": bool(status["landed"][-1] > 0.5)
+                           if status and len(status.get("t_s", [])) else None}
+    if cfg.guidance.enabled and cfg.guidance.goals_enu_m:
+        goal = cfg.guidance.goals_enu_m[-1]
+        out["goal_enu_m"] = [float(goal[0]), float(goal[1])]
+        out["end_distance_to_goal_m"] = round(math.hypot(end[0] - goal[0], end[1] - goal[1]), 2)
+    return out
 
 
 def _distance(truth: dict) -> float:
@@ -505,6 +577,15 @@ def format_summary(summary: dict) -> str:
         if isinstance(v, float):
             v = f"{v:.3f}"
         lines.append(f"  {k:26s} {v}")
+    nodes = summary.get("perception_nodes") or []
+    if len(nodes) > 1:
+        lines.append(f"  {'':26s} (fix figures pooled over {len(nodes)} perception nodes; per node:)")
+    for n in nodes:
+        rms = n["fix_rms_error_accepted_m"]
+        lines.append(f"  perception node {n['node_id']} ({n['method']}): {n['fixes_total']} fixes, "
+                     f"{n['fixes_accepted']} accepted, {n['false_fixes']} false, RMS "
+                     f"{'—' if rms is None else f'{rms:.2f} m'} over accepted, live "
+                     f"{n['first_fix_s']:.1f}-{n['last_fix_s']:.1f} s")
     if summary.get("failed_nodes"):
         lines.append(f"  failed_nodes               {summary['failed_nodes']}")
     split = summary.get("fix_errors_by_height") or {}
@@ -519,4 +600,53 @@ def format_summary(summary: dict) -> str:
         lines.append(f"  missing                    {m}")
     for n in summary.get("notes") or ():
         lines.append(f"  note                       {n}")
+    return "\n".join(lines)
+
+
+def _m(v: float | None) -> str:
+    return "—" if v is None else f"{v:.1f} m"
+
+
+def plain_summary(summary: dict, run_dir: Path | None = None) -> str:
+    """What happened, in a few plain sentences (printed at the end of every ``scenenav run``)."""
+    flew = f"The vehicle flew {summary.get('distance_flown_m', 0.0) / 1000:.2f} km in " \
+           f"{summary.get('sim_time_s', 0.0):.0f} s of simulated time"
+    wall = summary.get("wall_time_s")
+    flew += f" ({wall:.0f} s of wall time)" if wall is not None else ""
+    flew += ", with GPS." if summary.get("gps_used") else ", without GPS."
+    lines = [flew]
+    nodes = summary.get("perception_nodes") or []
+    if summary.get("fixes_total"):
+        who = ", ".join(f"{n['node_id']} ({n['method']})" for n in nodes) or "perception"
+        acc = summary.get("fixes_accepted", 0)
+        lines.append(f"Scene matching ({who}) gave {summary['fixes_total']} fixes; {acc} were "
+                     f"accepted and {summary.get('false_fixes', 0)} were false (over "
+                     f"{summary.get('false_fix_threshold_m', 5.0):g} m from the truth), "
+                     f"{summary.get('false_fixes_rejected', 0)} of them rejected; the accepted fixes' "
+                     f"error RMS is {_m(summary.get('fix_rms_error_accepted_m'))}.")
+    if summary.get("rms_error_m") is not None:
+        lines.append(f"The autopilot's position estimate was off by {_m(summary['rms_error_m'])} RMS "
+                     f"and {_m(summary.get('max_error_m'))} at worst.")
+    if summary.get("route_length_m") is not None:
+        replans = summary.get("replans", 0)
+        lines.append(f"Guidance planned a {summary['route_length_m']:.0f} m route around the bad "
+                     f"matching areas (clearance {_m(summary.get('route_min_clearance_m'))}"
+                     f"{f', {replans} replans' if replans else ''}).")
+    end = summary.get("end_position_enu_m")
+    if end is not None:
+        where = f"({end[0]:.0f}, {end[1]:.0f}) m east/north"
+        state = "landed" if summary.get("landed") else "ended"
+        text = f"It {state} at {where}"
+        if summary.get("end_distance_to_goal_m") is not None:
+            g = summary["goal_enu_m"]
+            text += f", {summary['end_distance_to_goal_m']:.1f} m from the goal ({g[0]:.0f}, {g[1]:.0f})"
+        mission = "the mission was completed" if summary.get("mission_completed") else \
+            f"the run ended: {summary.get('end_reason')}"
+        lines.append(f"{text}; {mission}.")
+    if run_dir is not None:
+        pics = [p for p in ("trajectory.png",) if (Path(run_dir) / p).is_file()]
+        files = [str(Path(run_dir) / p) for p in pics]
+        lines.append("Pictures: " + (", ".join(files) if files else "none") +
+                     f"; everything recorded: {Path(run_dir) / 'bus.mcap'} (Foxglove, "
+                     "layout docs/foxglove-layout.json).")
     return "\n".join(lines)

@@ -29,12 +29,15 @@ import time
 import uuid
 from dataclasses import dataclass, field
 from pathlib import Path
+from typing import Callable
 
 import yaml
 
 from scenenav.app.evaluation import NodeFailure, last_sim_time_s
 from scenenav.app.mavlink_claim import DEFAULT_SYSID, SysidClaim, claim_sysid
 from scenenav.app.nodes import HUB_FILE
+
+LIVE_FILE = "live.json"           # written by the live node (scenenav.app.live): its port and URL
 from scenenav.app.preflight import check_free_space, free_bytes, mount_point, validate_inputs
 from scenenav.app.scenario import FlightMode, ScenarioConfig, load_scenario, scenario_to_dict
 from scenenav.app.signals import interrupt_on_stop_signals
@@ -251,10 +254,15 @@ def _resolve_guidance_map(cfg: ScenarioConfig, progress: bool) -> ScenarioConfig
     return dataclasses.replace(cfg, guidance=dataclasses.replace(g, assistant_map=str(path)))
 
 
-def spawn_recorder_and_perception(launch: Launch, cfg: ScenarioConfig) -> list[str]:
-    """Start the recorder and (if enabled) the perception node; returns the lockstep members they
-    add (``camera`` for a lockstep perception node)."""
+def spawn_recorder_and_perception(launch: Launch, cfg: ScenarioConfig,
+                                  live_port: int | None = None) -> list[str]:
+    """Start the recorder, the live view (``live_port`` not None; never a lockstep member) and (if
+    enabled) the perception node; returns the lockstep members they add (``camera`` for a
+    lockstep perception node)."""
     launch.spawn("recorder", ["recorder", "--run-dir", str(launch.run_dir)])
+    if live_port is not None:
+        (launch.run_dir / LIVE_FILE).unlink(missing_ok=True)
+        launch.spawn("live", ["live", "--run-dir", str(launch.run_dir), "--live-port", str(live_port)])
     if not cfg.perception.enabled:
         return []
     launch.spawn("perception", ["perception", "--run-dir", str(launch.run_dir), "--node-id", "perception"])
@@ -287,6 +295,33 @@ def prepare_run(cfg: ScenarioConfig, world, run_dir: Path, label: str, prefix: s
             shutil.rmtree(run_dir, ignore_errors=True)
         raise UserError(disk_error_line(run_dir, exc)) from None
     return launch
+
+
+#: Wall seconds the launcher waits for the live view to report its port.
+LIVE_READY_TIMEOUT_S = 30.0
+
+
+def announce_live(launch: Launch, announce: Callable[[str], None],
+                  timeout_s: float = LIVE_READY_TIMEOUT_S) -> str | None:
+    """Wait for the live node's ``live.json`` and ``announce`` its URL (one line); None (and a
+    warning) when it did not come up (e.g. its port is taken: the run flies on without it)."""
+    path = launch.run_dir / LIVE_FILE
+    live = next((c for c in launch.children if c.name == "live"), None)
+    deadline = time.monotonic() + timeout_s
+    while time.monotonic() < deadline:
+        try:
+            url = json.loads(path.read_text())["url"]
+        except (OSError, ValueError, KeyError):
+            url = None
+        if url:
+            announce(f"live view: {url} (Foxglove: Open connection > Foxglove WebSocket; layout "
+                     "docs/foxglove-layout.json)")
+            return url
+        if live is None or live.proc.poll() is not None:
+            break
+        time.sleep(0.05)
+    log.warning("the live view did not come up (see logs/live.log); flying without it")
+    return None
 
 
 def _reserve(path: Path, mb: float) -> None:
@@ -346,28 +381,32 @@ def resolve_world(cfg: ScenarioConfig):
 
 
 def run(scenario_path: str | None, out_dir: str, overrides: tuple[str, ...] = (),
-        progress: bool = True) -> dict:
+        progress: bool = True, live_port: int | None = None,
+        announce: Callable[[str], None] = log.warning) -> dict:
     """Fly one scenario into ``out_dir``; Ctrl-C and SIGTERM stop every node cleanly (the summary is
-    still written, then KeyboardInterrupt is raised again)."""
+    still written, then KeyboardInterrupt is raised again). ``live_port``: also stream the run to
+    Foxglove on that port (``scenenav run --live``); ``announce`` gets its URL."""
     with interrupt_on_stop_signals():
-        return _prepare_and_fly(scenario_path, out_dir, overrides, progress)
+        return _prepare_and_fly(scenario_path, out_dir, overrides, progress, live_port, announce)
 
 
 def _prepare_and_fly(scenario_path: str | None, out_dir: str, overrides: tuple[str, ...],
-                     progress: bool) -> dict:
+                     progress: bool, live_port: int | None = None,
+                     announce: Callable[[str], None] = log.warning) -> dict:
     cfg = load_scenario(scenario_path, overrides)
     world = resolve_world(cfg)          # fail early, with a one-line error, on a bad world
     cfg = _resolve_guidance_map(cfg, progress)
     validate_inputs(cfg, world)          # every file a node will read, before any node starts
     cfg, claim = _claim_sysid(cfg, Path(out_dir))
     try:
-        return _fly(cfg, world, scenario_path, out_dir, progress)
+        return _fly(cfg, world, scenario_path, out_dir, progress, live_port, announce)
     finally:
         if claim is not None:
             claim.release()
 
 
-def _fly(cfg: ScenarioConfig, world, scenario_path: str | None, out_dir: str, progress: bool) -> dict:
+def _fly(cfg: ScenarioConfig, world, scenario_path: str | None, out_dir: str, progress: bool,
+         live_port: int | None = None, announce: Callable[[str], None] = log.warning) -> dict:
     launch = prepare_run(cfg, world, Path(out_dir), scenario_path or "(defaults)", "run",
                          reserve_mb=DISK_RESERVE_MB)
     run_dir = launch.run_dir
@@ -380,7 +419,7 @@ def _fly(cfg: ScenarioConfig, world, scenario_path: str | None, out_dir: str, pr
     disk = DiskWatch(run_dir)
     try:
         for attempt in range(HUB_ATTEMPTS):
-            expect = ["recorder"] + spawn_recorder_and_perception(launch, cfg)
+            expect = ["recorder"] + spawn_recorder_and_perception(launch, cfg, live_port)
             if cfg.flight.mode == FlightMode.AUTOPILOT:
                 autopilot = launch.spawn("autopilot", ["autopilot", "--run-dir", str(run_dir)])
                 expect.append("tick")
@@ -393,6 +432,8 @@ def _fly(cfg: ScenarioConfig, world, scenario_path: str | None, out_dir: str, pr
             if await_hub(launch, sim) or attempt == HUB_ATTEMPTS - 1:
                 break
             restart_on_new_hub_port(launch)
+        if live_port is not None:
+            announce_live(launch, announce)
         swap = PerceptionSwap(launch, cfg) if cfg.perception.enabled and cfg.perception.swap_at_s > 0 \
             else None
         _wait_sim(sim, launch, cfg, progress, swap, watch, disk)
@@ -406,7 +447,7 @@ def _fly(cfg: ScenarioConfig, world, scenario_path: str | None, out_dir: str, pr
         disk.release()
         watch.poll()     # a death seen only now is still a death, not a stop
         launch.stop_all(order=["sim", "guidance", "autopilot", "perception", SWAP_NODE_ID,
-                               "recorder"])
+                               "live", "recorder"])
     wall = time.time() - wall0
     return _finish(launch, cfg, world, wall, interrupted, watch, abort)
 

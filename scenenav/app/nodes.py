@@ -96,10 +96,29 @@ def run_recorder(run_dir: Path, bus_cfg: BusConfig) -> int:
     from scenenav.app.recorder import RecorderNode
     cfg = load_scenario(run_dir / "scenario.yaml")
     node = RecorderNode(run_dir, cfg.recorder, bus_cfg)
+    # the maps of the view (viz/map/...) after the node is up: the simulator waits for it
+    from scenenav.app.viz import map_messages, run_assistant_map
+    node.set_viz_maps(map_messages(load_world_for(cfg), run_assistant_map(cfg)))
     stop = stop_event()
     stop.wait()
     info = node.close()
     write_stats(run_dir / "recorder_stats.json", info)
+    return 0
+
+
+def run_live(run_dir: Path, bus_cfg: BusConfig, port: int) -> int:
+    from scenenav.app.live import LiveNode
+    from scenenav.app.viz import map_messages, run_assistant_map
+    cfg = load_scenario(run_dir / "scenario.yaml")
+    try:
+        node = LiveNode(run_dir, bus_cfg, port, cfg.recorder.camera_every_n,
+                        tuple(map_messages(load_world_for(cfg), run_assistant_map(cfg))))
+    except RuntimeError as exc:       # the port is taken: the run flies on without a live view
+        log.error("live view: cannot listen on port %d: %s", port, exc)
+        return 1
+    stop = stop_event()
+    node.run(stop)
+    write_stats(run_dir / "live_stats.json", node.close())
     return 0
 
 

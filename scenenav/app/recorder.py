@@ -3,14 +3,19 @@
 Inputs: everything under ``scenenav/<ns>/**`` (it is the one node besides evaluation that reads
 ``truth/``). Outputs (files in the run folder):
 
-* ``bus.mcap`` — every bus message (JSON, with a JSON schema per type); camera frames every
-  ``camera_every_n``-th as ``foxglove.RawImage`` so Foxglove shows them. A chunk is closed and
+* ``bus.mcap`` — every bus message but the camera frames (JSON, with a JSON schema per type), and
+  the view channels of ``scenenav.app.viz`` (``viz/...``: camera frames every
+  ``camera_every_n``-th as ``foxglove.RawImage``, poses, paths, fixes, route, maps, events), the
+  same channels the live view (``scenenav run --live``) streams, so one Foxglove layout
+  (docs/foxglove-layout.json) opens both. A chunk is closed and
   written to the file when it fills and at least every ``recorder.mcap_chunk_s`` wall seconds, so a
   recorder killed by SIGKILL loses at most that much; :func:`recover_mcap` (run by the launcher,
   by ``scenenav summarize`` and by the recorder itself after a write error) then cuts the file after
   its last whole record and appends a footer, so the standard ``mcap`` reader opens it.
 * ``truth.csv``, ``fixes.csv``, ``estimates.csv``, ``status.csv``, ``events.csv`` — flushed every
   second of wall time and on exit, so Ctrl-C leaves them readable (rows whole).
+* per perception node (``perception_nodes`` in ``recorder_stats.json``): its method (from its
+  ``NodeInfo``, else from its fixes), fixes, valid and accepted fixes, first and last fix time.
 
 A full disk (ENOSPC, or any write error) stops all output once: the files keep what was written,
 the recorder logs one line naming the disk and its free space, publishes that as an event and keeps
@@ -19,10 +24,8 @@ draining the bus until it is stopped.
 
 from __future__ import annotations
 
-import base64
 import csv
 import io
-import json
 import logging
 import math
 import threading
@@ -34,6 +37,7 @@ from mcap.reader import make_reader
 from mcap.writer import CompressionType, Writer
 
 from scenenav.app.scenario import RecorderConfig
+from scenenav.app.viz import VizMessage, VizState, bus_schema
 from scenenav.core.bus import Bus, BusConfig
 from scenenav.core.contracts import (
     AutopilotStatus,
@@ -41,12 +45,12 @@ from scenenav.core.contracts import (
     DecodeError,
     Event,
     NavEstimate,
+    NodeInfo,
     Severity,
     TruthPose,
     VisionFix,
     decode,
     message_type,
-    schema_of,
 )
 from scenenav.core.keys import Keys, type_for_key
 
@@ -65,30 +69,6 @@ ESTIMATE_COLUMNS = ["t_s", "x_m", "y_m", "z_m", "vx_m_s", "vy_m_s", "vz_m_s", "h
 STATUS_COLUMNS = ["t_s", "armed", "mode", "landed", "mission_seq", "mission_count",
                   "mission_complete", "gps_used"]
 EVENT_COLUMNS = ["t_s", "node_id", "severity", "text"]
-
-_JSON_TYPES = {"float": "number", "int": "integer", "bool": "boolean", "str": "string"}
-
-
-def _json_schema(cls: type) -> bytes:
-    props: dict[str, Any] = {"type": {"type": "string"}, "version": {"type": "integer"}}
-    for name, tp in schema_of(cls):
-        if name == "pixels":
-            continue
-        props[name] = {"type": _JSON_TYPES.get(tp, "array")}
-    return json.dumps({"type": "object", "title": cls.__name__, "properties": props}).encode()
-
-
-_RAW_IMAGE_SCHEMA = json.dumps({
-    "title": "foxglove.RawImage", "type": "object",
-    "properties": {
-        "timestamp": {"type": "object", "properties": {"sec": {"type": "integer"},
-                                                       "nsec": {"type": "integer"}}},
-        "frame_id": {"type": "string"}, "width": {"type": "integer"},
-        "height": {"type": "integer"}, "encoding": {"type": "string"},
-        "step": {"type": "integer"}, "data": {"type": "string", "contentEncoding": "base64"},
-    },
-}).encode()
-
 
 def _fmt(v: float) -> str:
     return "" if (isinstance(v, float) and not math.isfinite(v)) else f"{v:.6g}" if isinstance(v, float) else str(v)
@@ -131,7 +111,8 @@ class _Csv:
 
 
 class RecorderNode:
-    def __init__(self, out_dir: Path, cfg: RecorderConfig, bus_cfg: BusConfig):
+    def __init__(self, out_dir: Path, cfg: RecorderConfig, bus_cfg: BusConfig,
+                 viz_maps: tuple[VizMessage, ...] = ()):
         self.out = Path(out_dir)
         self.out.mkdir(parents=True, exist_ok=True)
         self.cfg = cfg
@@ -159,10 +140,19 @@ class RecorderNode:
         self._last_fix: tuple[str, int] | None = None     # (node id, timestamp_us) of the newest fix
         self._perception_live: list[str] = []             # live perception nodes, newest last
         self._sim_time_us = 0
+        self.viz = VizState(cfg.camera_every_n)
+        self._viz_maps = viz_maps                         # written with the first message
+        self.perception_nodes: dict[str, dict[str, Any]] = {}
         self.bus = Bus(bus_cfg)
         self.bus.subscribe_raw(self.keys.everything, self._on_sample)
         self.bus.watch_liveliness(self.keys.node_alive_all, self._on_node)
         self.bus.declare_token(self.keys.node_alive("recorder", NODE_ID))
+
+    def set_viz_maps(self, maps) -> None:
+        """The view's map grids (``scenenav.app.viz.map_messages``), written with the next message
+        (at log time 0: a player shows them from the start)."""
+        with self._lock:
+            self._viz_maps = tuple(maps)
 
     def _log_event(self, t_us: int, severity: int, text: str) -> None:
         """An event the recorder itself observed (written to events.csv and the log)."""
@@ -202,21 +192,46 @@ class RecorderNode:
             log.info("fix source changed %s -> %s, gap %.2f s", last[0], msg.node_id, gap_s)
         self._last_fix = (msg.node_id, msg.timestamp_us)
 
+    def _node_stats(self, node_id: str) -> dict[str, Any]:
+        st = self.perception_nodes.get(node_id)
+        if st is None:
+            st = {"method": None, "fix_methods": {}, "fixes": 0, "valid": 0, "accepted": 0,
+                  "first_fix_s": None, "last_fix_s": None}
+            self.perception_nodes[node_id] = st
+        return st
+
+    def _count_fix(self, msg: VisionFix) -> None:
+        """Per-node figures: the node's method (its NodeInfo, else the methods its fixes name),
+        fixes, valid and accepted ones, the capture times of its first and last fix."""
+        st = self._node_stats(msg.node_id)
+        st["fix_methods"][msg.method] = st["fix_methods"].get(msg.method, 0) + 1
+        st["fixes"] += 1
+        st["valid"] += int(msg.valid)
+        st["accepted"] += int(msg.valid and msg.accepted)
+        t = msg.timestamp_us * 1e-6
+        st["first_fix_s"] = t if st["first_fix_s"] is None else min(st["first_fix_s"], t)
+        st["last_fix_s"] = t if st["last_fix_s"] is None else max(st["last_fix_s"], t)
+
     # --------------------------------------------------------------------------------- mcap
-    def _channel(self, key: str, type_name: str) -> int:
+    def _channel(self, key: str, schema_name: str, schema: bytes, type_name: str = "") -> int:
         ch = self._channels.get(key)
         if ch is None:
-            if type_name == "CameraFrame":
-                schema_name, data = "foxglove.RawImage", _RAW_IMAGE_SCHEMA
-            else:
-                schema_name, data = f"scenenav.{type_name}", _json_schema(message_type(type_name))
             sid = self._schemas.get(schema_name)
             if sid is None:
-                sid = self._mcap.register_schema(schema_name, "jsonschema", data)
+                sid = self._mcap.register_schema(schema_name, "jsonschema", schema)
                 self._schemas[schema_name] = sid
-            ch = self._mcap.register_channel(key, "json", sid, {"scenenav_type": type_name})
+            ch = self._mcap.register_channel(key, "json", sid,
+                                             {"scenenav_type": type_name} if type_name else {})
             self._channels[key] = ch
         return ch
+
+    def _add(self, channel: int, payload: bytes, t_ns: int) -> None:
+        self._seq += 1
+        self._mcap.add_message(channel, t_ns, payload, t_ns, self._seq)
+
+    def _write_viz(self, messages) -> None:
+        for v in messages:
+            self._add(self._channel(v.topic, v.schema_name, v.schema), v.payload, v.log_time_ns)
 
     def _on_sample(self, payload: bytes, key: str) -> None:
         type_name = type_for_key(self.keys, key)
@@ -236,11 +251,7 @@ class RecorderNode:
             self._sim_time_us = max(self._sim_time_us, int(msg.timestamp_us))
             t_ns = int(msg.timestamp_us) * 1000
             if isinstance(msg, CameraFrame):
-                n = self.cfg.camera_every_n
-                if n and msg.seq % n == 0:
-                    payload = self._raw_image(msg)
-                else:
-                    payload = b""
+                payload = b""                   # recorded as viz/camera (foxglove.RawImage)
             announce = False
             try:
                 self._write(key, type_name, msg, payload, t_ns)
@@ -254,13 +265,20 @@ class RecorderNode:
             return
         if isinstance(msg, VisionFix):
             self._track_fix_source(msg)
+            self._count_fix(msg)
+        elif isinstance(msg, NodeInfo) and msg.role == "perception":
+            self._node_stats(msg.node_id)["method"] = msg.detail
+        if self._viz_maps:
+            self._write_viz(self._viz_maps)
+            self._viz_maps = ()
         if payload:
-            self._seq += 1
-            self._mcap.add_message(self._channel(key, type_name), t_ns, payload, t_ns, self._seq)
+            self._add(self._channel(key, *bus_schema(type_name), type_name), payload, t_ns)
+        self._write_viz(self.viz.on_message(msg))
         self._to_csv(msg)
         now = time.monotonic()
         if now - self._last_flush > 1.0:
             self._flush_csv()
+            self._write_viz(self.viz.route_messages(self.out, self._sim_time_us))
             self._last_flush = now
         if now - self._last_chunk > self.cfg.mcap_chunk_s:
             self._mcap.flush()          # close the chunk: a crash now loses at most this chunk
@@ -283,17 +301,6 @@ class RecorderNode:
                                                               int(Severity.ERROR), self.write_failed))
         except Exception:  # noqa: BLE001 - the bus may be closing; the log has it
             log.debug("could not publish the disk-full event", exc_info=True)
-
-    @staticmethod
-    def _raw_image(msg: CameraFrame) -> bytes:
-        ch = 3 if msg.encoding == "rgb8" else 1
-        return json.dumps({
-            "timestamp": {"sec": msg.timestamp_us // 1_000_000,
-                          "nsec": (msg.timestamp_us % 1_000_000) * 1000},
-            "frame_id": "camera", "width": msg.width_px, "height": msg.height_px,
-            "encoding": msg.encoding, "step": msg.width_px * ch,
-            "data": base64.b64encode(msg.pixels.tobytes()).decode(),
-        }).encode()
 
     # ---------------------------------------------------------------------------------- csv
     def _to_csv(self, msg: Any) -> None:
@@ -344,7 +351,7 @@ class RecorderNode:
                 if self.write_failed is not None:       # the footer is missing: cut and finish
                     recover_mcap(self.out / "bus.mcap")
         return {"counts": dict(self.counts), "dropped": self.dropped,
-                "write_failed": self.write_failed}
+                "write_failed": self.write_failed, "perception_nodes": self.perception_nodes}
 
 
 # ------------------------------------------------------------------------------ mcap recovery

@@ -48,7 +48,7 @@ class FlightConfig:
 
 @dataclass(frozen=True)
 class RecorderConfig:
-    camera_every_n: int = 10           # every n-th camera frame goes to the MCAP log (0: none)
+    camera_every_n: int = 10           # every n-th camera frame goes to the MCAP log and the live view (0: none)
     truth_every_n_ticks: int = 5       # truth.csv decimation (1: every control tick)
     min_free_disk_mb: float = 200.0    # the launcher refuses to start with less free on the run's disk
     mcap_chunk_s: float = 2.0          # bus.mcap chunks close every this many wall seconds (crash loss)
@@ -126,9 +126,40 @@ def route_for(cfg: "ScenarioConfig", world) -> tuple[tuple[float, float], ...]:
     return bowtie_route(world, cfg.flight.altitude_m, cfg.sim.camera.fov_deg)
 
 
+#: Top-level key of a scenario YAML naming the scenario it builds on (a path relative to the file).
+BASE_KEY = "base"
+
+
+def _merged(base: dict, top: dict) -> dict:
+    """``top`` over ``base``: mappings merge key by key, anything else (lists too) replaces."""
+    out = dict(base)
+    for key, value in top.items():
+        out[key] = _merged(out[key], value) if isinstance(value, dict) and isinstance(
+            out.get(key), dict) else value
+    return out
+
+
+def scenario_yaml(path: str | Path, _seen: tuple[Path, ...] = ()) -> dict:
+    """A scenario YAML as a mapping, with its ``base:`` scenario (and that one's) merged under it:
+    a scenario names only what it changes, and follows its base when the base changes."""
+    p = Path(path)
+    data = load_yaml(p)
+    base = data.pop(BASE_KEY, None)
+    if base is None:
+        return data
+    if not isinstance(base, str) or not base:
+        raise UserError(f"{p}: base = {base!r}: expected the path of a scenario YAML (relative to "
+                        "this file)")
+    base_path = (p.parent / base).resolve()
+    if base_path in _seen or base_path == p.resolve():
+        raise UserError(f"{p}: base = {base!r}: scenarios name each other as base (a cycle)")
+    return _merged(scenario_yaml(base_path, (*_seen, p.resolve())), data)
+
+
 def load_scenario(path: str | Path | None, overrides: tuple[str, ...] = ()) -> ScenarioConfig:
-    """Load a scenario YAML (None: all defaults) and apply ``key=value`` overrides."""
-    data = load_yaml(path) if path else {}
+    """Load a scenario YAML (None: all defaults; ``base:`` merged, see :func:`scenario_yaml`) and
+    apply ``key=value`` overrides."""
+    data = scenario_yaml(path) if path else {}
     source = str(path) if path else "scenario"
     if overrides:
         data = apply_overrides(data, list(overrides))

@@ -27,15 +27,16 @@ from typing import Callable
 from scenenav.app.launcher import (
     HUB_ATTEMPTS,
     Launch,
+    announce_live,
     await_hub,
     prepare_run,
     resolve_world,
     restart_on_new_hub_port,
     spawn_recorder_and_perception,
 )
-from scenenav.app.scenario import ScenarioConfig
+from scenenav.app.scenario import ScenarioConfig, scenario_yaml
 from scenenav.app.signals import interrupt_on_stop_signals
-from scenenav.core.config import apply_overrides, load_config, load_yaml, set_dotted
+from scenenav.core.config import apply_overrides, load_config, set_dotted
 from scenenav.core.errors import UserError
 
 log = logging.getLogger(__name__)
@@ -44,7 +45,7 @@ PERCEPTION_OFF = "off"
 PERCEPTION_CHOICES = ("cnn", "assistant-map", "statistical", "none", PERCEPTION_OFF)
 SITL_DURATION_S = 7 * 24 * 3600.0     # "until Ctrl-C"
 READY_TIMEOUT_S = 120.0
-STOP_ORDER = ["sim", "autopilot", "perception", "recorder"]
+STOP_ORDER = ["sim", "autopilot", "perception", "live", "recorder"]
 PARAMS_STORE_DIR = Path("runs") / "sitl-params"
 MAX_INSTANCE = 255
 
@@ -63,6 +64,7 @@ class SitlOptions:
     overrides: tuple[str, ...] = ()    # --set KEY=VALUE, applied last
     instance: int = 0                  # vehicle instance: which kept parameter file
     wipe: bool = False                 # delete the instance's kept parameters before starting
+    live_port: int | None = None       # --live: stream to Foxglove on this port (0: any free port)
 
 
 def params_store_path(instance: int) -> Path:
@@ -79,7 +81,7 @@ def sitl_scenario(opts: SitlOptions) -> ScenarioConfig:
     if opts.perception is not None and opts.perception not in PERCEPTION_CHOICES:
         raise UserError(f"--perception {opts.perception}: expected one of "
                         f"{', '.join(PERCEPTION_CHOICES)}")
-    data = load_yaml(opts.scenario) if opts.scenario else {}
+    data = scenario_yaml(opts.scenario) if opts.scenario else {}
     data.setdefault("name", "sitl")
     set_dotted(data, "flight.mode", "idle")
     set_dotted(data, "duration_s", SITL_DURATION_S)
@@ -180,7 +182,7 @@ def _run_sitl(opts: SitlOptions, announce: Callable[[str], None]) -> dict:
     wall0 = time.time()
     try:
         for attempt in range(HUB_ATTEMPTS):
-            expect = ["recorder", "tick", *spawn_recorder_and_perception(launch, cfg)]
+            expect = ["recorder", "tick", *spawn_recorder_and_perception(launch, cfg, opts.live_port)]
             autopilot = launch.spawn("autopilot", ["autopilot", "--run-dir", str(run_dir)])
             sim = launch.spawn("sim", ["sim", "--run-dir", str(run_dir), "--expect", ",".join(expect)])
             if await_hub(launch, sim) or attempt == HUB_ATTEMPTS - 1:
@@ -191,6 +193,8 @@ def _run_sitl(opts: SitlOptions, announce: Callable[[str], None]) -> dict:
         meta["mavlink"] = mavlink
         (run_dir / "run.json").write_text(json.dumps(meta, indent=2))
         announce(_connect_text(cfg, run_dir, mavlink))
+        if opts.live_port is not None:
+            announce_live(launch, announce)
         reason = _supervise(launch)
         if reason:
             announce(f"scenenav sitl: {reason}; stopping")

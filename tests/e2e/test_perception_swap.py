@@ -73,3 +73,16 @@ def test_swap_perception_node_in_flight(tmp_path):
     assert len(changes) == 1 and "gap in fixes" in changes[0]
     assert any(e == "node down: perception/perception" for e in events)
     assert any(e == "node up: perception/perception-2" for e in events)
+    # per-node results: two rows, each with its own method and figures; the headline names both
+    rows = {r["node_id"]: r for r in summary["perception_nodes"]}
+    assert list(rows) == ["perception", "perception-2"]
+    assert rows["perception"]["method"] == "none" and rows["perception-2"]["method"] == "statistical"
+    assert summary["perception_method"] == "none -> statistical"
+    assert summary["fix_metrics_nodes"] == ["perception", "perception-2"]
+    assert sum(r["fixes_total"] for r in rows.values()) == summary["fixes_total"]
+    assert rows["perception"]["first_fix_s"] < rows["perception-2"]["first_fix_s"]
+    assert rows["perception"]["last_fix_s"] < rows["perception-2"]["last_fix_s"]
+    recorded = json.loads((run / "recorder_stats.json").read_text())["perception_nodes"]
+    assert {n: r["fixes"] for n, r in recorded.items()} == {n: r["fixes_total"] for n, r in rows.items()}
+    assert "pooled over 2 perception nodes" in out
+    assert "perception node perception-2 (statistical)" in out

@@ -17,7 +17,7 @@ from support.fault_run import FaultRun, wait_gone
 
 
 def scenenav_run(out, *args: str, timeout: float = 300):
-    return subprocess.run([sys.executable, "-m", "scenenav.app.cli", "run", "scenarios/demo.yaml",
+    return subprocess.run([sys.executable, "-m", "scenenav.app.cli", "run", "scenarios/logging_flight.yaml",
                            "--out", str(out), "--quiet", "--set", "perception.method=statistical",
                            *args], capture_output=True, text=True, timeout=timeout)
 
@@ -83,7 +83,7 @@ def test_disk_filling_mid_run_ends_it_cleanly(small_disk):
     from scenenav.app.recorder import count_mcap_messages
     run = FaultRun(small_disk / "run", "--set", "perception.method=statistical",
                    "--set", "duration_s=120", "--set", "recorder.camera_every_n=1",
-                   "--set", "recorder.min_free_disk_mb=10", scenario="scenarios/demo.yaml")
+                   "--set", "recorder.min_free_disk_mb=10", scenario="scenarios/logging_flight.yaml")
     try:
         run.wait_sim_time(0.5)
         pids = run.group_pids()

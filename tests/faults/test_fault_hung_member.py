@@ -23,7 +23,7 @@ def _events(run_dir) -> list[str]:
 
 def test_a_stopped_member_is_reported_skipped_and_rejoins(tmp_path):
     r = FaultRun(tmp_path / "hung", "--set", "duration_s=40", "--set", "perception.method=statistical",
-                 "--set", "clock.member_timeout_s=2", scenario="scenarios/demo.yaml")
+                 "--set", "clock.member_timeout_s=2", scenario="scenarios/logging_flight.yaml")
     try:
         t_stop = r.wait_sim_time(4.0)
         r.kill_node("perception", signal.SIGSTOP)

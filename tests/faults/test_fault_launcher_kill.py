@@ -20,7 +20,7 @@ def summarize(run_dir):
 def test_launcher_killed_then_summarize_rebuilds(tmp_path):
     from scenenav.app.recorder import count_mcap_messages
     run = FaultRun(tmp_path / "run", "--set", "duration_s=60", "--set", "perception.method=statistical",
-                   scenario="scenarios/demo.yaml")
+                   scenario="scenarios/logging_flight.yaml")
     try:
         run.wait_sim_time(4.0)
         pids = run.group_pids()

@@ -27,7 +27,7 @@ def runs():
 
 
 def _start(runs, tmp_path, name: str, *extra: str) -> FaultRun:
-    r = FaultRun(tmp_path / name, *SHORT, *extra, scenario="scenarios/demo.yaml")
+    r = FaultRun(tmp_path / name, *SHORT, *extra, scenario="scenarios/logging_flight.yaml")
     runs.append(r)
     return r
 

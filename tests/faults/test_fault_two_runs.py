@@ -113,7 +113,7 @@ def test_a_hub_port_taken_before_the_simulator_binds_it_starts_the_run_again(tmp
     monkeypatch.setattr(launcher, "free_port", lambda: next(handed, None) or real())
     out = tmp_path / "run"
     try:
-        summary = launcher.run("scenarios/demo.yaml", str(out),
+        summary = launcher.run("scenarios/logging_flight.yaml", str(out),
                                ("duration_s=4", "perception.method=statistical"), progress=False)
     finally:
         blocker.close()

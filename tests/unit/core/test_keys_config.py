@@ -74,7 +74,7 @@ def test_every_shipped_scenario_loads():
 
     from scenenav.app.scenario import load_scenario
     files = sorted((REPO_ROOT / "scenarios").glob("*.yaml"))
-    assert {f.stem for f in files} >= {"demo", "scripted_loop", "gps_denied", "guided_route",
+    assert {f.stem for f in files} >= {"demo", "logging_flight", "scripted_loop", "gps_denied", "guided_route",
                                       "perception_swap", "paper_experiment"}
     for f in files:
         cfg = load_scenario(f)

@@ -1,0 +1,115 @@
+"""Live view node: a Foxglove WebSocket server (``foxglove-sdk``) streaming the run while it flies.
+
+Started by ``scenenav run --live`` and ``scenenav sitl --live`` beside the recorder; never a
+lockstep member, so a slow or absent viewer never holds the clock.
+
+Inputs: everything under ``scenenav/<ns>/**`` (like the recorder) and the run folder
+(``scenario.yaml`` for the world and the assistant map, the guidance node's ``route*.json``).
+Outputs: a WebSocket server speaking ``foxglove.websocket.v1`` on ``127.0.0.1:<port>``
+(``live.json`` in the run folder names the bound port and URL), with the channels
+``bus.mcap`` records (``scenenav.app.viz``): every bus message on its key (JSON, schema
+``scenenav.<Type>``; camera frames only as ``viz/camera``) and the view channels ``viz/...``. The
+maps are sent again every :data:`MAP_REPEAT_S` wall seconds so a viewer that connects late gets them.
+"""
+
+from __future__ import annotations
+
+import json
+import logging
+import threading
+from pathlib import Path
+
+import foxglove
+
+from scenenav.app.viz import VizMessage, VizState, bus_schema
+from scenenav.core.bus import Bus, BusConfig
+from scenenav.core.contracts import CameraFrame, DecodeError, decode, message_type
+from scenenav.core.keys import Keys, type_for_key
+
+log = logging.getLogger(__name__)
+
+NODE_ID = "live"
+LIVE_FILE = "live.json"
+MAP_REPEAT_S = 5.0
+ROUTE_POLL_S = 1.0
+HOST = "127.0.0.1"
+
+
+class LiveNode:
+    def __init__(self, run_dir: Path, bus_cfg: BusConfig, port: int, camera_every_n: int = 1,
+                 maps: tuple[VizMessage, ...] = ()) -> None:
+        self.run_dir = Path(run_dir)
+        self.keys = Keys(bus_cfg.namespace)
+        self.viz = VizState(camera_every_n)
+        self.maps = maps
+        self._lock = threading.Lock()
+        self._channels: dict[str, foxglove.Channel] = {}
+        self._sim_time_us = 0
+        self.sent = 0
+        self.dropped = 0
+        self.server = foxglove.start_server(name=f"scenenav {bus_cfg.namespace}", host=HOST, port=port)
+        self.port = self.server.port
+        tmp = self.run_dir / (LIVE_FILE + ".tmp")
+        tmp.write_text(json.dumps({"host": HOST, "port": self.port, "url": f"ws://{HOST}:{self.port}",
+                                   "protocol": "foxglove.websocket.v1"}, indent=2))
+        tmp.replace(self.run_dir / LIVE_FILE)
+        log.info("live view: ws://%s:%d", HOST, self.port)
+        self.bus = Bus(bus_cfg)
+        self.bus.subscribe_raw(self.keys.everything, self._on_sample)
+        self.bus.declare_token(self.keys.node_alive("live", NODE_ID))
+
+    def _channel(self, topic: str, schema_name: str, schema: bytes) -> foxglove.Channel:
+        ch = self._channels.get(topic)
+        if ch is None:
+            with self._lock:
+                ch = self._channels.get(topic)
+                if ch is None:
+                    ch = foxglove.Channel(topic, message_encoding="json", schema=foxglove.Schema(
+                        name=schema_name, encoding="jsonschema", data=schema))
+                    self._channels[topic] = ch
+        return ch
+
+    def send(self, messages) -> None:
+        for v in messages:
+            self._channel(v.topic, v.schema_name, v.schema).log(v.payload, log_time=v.log_time_ns)
+            self.sent += 1
+
+    def _on_sample(self, payload: bytes, key: str) -> None:
+        type_name = type_for_key(self.keys, key)
+        if type_name is None:
+            return
+        try:
+            msg = decode(message_type(type_name), payload)
+        except DecodeError:
+            self.dropped += 1
+            return
+        self._sim_time_us = max(self._sim_time_us, int(msg.timestamp_us))
+        if not isinstance(msg, CameraFrame):
+            self._channel(key, *bus_schema(type_name)).log(bytes(payload),
+                                                            log_time=int(msg.timestamp_us) * 1000)
+        with self._lock:          # VizState keeps the paths: one caller at a time
+            out = self.viz.on_message(msg)
+        self.send(out)
+
+    def run(self, stop: threading.Event) -> None:
+        """Until ``stop``: send the maps and routes every MAP_REPEAT_S, new route files within
+        ROUTE_POLL_S."""
+        next_maps = 0.0
+        waited = 0.0
+        routes: list[VizMessage] = []
+        while not stop.is_set():
+            if waited >= next_maps:                     # again, for viewers that joined since
+                self.send(self.maps)
+                self.send(routes)
+                next_maps = waited + MAP_REPEAT_S
+            with self._lock:
+                new = self.viz.route_messages(self.run_dir, self._sim_time_us)
+            self.send(new)
+            routes.extend(new)
+            stop.wait(ROUTE_POLL_S)
+            waited += ROUTE_POLL_S
+
+    def close(self) -> dict:
+        self.bus.close()
+        self.server.stop()
+        return {"port": self.port, "messages_sent": self.sent, "dropped": self.dropped}
