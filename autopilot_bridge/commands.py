@@ -243,7 +243,9 @@ class CommandHandler:
         alt = req.p(7)
         if not (math.isfinite(alt) and 0.0 < alt <= MAX_TAKEOFF_ALT_M):
             return CommandResult(MavResult.DENIED)
-        return CommandResult(self._outcome(self._vehicle.takeoff(alt)))
+        # param3 0: the mode must navigate horizontally (ArduCopter do_user_takeoff(alt, is_zero(p3)))
+        must_navigate = not (math.isfinite(req.p(3)) and req.p(3) != 0.0)
+        return CommandResult(self._outcome(self._vehicle.takeoff(alt, must_navigate)))
 
     def _land(self, req: CommandRequest, link: object) -> CommandResult:
         return CommandResult(self._outcome(self._vehicle.land()))

@@ -133,8 +133,6 @@ def _safety_specs() -> list[ParamSpec]:
         _p("FS_THR_VALUE", _I16, 975, 910, 1100, "PWM", "Throttle failsafe PWM"),
         _p("FS_OPTIONS", _I32, 0, 0, 2 ** 31 - 1, "", "Failsafe options bitmask"),
         _p("FS_CRASH_CHECK", _I8, 1, 0, 1, "", "Crash check"),
-        _p("RTL_CLIMB_MIN", _I16, 0, 0, 3000, "cm", "RTL minimum climb"),
-        _p("RTL_CONE_SLOPE", _F, 3.0, 0.5, 10.0, "", "RTL cone slope"),
     ]
 
 

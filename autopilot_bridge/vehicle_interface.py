@@ -462,8 +462,9 @@ class Vehicle(Protocol):
     def set_mode(self, mode: CopterMode) -> Outcome:
         """Change flight mode; only called with a mode in ``modes.SUPPORTED_MODES``."""
 
-    def takeoff(self, alt_m: float) -> Outcome:
-        """Take off to ``alt_m`` metres above home (GUIDED, armed, landed)."""
+    def takeoff(self, alt_m: float, must_navigate: bool = True) -> Outcome:
+        """Take off to ``alt_m`` metres above home (armed, landed; GUIDED, LOITER, POSHOLD, and
+        ALT_HOLD when not ``must_navigate``: NAV_TAKEOFF param3 != 0, as ArduCopter)."""
 
     def land(self) -> Outcome:
         """Land at the current position (ArduCopter switches to LAND)."""

@@ -134,7 +134,7 @@ class FakeVehicle:
             self._set_mode(mode)
             return Outcome(True)
 
-    def takeoff(self, alt_m: float) -> Outcome:
+    def takeoff(self, alt_m: float, must_navigate: bool = True) -> Outcome:
         with self._lock:
             self._record("takeoff", alt_m)
             if not self.armed:
