@@ -432,6 +432,10 @@ class FlightCore(SensorFusionMixin, ArmingMixin, GuidedMixin, AutoMissionMixin,
                 target = self._law.update(est, dt)
         if mode == CopterMode.GUIDED and self._guided_heading is not None:
             target = dataclasses.replace(target, heading_rad=self._guided_heading_now(dt))
+        if mode in (CopterMode.AUTO, CopterMode.GUIDED):
+            heading = self._commanded_heading(est)       # DO_SET_ROI, CONDITION_YAW
+            if heading is not None:
+                target = dataclasses.replace(target, heading_rad=heading)
         self._last_target = target
         return fc.update_position(est, gyro, target, dt)
 
@@ -499,6 +503,8 @@ class FlightCore(SensorFusionMixin, ArmingMixin, GuidedMixin, AutoMissionMixin,
         self._guided_heading = None
         self._guided_yaw_rate = None
         self._alt_hold_takeoff_z = None
+        self._roi_enu = None
+        self._auto_heading = None
         if from_gcs:
             self._vision_hold = None
         if previous != mode:

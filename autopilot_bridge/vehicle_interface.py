@@ -138,24 +138,72 @@ class SpeedType(IntEnum):
 
 
 class MissionCommand(IntEnum):
-    """MAV_CMD ids that can appear in a mission we accept (see ``autopilot_bridge.mission``)."""
+    """The MAV_CMD ids ArduPilot's AP_Mission stores (``AP_Mission::mavlink_int_to_mission_cmd``,
+    4.5); the mission protocol accepts exactly these (``autopilot_bridge.mission``), the flight
+    core executes some (``autopilot_bridge.auto_mission``) and skips the rest."""
 
     NAV_WAYPOINT = 16
+    NAV_LOITER_UNLIM = 17
+    NAV_LOITER_TURNS = 18
+    NAV_LOITER_TIME = 19
     NAV_RETURN_TO_LAUNCH = 20
     NAV_LAND = 21
     NAV_TAKEOFF = 22
+    NAV_CONTINUE_AND_CHANGE_ALT = 30
+    NAV_LOITER_TO_ALT = 31
+    NAV_SPLINE_WAYPOINT = 82
+    NAV_ALTITUDE_WAIT = 83
+    NAV_VTOL_TAKEOFF = 84
+    NAV_VTOL_LAND = 85
+    NAV_GUIDED_ENABLE = 92
+    NAV_DELAY = 93
+    NAV_PAYLOAD_PLACE = 94
+    CONDITION_DELAY = 112
+    CONDITION_DISTANCE = 114
     CONDITION_YAW = 115
+    DO_SET_MODE = 176
+    DO_JUMP = 177
     DO_CHANGE_SPEED = 178
+    DO_SET_HOME = 179
     DO_SET_RELAY = 181
     DO_REPEAT_RELAY = 182
     DO_SET_SERVO = 183
     DO_REPEAT_SERVO = 184
+    DO_LAND_START = 189
+    DO_GO_AROUND = 191
+    DO_SET_REVERSE = 194
+    DO_SET_ROI_LOCATION = 195
+    DO_SET_ROI_NONE = 197
     DO_SET_ROI = 201
     DO_DIGICAM_CONFIGURE = 202
     DO_DIGICAM_CONTROL = 203
     DO_MOUNT_CONTROL = 205
     DO_SET_CAM_TRIGG_DIST = 206
+    DO_FENCE_ENABLE = 207
+    DO_PARACHUTE = 208
+    DO_INVERTED_FLIGHT = 210
     DO_GRIPPER = 211
+    DO_AUTOTUNE_ENABLE = 212
+    NAV_SET_YAW_SPEED = 213
+    DO_SET_RESUME_REPEAT_DIST = 215
+    DO_SPRAYER = 216
+    DO_SEND_SCRIPT_MESSAGE = 217
+    DO_AUX_FUNCTION = 218
+    DO_GUIDED_LIMITS = 222
+    DO_ENGINE_CONTROL = 223
+    SET_CAMERA_ZOOM = 531
+    SET_CAMERA_FOCUS = 532
+    JUMP_TAG = 600
+    DO_JUMP_TAG = 601
+    DO_GIMBAL_MANAGER_PITCHYAW = 1000
+    IMAGE_START_CAPTURE = 2000
+    IMAGE_STOP_CAPTURE = 2001
+    VIDEO_START_CAPTURE = 2500
+    VIDEO_STOP_CAPTURE = 2501
+    DO_VTOL_TRANSITION = 3000
+    DO_WINCH = 42600
+    NAV_SCRIPT_TIME = 42702
+    NAV_ATTITUDE_TIME = 42703
 
 
 class PositionTargetTypeMask(IntFlag):
@@ -256,9 +304,15 @@ class MissionItem:
         return self.lon_e7 * 1e-7
 
     @property
+    def terrain_frame(self) -> bool:
+        """Altitude above terrain (MAV_FRAME_GLOBAL_TERRAIN_ALT(_INT))."""
+        return self.frame in (MavFrame.GLOBAL_TERRAIN_ALT, MavFrame.GLOBAL_TERRAIN_ALT_INT)
+
+    @property
     def alt_frame(self) -> AltFrame | None:
-        """Altitude reference of a location command, None for frames without one."""
-        if self.frame in (MavFrame.GLOBAL, MavFrame.GLOBAL_INT):
+        """Altitude reference of a location command, None for frames without one (and for the
+        terrain frames: there are no terrain data here, see ``terrain_frame``)."""
+        if self.frame in (MavFrame.GLOBAL, MavFrame.GLOBAL_INT, MavFrame.MISSION):
             return AltFrame.AMSL
         if self.frame in (MavFrame.GLOBAL_RELATIVE_ALT, MavFrame.GLOBAL_RELATIVE_ALT_INT):
             return AltFrame.RELATIVE_HOME
