@@ -74,6 +74,7 @@ from autopilot_bridge.geo_frame import GeoFrame
 from autopilot_bridge.guidance_law import GuidanceEventKind, Waypoint
 from autopilot_bridge.guided import GuidedMixin
 from autopilot_bridge.mixer import QuadXMixer
+from autopilot_bridge.mode_commands import ModeCommandsMixin
 from autopilot_bridge.modes import NEEDS_POSITION, POSITION_MODES, CopterMode
 from autopilot_bridge.param_binding import ParamBindingMixin
 from autopilot_bridge.params import ParameterStore
@@ -112,7 +113,7 @@ class CoreStatus:
 
 
 class FlightCore(SensorFusionMixin, ArmingMixin, GuidedMixin, AutoMissionMixin,
-                 ParamBindingMixin, TelemetryMixin):
+                 ModeCommandsMixin, ParamBindingMixin, TelemetryMixin):
     """The flight core; see the module docstring. Not thread-safe: call from one thread.
 
     One class, one concept per module: the control tick, modes and failsafes are here (alignment:
@@ -160,6 +161,7 @@ class FlightCore(SensorFusionMixin, ArmingMixin, GuidedMixin, AutoMissionMixin,
         self._last_target: PositionTarget | None = None
         self._pos_resets = 0
         self._init_auto()
+        self._init_mode_commands()
         self.srtl_path = BreadcrumbPath()
         # outputs
         self._motors = np.zeros(4)
@@ -409,6 +411,8 @@ class FlightCore(SensorFusionMixin, ArmingMixin, GuidedMixin, AutoMissionMixin,
             return fc.update_alt_hold(est, gyro, 0.0, 0.0, 0.0, self._alt_hold_takeoff_climb(est), dt)
         if self._vision_hold is not None:
             return fc.update_position(est, gyro, self._vision_hold.update(est, dt), dt)
+        if self._pause_hold is not None:                     # DO_PAUSE_CONTINUE
+            return fc.update_position(est, gyro, self._pause_hold.update(est, dt), dt)
         if mode == CopterMode.GUIDED and self._guided is not None:
             return self._guided_control(est, gyro, dt)
         if self._law is None:
@@ -505,6 +509,7 @@ class FlightCore(SensorFusionMixin, ArmingMixin, GuidedMixin, AutoMissionMixin,
         self._alt_hold_takeoff_z = None
         self._roi_enu = None
         self._auto_heading = None
+        self._pause_hold = None
         if from_gcs:
             self._vision_hold = None
         if previous != mode:

@@ -541,6 +541,16 @@ class Vehicle(Protocol):
     def change_speed(self, speed_type: SpeedType, speed_m_s: float) -> Outcome:
         """MAV_CMD_DO_CHANGE_SPEED (speed > 0)."""
 
+    def condition_yaw(self, angle_deg: float, rate_deg_s: float, direction: int,
+                      relative: bool) -> Outcome:
+        """MAV_CMD_CONDITION_YAW: heading 0..360 deg (relative: an offset, ``direction`` -1 ccw)."""
+
+    def set_roi(self, lat_deg: float, lon_deg: float, alt_m: float, alt_frame: AltFrame) -> Outcome:
+        """MAV_CMD_DO_SET_ROI(_LOCATION) / DO_SET_ROI_NONE: face the location; lat = lon = 0 clears."""
+
+    def pause_continue(self, pause: bool) -> Outcome:
+        """MAV_CMD_DO_PAUSE_CONTINUE: stop and hold (``pause``) or continue."""
+
     def set_position_target_local_ned(self, target: LocalPositionTarget) -> None:
         """GUIDED setpoint; only called in GUIDED mode with a valid target."""
 

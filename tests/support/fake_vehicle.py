@@ -49,7 +49,8 @@ HOME = (47.397742, 8.545594, 488.0)  # lat, lon, alt AMSL (PX4/ArduPilot SITL de
 MOVING_CALLS = frozenset({"arm", "disarm", "set_mode", "takeoff", "land", "return_to_launch",
                           "start_mission", "set_current_mission_item", "reposition",
                           "change_speed", "set_position_target_local_ned",
-                          "set_position_target_global_int"})
+                          "set_position_target_global_int", "condition_yaw", "set_roi",
+                          "pause_continue"})
 
 
 class FakeVehicle:
@@ -181,6 +182,24 @@ class FakeVehicle:
     def change_speed(self, speed_type: SpeedType, speed_m_s: float) -> Outcome:
         with self._lock:
             self._record("change_speed", speed_type, speed_m_s)
+            return Outcome(True)
+
+    def condition_yaw(self, angle_deg: float, rate_deg_s: float, direction: int,
+                      relative: bool) -> Outcome:
+        with self._lock:
+            self._record("condition_yaw", angle_deg, rate_deg_s, direction, relative)
+            return Outcome(True)
+
+    def set_roi(self, lat_deg: float, lon_deg: float, alt_m: float, alt_frame: AltFrame) -> Outcome:
+        with self._lock:
+            self._record("set_roi", lat_deg, lon_deg, alt_m, alt_frame)
+            return Outcome(True)
+
+    def pause_continue(self, pause: bool) -> Outcome:
+        with self._lock:
+            self._record("pause_continue", pause)
+            if self.mode not in (CopterMode.GUIDED, CopterMode.AUTO):
+                return Outcome(False, "Failed to pause" if pause else "Failed to resume")
             return Outcome(True)
 
     def set_position_target_local_ned(self, target: LocalPositionTarget) -> None:
