@@ -78,6 +78,7 @@ from autopilot_bridge.mode_commands import ModeCommandsMixin
 from autopilot_bridge.modes import NEEDS_POSITION, POSITION_MODES, CopterMode
 from autopilot_bridge.param_binding import ParamBindingMixin
 from autopilot_bridge.params import ParameterStore
+from autopilot_bridge.pilot import PilotMixin
 from autopilot_bridge.smart_rtl import BreadcrumbPath, smart_rtl_law
 from autopilot_bridge.vehicle_interface import (
     HomeChangedEvent,
@@ -113,7 +114,7 @@ class CoreStatus:
 
 
 class FlightCore(SensorFusionMixin, ArmingMixin, GuidedMixin, AutoMissionMixin,
-                 ModeCommandsMixin, ParamBindingMixin, TelemetryMixin):
+                 ModeCommandsMixin, PilotMixin, ParamBindingMixin, TelemetryMixin):
     """The flight core; see the module docstring. Not thread-safe: call from one thread.
 
     One class, one concept per module: the control tick, modes and failsafes are here (alignment:
@@ -162,6 +163,7 @@ class FlightCore(SensorFusionMixin, ArmingMixin, GuidedMixin, AutoMissionMixin,
         self._pos_resets = 0
         self._init_auto()
         self._init_mode_commands()
+        self._init_pilot()
         self.srtl_path = BreadcrumbPath()
         # outputs
         self._motors = np.zeros(4)
@@ -267,6 +269,7 @@ class FlightCore(SensorFusionMixin, ArmingMixin, GuidedMixin, AutoMissionMixin,
         self._run_failsafes(est)
         self._auto_disarm_check()
         self._record_path(est)
+        self._radio_failsafe_check()
         out = self._control(est, gyro, dt_s)
         self._last_out = out
         if out is not None and (out.touchdown or self._ground_contact(out, est, dt_s)):
@@ -404,6 +407,10 @@ class FlightCore(SensorFusionMixin, ArmingMixin, GuidedMixin, AutoMissionMixin,
             return None
         fc = self.fc
         mode = self._mode
+        if self._vision_hold is None:
+            pilot = self._pilot_control(est, gyro, dt)            # RC_CHANNELS_OVERRIDE etc.
+            if pilot is not None:
+                return pilot
         if mode == CopterMode.STABILIZE:
             frac = 0.0 if fc.landed else self.airframe.hover_thrust_fraction
             return fc.update_stabilize(est, gyro, 0.0, 0.0, 0.0, frac, dt)
@@ -510,6 +517,7 @@ class FlightCore(SensorFusionMixin, ArmingMixin, GuidedMixin, AutoMissionMixin,
         self._roi_enu = None
         self._auto_heading = None
         self._pause_hold = None
+        self._pilot_point = None
         if from_gcs:
             self._vision_hold = None
         if previous != mode:

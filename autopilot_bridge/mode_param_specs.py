@@ -26,4 +26,13 @@ MODE_PARAM_SPECS: tuple[ParamSpec, ...] = (
     ParamSpec("RTL_CONE_SLOPE", _F, 3.0, 0.0, 10.0, "",
               "RTL cone above home limiting the climb near home; below 0.5 disables it",
               safe_min=0.0),
+    ParamSpec("RC_OVERRIDE_TIME", _F, 3.0, -1.0, 120.0, "s",
+              "RC overrides (RC_CHANNELS_OVERRIDE, MANUAL_CONTROL) last this long; -1 for ever, "
+              "0 ignores them"),
+    ParamSpec("PILOT_Y_RATE", _F, 202.5, 1.0, 500.0, "deg/s", "Pilot yaw rate at full stick",
+              safe_min=1.0),
+    ParamSpec("THR_DZ", _I16, 100, 0, 300, "", "Throttle dead zone around mid stick (of 1000) "
+              "in ALT_HOLD, LOITER and POSHOLD", safe_min=0.0),
+    ParamSpec("LOIT_SPEED", _F, 1250.0, 20.0, 3500.0, "cm/s",
+              "LOITER / POSHOLD horizontal speed at full stick", safe_min=20.0),
 )

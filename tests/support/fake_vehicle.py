@@ -50,7 +50,7 @@ MOVING_CALLS = frozenset({"arm", "disarm", "set_mode", "takeoff", "land", "retur
                           "start_mission", "set_current_mission_item", "reposition",
                           "change_speed", "set_position_target_local_ned",
                           "set_position_target_global_int", "condition_yaw", "set_roi",
-                          "pause_continue"})
+                          "pause_continue", "rc_channels_override", "manual_control"})
 
 
 class FakeVehicle:
@@ -194,6 +194,17 @@ class FakeVehicle:
         with self._lock:
             self._record("set_roi", lat_deg, lon_deg, alt_m, alt_frame)
             return Outcome(True)
+
+    def rc_channels_override(self, channels: tuple[int, ...]) -> None:
+        with self._lock:
+            self._record("rc_channels_override", channels)
+
+    def manual_control(self, x: float, y: float, z: float, r: float) -> None:
+        with self._lock:
+            self._record("manual_control", x, y, z, r)
+
+    def rc_channels(self) -> tuple[int, ...]:
+        return (0,) * 18
 
     def pause_continue(self, pause: bool) -> Outcome:
         with self._lock:
