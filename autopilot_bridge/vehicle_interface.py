@@ -457,6 +457,10 @@ class VehicleTelemetry:
     wp_dist_m: float = 0.0
     alt_error_m: float = 0.0
     xtrack_error_m: float = 0.0
+    # RC_CHANNELS: the pilot's RC input (18 PWM values, 0 = none); SERVO_OUTPUT_RAW: motor outputs
+    # 1..4 in PWM (ArduPilot's motor order)
+    rc_channels_pwm: tuple[int, ...] = ()
+    servo_pwm: tuple[int, ...] = ()
 
 
 @dataclass(frozen=True)
