@@ -174,15 +174,22 @@ def _used(value: float) -> bool:
 
 def read_sticks(overrides: RcOverrides, rcmap: Sequence[int],
                 calibration: Callable[[int], ChannelCalibration]) -> PilotSticks | None:
-    """The sticks from the overridden RCMAP channels; None unless all four are overridden."""
+    """The sticks from the overridden RCMAP channels; None when none of them is overridden.
+
+    An axis without an override reads as a stick at rest: roll, pitch, yaw at trim, throttle at
+    mid stick (differs: there is no receiver here; ArduPilot would read the receiver's channel,
+    e.g. MAVProxy's ``rc 3 1500`` overrides only the throttle)."""
     roll_ch, pitch_ch, thr_ch, yaw_ch = rcmap
     pwm = [overrides.pwm(ch) for ch in (roll_ch, pitch_ch, thr_ch, yaw_ch)]
-    if any(p <= 0 for p in pwm):
+    if all(p <= 0 for p in pwm):
         return None
-    return PilotSticks(roll=calibration(roll_ch).angle(pwm[0]),
-                       pitch=calibration(pitch_ch).angle(pwm[1]),
-                       yaw=calibration(yaw_ch).angle(pwm[3]),
-                       throttle=calibration(thr_ch).range(pwm[2]))
+
+    def angle(ch: int, p: int) -> float:
+        return calibration(ch).angle(p) if p > 0 else 0.0
+
+    return PilotSticks(roll=angle(roll_ch, pwm[0]), pitch=angle(pitch_ch, pwm[1]),
+                       yaw=angle(yaw_ch, pwm[3]),
+                       throttle=calibration(thr_ch).range(pwm[2]) if pwm[2] > 0 else THROTTLE_MID)
 
 
 def lean_angles_rad(sticks: PilotSticks, angle_max_rad: float) -> tuple[float, float]:
