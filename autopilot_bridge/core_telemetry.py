@@ -29,7 +29,6 @@ from scenenav.core.contracts import GpsFixType
 from scenenav.core.frames import wrap_pi
 from scenenav.core.rotations import aviation_euler_from_quat
 
-
 # Motor outputs as PWM: ArduCopter's MOT_PWM_MIN / MOT_PWM_MAX defaults (1000 / 2000 us); disarmed
 # motors get MOT_PWM_MIN, as ArduPilot SITL shows them.
 MOT_PWM_MIN_US = 1000

@@ -80,6 +80,7 @@ STAT_KEYS = (
     "rx_bytes", "rx_msgs", "tx_msgs", "tx_bytes", "tx_dropped", "garbage_bytes", "bad_crc",
     "parse_errors", "unknown", "truncated", "dropped_unsigned", "bad_signature", "not_for_us",
     "own_echo", "ignored", "handler_errors", "setpoints_ignored", "setpoints_rejected",
+    "rc_not_my_gcs",
     "vision_ignored", "vision_rejected", "param_set_refused", "param_set_clamped", "tcp_clients", "tcp_refused",
     "udp_peers", "udp_refused", "socket_errors", "encode_errors",
 )

@@ -137,7 +137,10 @@ class FakeVehicle:
 
     def takeoff(self, alt_m: float, must_navigate: bool = True) -> Outcome:
         with self._lock:
-            self._record("takeoff", alt_m)
+            if must_navigate:
+                self._record("takeoff", alt_m)
+            else:                                   # NAV_TAKEOFF param3 != 0
+                self._record("takeoff", alt_m, must_navigate)
             if not self.armed:
                 return Outcome(False, "Takeoff: motors not armed")
             if self.mode != CopterMode.GUIDED:
