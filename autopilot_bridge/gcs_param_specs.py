@@ -1,8 +1,9 @@
 """The parameters QGroundControl's APM setup pages read (Radio, Flight Modes, Sensors, Power,
 Safety, Airframe), so that QGC finds none missing and shows the setup complete. None of them
-changes what this autopilot does (docs/mavlink.md, "changes nothing"): there is no RC input, no
-compass or accelerometer calibration, no analog battery monitor, no fence and no throttle
-failsafe here. They are stored, served and persisted like every other parameter.
+changes what this autopilot does (docs/mavlink.md, "changes nothing"): there is no compass or
+accelerometer calibration, no analog battery monitor and no fence here; except the RC channel
+mapping and calibration and FS_THR_ENABLE, which the pilot's RC overrides use
+(``PILOT_INPUT_PARAM_NAMES``, ``autopilot_bridge.pilot``). They are stored, served and persisted like every other parameter.
 
 Pure module. Names, types and defaults are ArduCopter 4.5's (``RC_Channel.cpp``,
 ``RC_Channels``/``RCMapper``, ``ArduCopter/Parameters.cpp``, ``AP_Compass.cpp``,
@@ -143,3 +144,9 @@ def _safety_specs() -> list[ParamSpec]:
 GCS_PARAM_SPECS: tuple[ParamSpec, ...] = tuple(
     _rc_specs() + _flight_mode_specs() + _sensor_specs() + _power_specs() + _safety_specs())
 GCS_PARAM_NAMES = frozenset(spec.name for spec in GCS_PARAM_SPECS)
+# The exceptions to "changes nothing": they scale the pilot's RC overrides (autopilot_bridge.pilot).
+PILOT_INPUT_PARAM_NAMES = frozenset(
+    [f"RCMAP_{axis}" for axis in ("ROLL", "PITCH", "THROTTLE", "YAW")]
+    + [f"RC{n}_{field}" for n in range(1, RC_CHANNELS + 1)
+       for field in ("MIN", "TRIM", "MAX", "REVERSED", "DZ")]
+    + ["FS_THR_ENABLE"])

@@ -561,9 +561,6 @@ class Vehicle(Protocol):
     def manual_control(self, x: float, y: float, z: float, r: float) -> None:
         """MANUAL_CONTROL from SYSID_MYGCS: pitch, roll, throttle, yaw (-1000..1000; z 0..1000)."""
 
-    def rc_channels(self) -> tuple[int, ...]:
-        """RC input as RC_CHANNELS reports it: 18 PWM values, 0 where there is none."""
-
     def set_position_target_local_ned(self, target: LocalPositionTarget) -> None:
         """GUIDED setpoint; only called in GUIDED mode with a valid target."""
 

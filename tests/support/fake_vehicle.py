@@ -206,9 +206,6 @@ class FakeVehicle:
         with self._lock:
             self._record("manual_control", x, y, z, r)
 
-    def rc_channels(self) -> tuple[int, ...]:
-        return (0,) * 18
-
     def pause_continue(self, pause: bool) -> Outcome:
         with self._lock:
             self._record("pause_continue", pause)
