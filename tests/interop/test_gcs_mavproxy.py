@@ -46,7 +46,9 @@ def test_mavproxy_guided_takeoff_mission_and_rtl(tmp_path):
         sitl.wait_ready()
         mp = MavproxyProcess(sitl.port, tmp_path, timeout_s=TIMEOUT_S)
         mp.expect("parameters")
-        for name, value in (("RTL_LOIT_TIME", 1000), ("LAND_SPEED", 100), ("DISARM_DELAY", 30)):
+        # RC_OVERRIDE_TIME: MAVProxy repeats `rc` overrides once a wall second, 3 simulated s at 3x
+        for name, value in (("RTL_LOIT_TIME", 1000), ("LAND_SPEED", 100), ("DISARM_DELAY", 30),
+                            ("RC_OVERRIDE_TIME", 10)):
             mp.send(f"param set {name} {value}")
             assert wait_until(lambda name=name, value=value: sitl.param(name) == value, 30), f"{name} not set"
         monitor = monitor_connection(sitl.port)
