@@ -17,12 +17,15 @@ MAVLink side (``VehicleTelemetry`` and the targets the server hands over): NED m
 origin (= the point where the filter was aligned, on the ground), body FRD, latitude/longitude through
 ``scenenav.core.frames`` around the world's geodetic origin, altitudes AMSL = ``origin_alt_amsl_m`` + ENU z.
 
-Modes (ArduCopter numbers, ``autopilot_bridge.modes``): STABILIZE and ALT_HOLD without RC (level
-attitude; hover thrust / hold altitude), GUIDED (position, position+velocity, velocity and
-acceleration targets, DO_REPOSITION, takeoff), AUTO (NAV_TAKEOFF, NAV_WAYPOINT with hold time,
-NAV_LAND, NAV_RETURN_TO_LAUNCH, DO_CHANGE_SPEED; other stored commands are skipped), LOITER and
-POSHOLD (hold; no pilot input), BRAKE (stop at 7.5 m/s/s, then hold), RTL (climb to RTL_ALT, return, loiter RTL_LOIT_TIME, land or hold at RTL_ALT_FINAL) and LAND. LAND,
-RTL and AUTO landings disarm at touchdown; other modes disarm DISARM_DELAY s after landing.
+Modes (ArduCopter numbers, ``autopilot_bridge.modes``): STABILIZE, ALT_HOLD, LOITER and POSHOLD
+flown by the pilot's RC overrides (``pilot``; without them: level at the hover thrust / hold the
+altitude / hold the point), GUIDED (position, position+velocity, velocity and acceleration
+targets, DO_REPOSITION, takeoff), AUTO (the mission as AP_Mission sequences it:
+``auto_mission``), BRAKE (stop at 7.5 m/s/s, then hold), RTL (climb to the return height of
+RTL_ALT / RTL_CLIMB_MIN / RTL_CONE_SLOPE, return, loiter RTL_LOIT_TIME, land or hold at
+RTL_ALT_FINAL), LAND, CIRCLE (``circle``) and SMART_RTL (``smart_rtl``); CONDITION_YAW, ROI and
+DO_PAUSE_CONTINUE in ``mode_commands``. LAND, RTL and AUTO landings disarm at touchdown; other
+modes disarm DISARM_DELAY s after landing.
 
 Position source (EK3_SRC1_POSXY, switchable in flight): 3 GPS, 6 external navigation (scene-matching
 fixes from the bus, or VISION_POSITION_ESTIMATE / ODOMETRY over MAVLink), 0 none. Vision fixes are
