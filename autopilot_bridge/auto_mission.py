@@ -14,8 +14,8 @@ navigation command the first starts with it and the rest follow it (a quirk kept
 after that navigation command are then not run).
 
 Flown (ArduCopter): NAV_TAKEOFF; runs of NAV_WAYPOINT / NAV_SPLINE_WAYPOINT with one tracker
-(corners without stopping; hold time param1 ends a run; differs: a spline waypoint is flown as a
-waypoint, straight legs); NAV_LOITER_UNLIM (fly there, hold for ever); NAV_LOITER_TIME (fly there,
+(corners without stopping; hold time param1 ends a run; the leg into a spline waypoint is a
+smooth curve: ``spline_samples``); NAV_LOITER_UNLIM (fly there, hold for ever); NAV_LOITER_TIME (fly there,
 hold param1 s); NAV_LOITER_TURNS (circle param1 turns of radius |param3| m, CIRCLE_RADIUS when 0,
 counter-clockwise when param3 < 0; ``circle``); NAV_DELAY (hold param1 s; differs: param1 < 0,
 a time of day, is not implemented: no delay); NAV_LAND; NAV_RETURN_TO_LAUNCH. Executed do
@@ -97,6 +97,33 @@ ROI_MIN_DISTANCE_M = 1.0
 TAKEOFF_DONE_TOLERANCE_M = 0.5
 
 
+# A spline leg is flown through samples this far apart along its chord (at least two per leg).
+SPLINE_SAMPLE_M = 2.0
+
+
+def spline_samples(points: list[np.ndarray], k: int) -> list[tuple[float, float, float]]:
+    """The curve from ``points[k - 1]`` into ``points[k]`` (without its ends): a cubic Hermite
+    segment whose tangents are those of a Catmull-Rom spline through the neighbours (the chord at
+    the ends of the run), so consecutive spline legs join without a corner, as ArduCopter's
+    spline waypoints do (``SplineCurve``; its tangents and speed profile differ in detail)."""
+    p0, p1 = points[k - 1], points[k]
+    chord = p1 - p0
+    length = float(np.linalg.norm(chord))
+    if length < SPLINE_SAMPLE_M:
+        return []
+    m0 = (p1 - points[k - 2]) * 0.5 if k >= 2 else chord
+    m1 = (points[k + 1] - p0) * 0.5 if k + 1 < len(points) else chord
+    n = max(2, int(math.ceil(length / SPLINE_SAMPLE_M)))
+    out = []
+    for j in range(1, n):
+        t = j / n
+        h00, h10 = 2 * t ** 3 - 3 * t ** 2 + 1, t ** 3 - 2 * t ** 2 + t
+        h01, h11 = -2 * t ** 3 + 3 * t ** 2, t ** 3 - t ** 2
+        q = h00 * p0 + h10 * m0 + h01 * p1 + h11 * m1
+        out.append((float(q[0]), float(q[1]), float(q[2])))
+    return out
+
+
 def is_nav_command(command: int) -> bool:
     """AP_Mission::is_nav_cmd."""
     return int(command) <= NAV_LAST or int(command) in EXTRA_NAV_COMMANDS
@@ -127,8 +154,10 @@ class AutoMissionMixin:
         self._mission_index = 0
         self._mission_state = MissionState.NO_MISSION
         self._auto_stage = AutoStage.IDLE
+        # the tracker's waypoints: mission index (-1 for a spline sample), speed, destination
         self._auto_group: list[int] = []
         self._auto_group_speeds: list[float | None] = []
+        self._auto_group_positions: list[tuple[float, float, float]] = []
         self._auto_delay_until_s = 0.0
         self._auto_land_xy: tuple[float, float] | None = None
         self._jump_runs: dict[int, int] = {}
@@ -326,6 +355,7 @@ class AutoMissionMixin:
             start = self._last_target_position(est) if not self.fc.landed else est.position_enu_m
             self._law = Tracker(self._gcfg, [Waypoint(dest, speed_m_s=self._speed_xy)], start)
             self._auto_group, self._auto_group_speeds = [nav_index], [self._speed_xy]
+            self._auto_group_positions = [dest]
             self._loiter_hold_s = max(0.0, float(item.param1)) \
                 if item.command == MC.NAV_LOITER_TIME else math.inf
             self._auto_stage = AutoStage.WAYPOINTS
@@ -376,10 +406,22 @@ class AutoMissionMixin:
                 break
             i += 1
         start = self._last_target_position(est) if not self.fc.landed else est.position_enu_m
-        wps = [Waypoint(p, speed_m_s=s) for p, s in zip(positions, speeds, strict=False)]
+        splines = [items[k].command == MC.NAV_SPLINE_WAYPOINT for k in group]
+        points = [np.asarray(start, dtype=float)[:3]] + [np.array(p) for p in positions]
+        wps: list[Waypoint] = []
+        self._auto_group, self._auto_group_speeds, self._auto_group_positions = [], [], []
+        for k, (pos, s) in enumerate(zip(positions, speeds, strict=True)):
+            if splines[k]:
+                for q in spline_samples(points, k + 1):        # the curve into waypoint k
+                    wps.append(Waypoint(q, speed_m_s=s))
+                    self._auto_group.append(-1)
+                    self._auto_group_speeds.append(s)
+                    self._auto_group_positions.append(pos)
+            wps.append(Waypoint(pos, speed_m_s=s))
+            self._auto_group.append(group[k])
+            self._auto_group_speeds.append(s)
+            self._auto_group_positions.append(pos)
         self._law = Tracker(self._gcfg, wps, start)
-        self._auto_group = group
-        self._auto_group_speeds = speeds
         self._nav_dest = np.array(positions[0])
         self._loiter_hold_s = 0.0
         self._auto_stage = AutoStage.WAYPOINTS
@@ -507,15 +549,16 @@ class AutoMissionMixin:
         stage = self._auto_stage
         for ev in events:
             if stage == AutoStage.WAYPOINTS and ev.kind == GuidanceEventKind.WAYPOINT_REACHED:
-                if 0 <= ev.index < len(self._auto_group):
-                    index = self._auto_group[ev.index]
-                    self._item_reached(index)
-                    if ev.index + 1 < len(self._auto_group):
+                group = self._auto_group
+                if 0 <= ev.index < len(group) and group[ev.index] >= 0:   # not a spline sample
+                    self._item_reached(group[ev.index])
+                    nxt = next((j for j in range(ev.index + 1, len(group)) if group[j] >= 0), None)
+                    if nxt is not None:
                         # the next waypoint of the run is now the navigation command
                         self._do = DoCommandState()
-                        self._begin_nav(self._auto_group[ev.index + 1])
-                        self._speed_xy = self._auto_group_speeds[ev.index + 1]
-                        self._nav_dest = np.array(self._law.leg()[1])
+                        self._begin_nav(group[nxt])
+                        self._speed_xy = self._auto_group_speeds[nxt]
+                        self._nav_dest = np.array(self._auto_group_positions[nxt])
             elif ev.kind == GuidanceEventKind.MISSION_COMPLETE:
                 if stage == AutoStage.TAKEOFF:
                     self._item_reached(self._mission_index)

@@ -5,7 +5,7 @@ shared by the checks (module-scoped):
 * ``guided_flight``: take-off in LOITER, GUIDED go-to with DO_PAUSE_CONTINUE and CONDITION_YAW,
   CIRCLE (radius, centre ahead, nose on the centre), SMART_RTL back along the path to a landing
   at home;
-* ``mission_flight``: an AUTO mission with DO_JUMP (repeat 1), DO_SET_ROI_LOCATION, NAV_LOITER_TIME,
+* ``mission_flight``: an AUTO mission with a spline waypoint, DO_JUMP (repeat 1), DO_SET_ROI_LOCATION, NAV_LOITER_TIME,
   CONDITION_YAW, NAV_DELAY, NAV_LOITER_TURNS, a stored-and-skipped IMAGE_START_CAPTURE and a
   terrain-frame waypoint (the terrain failsafe);
 * ``pilot_flight``: ALT_HOLD take-off on the throttle, ``rc 3 1500`` holding the altitude, pitch
@@ -153,7 +153,7 @@ def mission_flight():
         item(1, MC.NAV_TAKEOFF, alt=4.0),
         item(2, MC.DO_SET_ROI_LOCATION, 30.0, 30.0, 0.0),
         item(3, MC.NAV_WAYPOINT, 0.0, 7.0, 4.0),
-        item(4, MC.NAV_WAYPOINT, 7.0, 7.0, 4.0),
+        item(4, MC.NAV_SPLINE_WAYPOINT, 7.0, 7.0, 4.0),
         item(5, MC.DO_JUMP, p=(3.0, 1.0, 0.0, 0.0)),
         item(6, MC.NAV_LOITER_TIME, 7.0, 0.0, 4.0, p=(1.5, 0.0, 0.0, 0.0)),
         item(7, MC.DO_SET_ROI_NONE),

@@ -11,7 +11,7 @@ import numpy as np
 import pytest
 from support.nav import nav_state
 
-from autopilot_bridge.auto_mission import is_nav_command
+from autopilot_bridge.auto_mission import is_nav_command, spline_samples
 from autopilot_bridge.circle import Circle, CircleSettings, centre_ahead
 from autopilot_bridge.config import GuidanceConfig
 from autopilot_bridge.flight_core import FlightCore
@@ -151,3 +151,20 @@ def test_do_jump_sequencing_as_ap_mission():
     assert core._next_command(4, increment_jumps=True) is None  # a target outside the mission
     assert core._next_command(5, increment_jumps=False) == 3    # for ever, uncounted
     core.close()
+
+
+def test_spline_leg_is_a_smooth_curve_through_the_waypoints():
+    pts = [np.array(p, dtype=float) for p in ((0, 0, 5), (0, 10, 5), (10, 10, 5), (10, 20, 5))]
+    leg = np.array(spline_samples(pts, 2))                       # into (10, 10)
+    assert len(leg) == 4                                         # 10 m chord: 2 m apart
+    # an S between the two corners: it leaves (0, 10) and enters (10, 10) heading north-east
+    assert leg[0][1] > 10.0 and leg[-1][1] < 10.0
+    assert np.all(np.diff(leg[:, 0]) > 0) and np.allclose(leg[:, 2], 5.0)
+    # joins the next spline leg without a corner: equal tangents at the shared waypoint (finely
+    # sampled: 100 m legs)
+    big = [p * np.array([10.0, 10.0, 1.0]) for p in pts]
+    into = (big[2] - np.array(spline_samples(big, 2))[-1])[:2]
+    out = (np.array(spline_samples(big, 3))[0] - big[2])[:2]
+    cos = float(into @ out / np.linalg.norm(into) / np.linalg.norm(out))
+    assert cos > 0.95
+    assert spline_samples(pts[:2] + [np.array((0.0, 11.0, 5.0))], 2) == []   # too short to bend
