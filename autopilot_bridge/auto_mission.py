@@ -482,7 +482,10 @@ class AutoMissionMixin:
             if item.param1 == 1.0 or (item.lat_e7 == 0 and item.lon_e7 == 0 and item.alt_m == 0.0):
                 home = np.array(est.position_enu_m, dtype=float)
             else:
-                home = np.array(self._item_position(item, est.position_enu_m))
+                # the altitude as given (relative 0 = the old home's height), not "unchanged"
+                x, y = self.geo.to_enu(item.lat_deg, item.lon_deg)
+                frame = item.alt_frame if item.alt_frame is not None else AltFrame.RELATIVE_HOME
+                home = np.array([x, y, self._alt_to_z(item.alt_m, frame)])
             self._set_home_enu(home)
 
     def _verify_do(self, est: NavState) -> bool:
