@@ -168,3 +168,19 @@ def test_spline_leg_is_a_smooth_curve_through_the_waypoints():
     cos = float(into @ out / np.linalg.norm(into) / np.linalg.norm(out))
     assert cos > 0.95
     assert spline_samples(pts[:2] + [np.array((0.0, 11.0, 5.0))], 2) == []   # too short to bend
+
+
+def test_do_set_home_in_a_mission_here_or_at_the_location():
+    core = FlightCore(ParameterStore(PARAM_SPECS))
+    core._home = np.zeros(3)
+    lat, lon = core.geo.to_geodetic(10.0, 20.0)
+    at = MissionItem(seq=1, command=int(MissionCommand.DO_SET_HOME),
+                     frame=int(MavFrame.GLOBAL_RELATIVE_ALT), lat_e7=round(lat * 1e7),
+                     lon_e7=round(lon * 1e7), alt_m=5.0)
+    core._start_do(at, nav_state(position=(3.0, 4.0, 12.0)))
+    assert np.allclose(core.home_enu_m, (10.0, 20.0, 5.0), atol=0.02)
+    here = MissionItem(seq=1, command=int(MissionCommand.DO_SET_HOME),
+                       frame=int(MavFrame.GLOBAL_RELATIVE_ALT), param1=1.0)
+    core._start_do(here, nav_state(position=(3.0, 4.0, 12.0)))
+    assert np.allclose(core.home_enu_m, (3.0, 4.0, 12.0))
+    core.close()
