@@ -12,8 +12,11 @@ Supported: COMPONENT_ARM_DISARM (param2 2989 or 21196 forces arming, 21196 force
 NAV_TAKEOFF (param7 / z metres above home; COMMAND_INT needs a GLOBAL_RELATIVE_ALT frame),
 NAV_LAND, NAV_RETURN_TO_LAUNCH, NAV_LOITER_UNLIM (-> LOITER), DO_SET_MODE (base_mode with
 CUSTOM_MODE_ENABLED + custom_mode), MISSION_START (param1 = param2 = 0 only, as ArduCopter),
-DO_SET_MISSION_CURRENT, DO_REPOSITION (COMMAND_INT), DO_CHANGE_SPEED, SET_MESSAGE_INTERVAL,
-GET_MESSAGE_INTERVAL, REQUEST_MESSAGE, REQUEST_AUTOPILOT_CAPABILITIES, GET_HOME_POSITION.
+DO_SET_MISSION_CURRENT, DO_REPOSITION (COMMAND_INT), DO_CHANGE_SPEED, CONDITION_YAW (param1
+0..360, param4 0/1, else FAILED), DO_SET_ROI_LOCATION / DO_SET_ROI (location in x/y/z or
+param5..7) / DO_SET_ROI_NONE, DO_PAUSE_CONTINUE (param1 0 pause, 1 continue; FAILED with
+"Failed to pause/resume"), SET_MESSAGE_INTERVAL, GET_MESSAGE_INTERVAL, REQUEST_MESSAGE,
+REQUEST_AUTOPILOT_CAPABILITIES, GET_HOME_POSITION.
 """
 
 from __future__ import annotations
@@ -155,6 +158,11 @@ class CommandHandler:
             m.MAV_CMD_DO_SET_MISSION_CURRENT: self._set_mission_current,
             m.MAV_CMD_DO_REPOSITION: self._reposition,
             m.MAV_CMD_DO_CHANGE_SPEED: self._change_speed,
+            m.MAV_CMD_CONDITION_YAW: self._condition_yaw,
+            m.MAV_CMD_DO_SET_ROI_LOCATION: self._set_roi,
+            m.MAV_CMD_DO_SET_ROI: self._set_roi,
+            m.MAV_CMD_DO_SET_ROI_NONE: self._set_roi_none,
+            m.MAV_CMD_DO_PAUSE_CONTINUE: self._pause_continue,
             m.MAV_CMD_SET_MESSAGE_INTERVAL: self._set_message_interval,
             m.MAV_CMD_GET_MESSAGE_INTERVAL: self._get_message_interval,
             m.MAV_CMD_REQUEST_MESSAGE: self._request_message,
@@ -243,7 +251,9 @@ class CommandHandler:
         alt = req.p(7)
         if not (math.isfinite(alt) and 0.0 < alt <= MAX_TAKEOFF_ALT_M):
             return CommandResult(MavResult.DENIED)
-        return CommandResult(self._outcome(self._vehicle.takeoff(alt)))
+        # param3 0: the mode must navigate horizontally (ArduCopter do_user_takeoff(alt, is_zero(p3)))
+        must_navigate = not (math.isfinite(req.p(3)) and req.p(3) != 0.0)
+        return CommandResult(self._outcome(self._vehicle.takeoff(alt, must_navigate)))
 
     def _land(self, req: CommandRequest, link: object) -> CommandResult:
         return CommandResult(self._outcome(self._vehicle.land()))
@@ -299,6 +309,42 @@ class CommandHandler:
         if kind is None or not (math.isfinite(speed) and 0.0 < speed <= MAX_CHANGE_SPEED_M_S[kind]):
             return CommandResult(MavResult.DENIED)
         return CommandResult(self._outcome(self._vehicle.change_speed(SpeedType(kind), speed)))
+
+    # ----------------------------------------------------------------- steering the mode
+    def _condition_yaw(self, req: CommandRequest, link: object) -> CommandResult:
+        # ArduCopter: param1 0..360 and param4 0 or 1, else FAILED
+        angle, relative = req.p(1), req.p(4)
+        if not (math.isfinite(angle) and 0.0 <= angle <= 360.0 and relative in (0.0, 1.0)):
+            return CommandResult(MavResult.FAILED)
+        rate = req.p(2) if math.isfinite(req.p(2)) else 0.0
+        direction = int(req.p(3)) if math.isfinite(req.p(3)) else 0
+        return CommandResult(self._outcome(self._vehicle.condition_yaw(
+            angle, rate, direction, relative == 1.0)))
+
+    def _set_roi(self, req: CommandRequest, link: object) -> CommandResult:
+        """DO_SET_ROI_LOCATION / DO_SET_ROI: the location in x, y, z (COMMAND_INT, degE7) or
+        param5..7 (COMMAND_LONG, degrees); FAILED for a latitude / longitude out of range."""
+        if req.is_int:
+            lat, lon = req.x * 1e-7, req.y * 1e-7
+            alt_frame = AltFrame.AMSL if req.frame in (MavFrame.GLOBAL, MavFrame.GLOBAL_INT) \
+                else AltFrame.RELATIVE_HOME
+        else:
+            lat, lon = req.p(5), req.p(6)
+            alt_frame = AltFrame.RELATIVE_HOME
+        alt = req.p(7) if math.isfinite(req.p(7)) else 0.0
+        if not (math.isfinite(lat) and math.isfinite(lon) and abs(lat) <= 90.0 and abs(lon) <= 180.0):
+            return CommandResult(MavResult.FAILED)
+        return CommandResult(self._outcome(self._vehicle.set_roi(lat, lon, alt, alt_frame)))
+
+    def _set_roi_none(self, req: CommandRequest, link: object) -> CommandResult:
+        return CommandResult(self._outcome(self._vehicle.set_roi(0.0, 0.0, 0.0,
+                                                                 AltFrame.RELATIVE_HOME)))
+
+    def _pause_continue(self, req: CommandRequest, link: object) -> CommandResult:
+        action = _as_int(req.p(1), 0, 1)
+        if action is None:
+            return CommandResult(MavResult.DENIED)
+        return CommandResult(self._outcome(self._vehicle.pause_continue(action == 0), MavSeverity.INFO))
 
     # ----------------------------------------------------------------- messages
     def _set_message_interval(self, req: CommandRequest, link: object) -> CommandResult:

@@ -225,6 +225,8 @@ class GuidanceConfig:
     takeoff_radius_m: float = 0.5       # takeoff complete within this distance of the target altitude
     rtl_alt_m: float = 15.0             # RTL_ALT (1500 cm), above home
     rtl_loiter_s: float = 5.0           # RTL_LOIT_TIME (5000 ms)
+    rtl_climb_min_m: float = 0.0        # RTL_CLIMB_MIN (0 cm): RTL climbs at least this much
+    rtl_cone_slope: float = 3.0         # RTL_CONE_SLOPE (3.0): climb limited to slope x distance home
     land_speed_m_s: float = 0.5         # LAND_SPEED (50 cm/s), final descent
     land_speed_high_m_s: float = 0.0    # LAND_SPEED_HIGH (0: use wp_speed_down_m_s)
     land_alt_low_m: float = 10.0        # LAND_ALT_LOW (1000 cm): switch to land_speed_m_s below this
@@ -235,7 +237,8 @@ class GuidanceConfig:
                      "takeoff_radius_m", "land_speed_m_s"):
             value = getattr(self, name)
             check(_positive(value), name, value, "a positive number")
-        for name in ("min_yaw_leg_m", "rtl_alt_m", "rtl_loiter_s", "land_speed_high_m_s", "land_alt_low_m"):
+        for name in ("min_yaw_leg_m", "rtl_alt_m", "rtl_loiter_s", "land_speed_high_m_s", "land_alt_low_m",
+                     "rtl_climb_min_m", "rtl_cone_slope"):
             value = getattr(self, name)
             check(_non_negative(value), name, value, "a number >= 0")
         check(self.wp_speed_m_s <= 50.0, "wp_speed_m_s", self.wp_speed_m_s, "at most 50 m/s")

@@ -29,6 +29,18 @@ from scenenav.core.contracts import GpsFixType
 from scenenav.core.frames import wrap_pi
 from scenenav.core.rotations import aviation_euler_from_quat
 
+# Motor outputs as PWM: ArduCopter's MOT_PWM_MIN / MOT_PWM_MAX defaults (1000 / 2000 us); disarmed
+# motors get MOT_PWM_MIN, as ArduPilot SITL shows them.
+MOT_PWM_MIN_US = 1000
+MOT_PWM_MAX_US = 2000
+
+
+def motor_pwm(commands, armed: bool) -> tuple[int, ...]:
+    """SERVO_OUTPUT_RAW servo1..4 from the four motor commands (0..1)."""
+    span = MOT_PWM_MAX_US - MOT_PWM_MIN_US
+    return tuple(MOT_PWM_MIN_US + (int(round(span * min(max(float(c), 0.0), 1.0))) if armed else 0)
+                 for c in commands)
+
 
 class EkfStatusFlag(IntFlag):
     """MAVLink EKF_STATUS_FLAGS (EKF_STATUS_REPORT.flags)."""
@@ -95,6 +107,7 @@ class TelemetryMixin:
             groundspeed_m_s=float(math.hypot(vel[0], vel[1])),
             airspeed_m_s=float(math.hypot(vel[0], vel[1])), climb_m_s=float(vel[2]),
             throttle_pct=100.0 * thrust / self.airframe.max_thrust_n,
+            rc_channels_pwm=self.rc_channels(), servo_pwm=motor_pwm(self._motors, self._armed),
             gps_fix_type=gps_fix, gps_satellites=g.satellites if g is not None else 0,
             gps_hdop=g.eph_m if g is not None else math.nan,
             gps_vdop=g.epv_m if g is not None else math.nan,

@@ -17,12 +17,15 @@ MAVLink side (``VehicleTelemetry`` and the targets the server hands over): NED m
 origin (= the point where the filter was aligned, on the ground), body FRD, latitude/longitude through
 ``scenenav.core.frames`` around the world's geodetic origin, altitudes AMSL = ``origin_alt_amsl_m`` + ENU z.
 
-Modes (ArduCopter numbers, ``autopilot_bridge.modes``): STABILIZE and ALT_HOLD without RC (level
-attitude; hover thrust / hold altitude), GUIDED (position, position+velocity, velocity and
-acceleration targets, DO_REPOSITION, takeoff), AUTO (NAV_TAKEOFF, NAV_WAYPOINT with hold time,
-NAV_LAND, NAV_RETURN_TO_LAUNCH, DO_CHANGE_SPEED; other stored commands are skipped), LOITER and
-POSHOLD (hold; no pilot input), BRAKE (stop at 7.5 m/s/s, then hold), RTL (climb to RTL_ALT, return, loiter RTL_LOIT_TIME, land or hold at RTL_ALT_FINAL) and LAND. LAND,
-RTL and AUTO landings disarm at touchdown; other modes disarm DISARM_DELAY s after landing.
+Modes (ArduCopter numbers, ``autopilot_bridge.modes``): STABILIZE, ALT_HOLD, LOITER and POSHOLD
+flown by the pilot's RC overrides (``pilot``; without them: level at the hover thrust / hold the
+altitude / hold the point), GUIDED (position, position+velocity, velocity and acceleration
+targets, DO_REPOSITION, takeoff), AUTO (the mission as AP_Mission sequences it:
+``auto_mission``), BRAKE (stop at 7.5 m/s/s, then hold), RTL (climb to the return height of
+RTL_ALT / RTL_CLIMB_MIN / RTL_CONE_SLOPE, return, loiter RTL_LOIT_TIME, land or hold at
+RTL_ALT_FINAL), LAND, CIRCLE (``circle``) and SMART_RTL (``smart_rtl``); CONDITION_YAW, ROI and
+DO_PAUSE_CONTINUE in ``mode_commands``. LAND, RTL and AUTO landings disarm at touchdown; other
+modes disarm DISARM_DELAY s after landing.
 
 Position source (EK3_SRC1_POSXY, switchable in flight): 3 GPS, 6 external navigation (scene-matching
 fixes from the bus, or VISION_POSITION_ESTIMATE / ODOMETRY over MAVLink), 0 none. Vision fixes are
@@ -54,6 +57,7 @@ from autopilot_bridge.alignment import Alignment
 from autopilot_bridge.arming import GPS_FRESH_S, ArmingMixin
 from autopilot_bridge.auto_mission import AutoMissionMixin, AutoStage
 from autopilot_bridge.battery import BatteryMonitor
+from autopilot_bridge.circle import Circle, CircleSettings, centre_ahead
 from autopilot_bridge.config import AutopilotAlgorithmsConfig, FlightCoreConfig, PositionSource, YawBehaviour
 from autopilot_bridge.control import ControlOutput, FlightController, PositionTarget, stopping_point
 from autopilot_bridge.core_telemetry import TelemetryMixin
@@ -65,6 +69,7 @@ from autopilot_bridge.failsafe import (
     FailsafeKind,
     FailsafeMonitor,
     FailsafeSettings,
+    GcsFailsafeAction,
 )
 from autopilot_bridge.flight_laws import Hold, Land, LawKind, Rtl, Tracker
 from autopilot_bridge.fusion import ImuReading, SensorFusionMixin
@@ -72,9 +77,12 @@ from autopilot_bridge.geo_frame import GeoFrame
 from autopilot_bridge.guidance_law import GuidanceEventKind, Waypoint
 from autopilot_bridge.guided import GuidedMixin
 from autopilot_bridge.mixer import QuadXMixer
+from autopilot_bridge.mode_commands import ModeCommandsMixin
 from autopilot_bridge.modes import NEEDS_POSITION, POSITION_MODES, CopterMode
 from autopilot_bridge.param_binding import ParamBindingMixin
 from autopilot_bridge.params import ParameterStore
+from autopilot_bridge.pilot import PilotMixin
+from autopilot_bridge.smart_rtl import BreadcrumbPath, smart_rtl_law
 from autopilot_bridge.vehicle_interface import (
     HomeChangedEvent,
     MavSeverity,
@@ -109,7 +117,7 @@ class CoreStatus:
 
 
 class FlightCore(SensorFusionMixin, ArmingMixin, GuidedMixin, AutoMissionMixin,
-                 ParamBindingMixin, TelemetryMixin):
+                 ModeCommandsMixin, PilotMixin, ParamBindingMixin, TelemetryMixin):
     """The flight core; see the module docstring. Not thread-safe: call from one thread.
 
     One class, one concept per module: the control tick, modes and failsafes are here (alignment:
@@ -157,6 +165,9 @@ class FlightCore(SensorFusionMixin, ArmingMixin, GuidedMixin, AutoMissionMixin,
         self._last_target: PositionTarget | None = None
         self._pos_resets = 0
         self._init_auto()
+        self._init_mode_commands()
+        self._init_pilot()
+        self.srtl_path = BreadcrumbPath()
         # outputs
         self._motors = np.zeros(4)
         self._last_out: ControlOutput | None = None
@@ -260,6 +271,8 @@ class FlightCore(SensorFusionMixin, ArmingMixin, GuidedMixin, AutoMissionMixin,
             self._handle_position_reset(self.nav.last_position_reset_m)
         self._run_failsafes(est)
         self._auto_disarm_check()
+        self._record_path(est)
+        self._radio_failsafe_check()
         out = self._control(est, gyro, dt_s)
         self._last_out = out
         if out is not None and (out.touchdown or self._ground_contact(out, est, dt_s)):
@@ -334,6 +347,9 @@ class FlightCore(SensorFusionMixin, ArmingMixin, GuidedMixin, AutoMissionMixin,
 
     def _apply_failsafe(self, ev: FailsafeEvent, est: NavState) -> None:
         self._announce(ev.severity, ev.text)
+        if self._smart_rtl_first(ev):
+            self.stats["failsafe_gcs_smart_rtl"] += 1
+            return
         if ev.action == FailsafeAction.RTL:
             if not self._enter_mode(CopterMode.RTL, from_gcs=False).ok:
                 self._enter_mode(CopterMode.LAND, from_gcs=False)
@@ -351,6 +367,40 @@ class FlightCore(SensorFusionMixin, ArmingMixin, GuidedMixin, AutoMissionMixin,
         else:
             self.stats[f"failsafe_vision_{ev.action.value}"] += 1
 
+    def _smart_rtl_first(self, ev: FailsafeEvent) -> bool:
+        """FS_GCS_ENABLE 3 / 4 (SmartRTL or RTL / Land): SMART_RTL when its path is usable, else
+        ArduCopter's message and the fallback (``set_mode_SmartRTL_or_RTL`` / ``_or_land``)."""
+        if ev.kind != FailsafeKind.GCS or ev.action not in (FailsafeAction.RTL, FailsafeAction.LAND):
+            return False
+        if self.params.get_int("FS_GCS_ENABLE") not in (GcsFailsafeAction.SMARTRTL_OR_RTL,
+                                                         GcsFailsafeAction.SMARTRTL_OR_LAND):
+            return False
+        if self._enter_mode(CopterMode.SMART_RTL, from_gcs=False).ok:
+            return True
+        fallback = "RTL Mode" if ev.action == FailsafeAction.RTL else "Land Mode"
+        verb = "Trying" if ev.action == FailsafeAction.RTL else "Using"
+        self._announce(MavSeverity.WARNING, f"SmartRTL Unavailable, {verb} {fallback}")
+        return False
+
+    def _record_path(self, est: NavState) -> None:
+        """SmartRTL's breadcrumbs: from arming while flying with a position estimate (disarmed:
+        the path and a pending ALT_HOLD takeoff end)."""
+        path = self.srtl_path
+        if not self._armed:
+            self._alt_hold_takeoff_z = None
+            if path.active or path.deactivated_reason:
+                path.stop()
+                path.deactivated_reason = ""
+            return
+        if self.fc.landed or not self._position_ok():
+            return
+        if not path.active and not path.deactivated_reason:
+            start = self._home if self._home is not None else est.position_enu_m
+            path.start(start, self.params.get("SRTL_ACCURACY"), self.params.get_int("SRTL_POINTS"))
+        message = path.add(est.position_enu_m)
+        if message:
+            self._announce(MavSeverity.WARNING, message)
+
     # --------------------------------------------------------------------------- control
     def _law_kind(self) -> LawKind | None:
         return getattr(self._law, "kind", None) if self._law is not None else None
@@ -360,13 +410,19 @@ class FlightCore(SensorFusionMixin, ArmingMixin, GuidedMixin, AutoMissionMixin,
             return None
         fc = self.fc
         mode = self._mode
+        if self._vision_hold is None:
+            pilot = self._pilot_control(est, gyro, dt)            # RC_CHANNELS_OVERRIDE etc.
+            if pilot is not None:
+                return pilot
         if mode == CopterMode.STABILIZE:
             frac = 0.0 if fc.landed else self.airframe.hover_thrust_fraction
             return fc.update_stabilize(est, gyro, 0.0, 0.0, 0.0, frac, dt)
         if mode == CopterMode.ALT_HOLD:
-            return fc.update_alt_hold(est, gyro, 0.0, 0.0, 0.0, 0.0, dt)
+            return fc.update_alt_hold(est, gyro, 0.0, 0.0, 0.0, self._alt_hold_takeoff_climb(est), dt)
         if self._vision_hold is not None:
             return fc.update_position(est, gyro, self._vision_hold.update(est, dt), dt)
+        if self._pause_hold is not None:                     # DO_PAUSE_CONTINUE
+            return fc.update_position(est, gyro, self._pause_hold.update(est, dt), dt)
         if mode == CopterMode.GUIDED and self._guided is not None:
             return self._guided_control(est, gyro, dt)
         if self._law is None:
@@ -383,8 +439,17 @@ class FlightCore(SensorFusionMixin, ArmingMixin, GuidedMixin, AutoMissionMixin,
             for ev in events:
                 if ev.kind == GuidanceEventKind.PHASE_CHANGED:
                     self._bus_text(MavSeverity.INFO, f"{mode.name}: {ev.detail}")
+            if mode == CopterMode.SMART_RTL and self._law.complete:
+                # home reached (2 m above it): ArduCopter lands, or RTLs to RTL_ALT_FINAL
+                final = CopterMode.RTL if self.params.get("RTL_ALT_FINAL") > 0 else CopterMode.LAND
+                self._enter_mode(final, from_gcs=False)
+                target = self._law.update(est, dt)
         if mode == CopterMode.GUIDED and self._guided_heading is not None:
             target = dataclasses.replace(target, heading_rad=self._guided_heading_now(dt))
+        if mode in (CopterMode.AUTO, CopterMode.GUIDED):
+            heading = self._commanded_heading(est)       # DO_SET_ROI, CONDITION_YAW
+            if heading is not None:
+                target = dataclasses.replace(target, heading_rad=heading)
         self._last_target = target
         return fc.update_position(est, gyro, target, dt)
 
@@ -435,6 +500,8 @@ class FlightCore(SensorFusionMixin, ArmingMixin, GuidedMixin, AutoMissionMixin,
             return Outcome(True)
         if mode in NEEDS_POSITION and not self._position_ok():
             return self._refuse(f"Mode change to {mode.name} failed: requires position")
+        if mode == CopterMode.SMART_RTL and not self.srtl_path.usable:
+            return self._refuse("Mode change to SMART_RTL failed: no SmartRTL path")
         if mode == CopterMode.AUTO:
             if not self._mission:
                 return self._refuse("Mode change to AUTO failed: no mission")
@@ -449,6 +516,11 @@ class FlightCore(SensorFusionMixin, ArmingMixin, GuidedMixin, AutoMissionMixin,
         self._guided = None
         self._guided_heading = None
         self._guided_yaw_rate = None
+        self._alt_hold_takeoff_z = None
+        self._roi_enu = None
+        self._auto_heading = None
+        self._pause_hold = None
+        self._pilot_point = None
         if from_gcs:
             self._vision_hold = None
         if previous != mode:
@@ -478,6 +550,12 @@ class FlightCore(SensorFusionMixin, ArmingMixin, GuidedMixin, AutoMissionMixin,
             self._law = self._make_rtl(est)
         elif mode == CopterMode.LAND:
             self._law = Land(self._gcfg, stop, self._home_z(), heading_rad=heading)
+        elif mode == CopterMode.CIRCLE:
+            settings = self._circle_settings()
+            centre = centre_ahead(stop, heading, settings.radius_m)
+            self._law = Circle(self._gcfg, centre, float(stop[2]), settings, stop, heading_rad=heading)
+        elif mode == CopterMode.SMART_RTL:
+            self._law = smart_rtl_law(self._gcfg, self.srtl_path, stop)
         else:
             self._law = None
 
@@ -501,6 +579,9 @@ class FlightCore(SensorFusionMixin, ArmingMixin, GuidedMixin, AutoMissionMixin,
         home = self._home if self._home is not None else est.position_enu_m
         return Rtl(cfg, home, est, self.params.get("RTL_ALT_FINAL") / 100.0,
                     heading_rad=float(est.heading_rad))
+
+    def _circle_settings(self) -> CircleSettings:
+        return CircleSettings(self.params.get("CIRCLE_RADIUS") / 100.0, self.params.get("CIRCLE_RATE"))
 
     def _home_z(self) -> float:
         return float(self._home[2]) if self._home is not None else self.cfg.ground_z_m

@@ -34,6 +34,8 @@ class LawKind(Enum):
     TRACK = "track"
     LAND = "land"
     RTL = "rtl"
+    CIRCLE = "circle"
+    SMART_RTL = "smart_rtl"
 
 
 class Hold:

@@ -1,8 +1,9 @@
 """The parameters QGroundControl's APM setup pages read (Radio, Flight Modes, Sensors, Power,
 Safety, Airframe), so that QGC finds none missing and shows the setup complete. None of them
-changes what this autopilot does (docs/mavlink.md, "changes nothing"): there is no RC input, no
-compass or accelerometer calibration, no analog battery monitor, no fence and no throttle
-failsafe here. They are stored, served and persisted like every other parameter.
+changes what this autopilot does (docs/mavlink.md, "changes nothing"): there is no compass or
+accelerometer calibration, no analog battery monitor and no fence here; except the RC channel
+mapping and calibration and FS_THR_ENABLE, which the pilot's RC overrides use
+(``PILOT_INPUT_PARAM_NAMES``, ``autopilot_bridge.pilot``). They are stored, served and persisted like every other parameter.
 
 Pure module. Names, types and defaults are ArduCopter 4.5's (``RC_Channel.cpp``,
 ``RC_Channels``/``RCMapper``, ``ArduCopter/Parameters.cpp``, ``AP_Compass.cpp``,
@@ -40,19 +41,21 @@ def _p(name: str, ptype: ParamType, default: float, lo: float, hi: float, units:
 
 
 def _rc_specs() -> list[ParamSpec]:
-    out = [_p(f"RCMAP_{axis}", _I8, ch, 1, RC_CHANNELS, "", f"RC input channel for {axis.lower()}")
+    # RCMAP_* and RCn_MIN/TRIM/MAX/REVERSED/DZ scale the pilot's RC overrides (autopilot_bridge.pilot)
+    out = [ParamSpec(f"RCMAP_{axis}", _I8, ch, 1, RC_CHANNELS, "",
+                     f"RC input channel for {axis.lower()}")
            for axis, ch in (("ROLL", 1), ("PITCH", 2), ("THROTTLE", 3), ("YAW", 4))]
     for n in range(1, RC_CHANNELS + 1):
         calibrated = n <= SITL_CALIBRATED_RC
         out += [
-            _p(f"RC{n}_MIN", _I16, 1000 if calibrated else 1100, 800, 2200, "PWM",
-               f"RC channel {n} minimum"),
-            _p(f"RC{n}_TRIM", _I16, 1500, 800, 2200, "PWM", f"RC channel {n} trim"),
-            _p(f"RC{n}_MAX", _I16, 2000 if calibrated else 1900, 800, 2200, "PWM",
-               f"RC channel {n} maximum"),
-            _p(f"RC{n}_REVERSED", _I8, 0, 0, 1, "", f"RC channel {n} reversed"),
-            _p(f"RC{n}_DZ", _I16, RC_DEAD_ZONES.get(n, 0), 0, 200, "PWM",
-               f"RC channel {n} dead zone"),
+            ParamSpec(f"RC{n}_MIN", _I16, 1000 if calibrated else 1100, 800, 2200, "PWM",
+                      f"RC channel {n} minimum"),
+            ParamSpec(f"RC{n}_TRIM", _I16, 1500, 800, 2200, "PWM", f"RC channel {n} trim"),
+            ParamSpec(f"RC{n}_MAX", _I16, 2000 if calibrated else 1900, 800, 2200, "PWM",
+                      f"RC channel {n} maximum"),
+            ParamSpec(f"RC{n}_REVERSED", _I8, 0, 0, 1, "", f"RC channel {n} reversed"),
+            ParamSpec(f"RC{n}_DZ", _I16, RC_DEAD_ZONES.get(n, 0), 0, 200, "PWM",
+                      f"RC channel {n} dead zone"),
             _p(f"RC{n}_OPTION", _I16, 7 if n == 7 else 0, 0, 2 ** 15 - 1, "",
                f"RC channel {n} auxiliary function"),
         ]
@@ -129,15 +132,21 @@ def _safety_specs() -> list[ParamSpec]:
         _p("FENCE_MARGIN", _F, 2.0, 1.0, 10.0, "m", "Fence margin"),
         _p("FENCE_TOTAL", _I8, 0, 0, 127, "", "Number of polygon fence points"),
         _p("FENCE_AUTOENABLE", _I8, 0, 0, 3, "", "Fence auto-enable"),
-        _p("FS_THR_ENABLE", _I8, 1, 0, 7, "", "Throttle (RC) failsafe (there is no RC input)"),
+        ParamSpec("FS_THR_ENABLE", _I8, 1, 0, 7, "",
+                  "Radio failsafe action when RC overrides stop: 0 off, 1 RTL, 2 continue AUTO, "
+                  "3 Land, 4 SmartRTL or RTL, 5 SmartRTL or Land, 6 RTL, 7 Brake or Land"),
         _p("FS_THR_VALUE", _I16, 975, 910, 1100, "PWM", "Throttle failsafe PWM"),
         _p("FS_OPTIONS", _I32, 0, 0, 2 ** 31 - 1, "", "Failsafe options bitmask"),
         _p("FS_CRASH_CHECK", _I8, 1, 0, 1, "", "Crash check"),
-        _p("RTL_CLIMB_MIN", _I16, 0, 0, 3000, "cm", "RTL minimum climb"),
-        _p("RTL_CONE_SLOPE", _F, 3.0, 0.5, 10.0, "", "RTL cone slope"),
     ]
 
 
 GCS_PARAM_SPECS: tuple[ParamSpec, ...] = tuple(
     _rc_specs() + _flight_mode_specs() + _sensor_specs() + _power_specs() + _safety_specs())
 GCS_PARAM_NAMES = frozenset(spec.name for spec in GCS_PARAM_SPECS)
+# The exceptions to "changes nothing": they scale the pilot's RC overrides (autopilot_bridge.pilot).
+PILOT_INPUT_PARAM_NAMES = frozenset(
+    [f"RCMAP_{axis}" for axis in ("ROLL", "PITCH", "THROTTLE", "YAW")]
+    + [f"RC{n}_{field}" for n in range(1, RC_CHANNELS + 1)
+       for field in ("MIN", "TRIM", "MAX", "REVERSED", "DZ")]
+    + ["FS_THR_ENABLE"])

@@ -266,6 +266,23 @@ class Lander(GuidanceLaw):
                               heading_rad=self._heading, vertical_mode=VerticalMode.VELOCITY)
 
 
+# ArduCopter mode_rtl.cpp: RTL_ALT_MIN_M, the lowest return height; RTL_MIN_CONE_SLOPE, below which
+# the cone is off.
+RTL_ALT_MIN_M = 2.0
+RTL_MIN_CONE_SLOPE = 0.5
+
+
+def rtl_return_height_m(cfg: GuidanceConfig, height_m: float, distance_home_m: float) -> float:
+    """RTL's return height above home, as ArduCopter's ``ModeRTL::compute_return_target``: at
+    least RTL_ALT and the current height + RTL_CLIMB_MIN (and 2 m), but within the cone
+    RTL_CONE_SLOPE x the horizontal distance home (never below the climb minimum)."""
+    min_height = max(RTL_ALT_MIN_M, height_m + max(0.0, cfg.rtl_climb_min_m))
+    target = max(cfg.rtl_alt_m, min_height)
+    if cfg.rtl_cone_slope >= RTL_MIN_CONE_SLOPE:
+        target = min(target, max(distance_home_m * cfg.rtl_cone_slope, min_height))
+    return max(target, height_m)
+
+
 class RtlPhase(Enum):
     CLIMB = "climb"
     RETURN = "return"
@@ -274,14 +291,16 @@ class RtlPhase(Enum):
 
 
 class ReturnToLaunch(GuidanceLaw):
-    """RTL: climb to max(current z, home z + RTL_ALT) where it is, fly home at that height, loiter
+    """RTL: climb to the return height (``rtl_return_height_m``) where it is, fly home at that height, loiter
     RTL_LOIT_TIME, then LAND on home (descent speeds as ``Lander``)."""
 
     def __init__(self, cfg: GuidanceConfig, home_enu_m, nav: NavState) -> None:
         self._cfg = cfg
         self._home = np.asarray(home_enu_m, dtype=float)[:3].copy()
         start = stopping_point(nav.position_enu_m, nav.velocity_enu_m_s, cfg.wp_accel_m_s2)
-        self._rtl_z = max(float(start[2]), float(self._home[2]) + cfg.rtl_alt_m)
+        self._rtl_z = float(self._home[2]) + rtl_return_height_m(
+            cfg, float(start[2]) - float(self._home[2]),
+            float(np.hypot(*(start[:2] - self._home[:2]))))
         self._phase = RtlPhase.CLIMB
         self._events: list[GuidanceEvent] = []
         self._tracker: WaypointTracker | Lander = WaypointTracker(

@@ -38,6 +38,11 @@ SAME_TARGET_M = 0.01
 
 MAX_VELOCITY_TARGET_M_S = 30.0
 
+# Modes that take off on NAV_TAKEOFF (ArduCopter's has_user_takeoff; ALT_HOLD only with param3 != 0).
+TAKEOFF_MODES = frozenset({CopterMode.GUIDED, CopterMode.LOITER, CopterMode.POSHOLD})
+# ALT_HOLD's takeoff ends this close to the target height (the takeoff tolerance of AUTO).
+ALT_HOLD_TAKEOFF_DONE_M = 0.5
+
 
 @dataclass
 class GuidedCommand:
@@ -59,10 +64,14 @@ class GuidedMixin:
         self._guided_heading: float | None = None
         self._guided_yaw_rate: float | None = None
         self._guided_yaw_until_s = 0.0
+        self._alt_hold_takeoff_z: float | None = None
 
-    def takeoff(self, alt_m: float) -> Outcome:
-        if self._mode != CopterMode.GUIDED:
-            return self._refuse("Takeoff: mode must be GUIDED")
+    def takeoff(self, alt_m: float, must_navigate: bool = True) -> Outcome:
+        # ArduCopter Mode::has_user_takeoff: GUIDED, LOITER, POSHOLD; ALT_HOLD only when the pilot
+        # navigates (NAV_TAKEOFF param3 != 0)
+        if self._mode not in TAKEOFF_MODES and not (self._mode == CopterMode.ALT_HOLD
+                                                    and not must_navigate):
+            return self._refuse(f"Takeoff: not supported in {self._mode.name}")
         if not self._armed:
             return self._refuse("Takeoff: motors not armed")
         if not self.fc.landed:
@@ -72,6 +81,11 @@ class GuidedMixin:
         est = self.nav.state()
         start = np.array(est.position_enu_m, dtype=float)
         climb = max(self._home_z() + float(alt_m) - float(start[2]), 1.0)
+        if self._mode == CopterMode.ALT_HOLD:
+            self._alt_hold_takeoff_z = float(start[2]) + climb
+            self._landed_since_s = None
+            self._bus_text(MavSeverity.INFO, f"takeoff to {alt_m:.1f} m")
+            return Outcome(True)
         law = make_takeoff(self._gcfg, start, climb)
         law.kind = LawKind.TAKEOFF
         self._law = law
@@ -184,6 +198,16 @@ class GuidedMixin:
             return fc.update_stabilize(est, gyro, 0.0, 0.0, 0.0, 0.0, dt)
         return fc.update_velocity(est, gyro, vel, dt, heading_rad=heading,
                                   accel_enu_m_s2=tuple(float(a) for a in accel))
+
+    def _alt_hold_takeoff_climb(self, est: NavState) -> float:
+        """ALT_HOLD's takeoff: climb at the takeoff speed to the target height, then hold it."""
+        if self._alt_hold_takeoff_z is None:
+            return 0.0
+        left = self._alt_hold_takeoff_z - float(est.position_enu_m[2])
+        if left <= ALT_HOLD_TAKEOFF_DONE_M:
+            self._alt_hold_takeoff_z = None
+            return 0.0
+        return min(self._gcfg.takeoff_speed_m_s, left)
 
     def _alt_to_z(self, alt_m: float, alt_frame: AltFrame) -> float:
         if alt_frame == AltFrame.AMSL:

@@ -80,6 +80,7 @@ STAT_KEYS = (
     "rx_bytes", "rx_msgs", "tx_msgs", "tx_bytes", "tx_dropped", "garbage_bytes", "bad_crc",
     "parse_errors", "unknown", "truncated", "dropped_unsigned", "bad_signature", "not_for_us",
     "own_echo", "ignored", "handler_errors", "setpoints_ignored", "setpoints_rejected",
+    "rc_not_my_gcs",
     "vision_ignored", "vision_rejected", "param_set_refused", "param_set_clamped", "tcp_clients", "tcp_refused",
     "udp_peers", "udp_refused", "socket_errors", "encode_errors",
 )
@@ -448,6 +449,24 @@ class MavlinkServer(LinkTransportMixin, ParamProtocolMixin):
         self.send(link, mavlink2.MAVLink_command_ack_message(
             command & 0xFFFF, int(result), 0, 0, msg.get_srcSystem(), msg.get_srcComponent()))
 
+    # ----------------------------------------------------------------- pilot input
+    def _from_my_gcs(self, msg: mavlink2.MAVLink_message) -> bool:
+        """ArduPilot takes RC overrides and MANUAL_CONTROL only from SYSID_MYGCS."""
+        if msg.get_srcSystem() == self.params.get_int("SYSID_MYGCS"):
+            return True
+        self.stats["rc_not_my_gcs"] += 1
+        return False
+
+    def _on_rc_channels_override(self, msg: mavlink2.MAVLink_message, link: Link,
+                                 now_s: float) -> None:
+        if self._from_my_gcs(msg):
+            self.vehicle.rc_channels_override(tuple(
+                int(getattr(msg, f"chan{i}_raw", 0)) for i in range(1, 19)))
+
+    def _on_manual_control(self, msg: mavlink2.MAVLink_message, link: Link, now_s: float) -> None:
+        if msg.target in (0, self.system_id) and self._from_my_gcs(msg):
+            self.vehicle.manual_control(float(msg.x), float(msg.y), float(msg.z), float(msg.r))
+
     # ----------------------------------------------------------------- guided / external nav
     def _guided(self) -> bool:
         return self.vehicle.telemetry().mode == CopterMode.GUIDED
@@ -508,6 +527,8 @@ class MavlinkServer(LinkTransportMixin, ParamProtocolMixin):
         "REQUEST_DATA_STREAM": _on_request_data_stream,
         "SET_POSITION_TARGET_LOCAL_NED": _on_set_position_target_local_ned,
         "SET_POSITION_TARGET_GLOBAL_INT": _on_set_position_target_global_int,
+        "RC_CHANNELS_OVERRIDE": _on_rc_channels_override,
+        "MANUAL_CONTROL": _on_manual_control,
         "VISION_POSITION_ESTIMATE": _on_vision_position_estimate,
         "ODOMETRY": _on_odometry,
         "TIMESYNC": _on_timesync,

@@ -24,12 +24,16 @@ Shell module (uses pymavlink). Behaviour follows ArduPilot's ``MissionItemProtoc
   uploads and clears are accepted, non-empty uploads get MAV_MISSION_UNSUPPORTED. We do not
   claim MISSION_FENCE / MISSION_RALLY in AUTOPILOT_VERSION.
 * "Guided waypoint" (MISSION_ITEM(_INT) with current == 2, sent by older MAVProxy and QGC): in GUIDED mode it becomes ``Vehicle.reposition``; MISSION_ACK ACCEPTED/ERROR.
+* "Change altitude" (current == 3, MAVProxy's ``changealt``): ACCEPTED without effect, as
+  ArduCopter (its ``handle_change_alt_request`` only converts the altitude; moving the target is a
+  to-do there).
 
 Item validation as ``AP_Mission::mavlink_int_to_mission_cmd``: param1..4 must be finite
-(param4 may be NaN for NAV_WAYPOINT/LAND/TAKEOFF) -> INVALID_PARAMn; unknown command ->
-UNSUPPORTED; location commands need |lat| <= 90, |lon| <= 180 (INVALID_PARAM5_X /
-INVALID_PARAM6_Y; NaN in a float MISSION_ITEM fails too), finite |alt| < 83000 m
-(INVALID_PARAM7) and a GLOBAL / GLOBAL_RELATIVE_ALT (or _INT) frame (UNSUPPORTED_FRAME).
+(param4 may be NaN for NAV_WAYPOINT/LAND/TAKEOFF) -> INVALID_PARAMn; a command AP_Mission does
+not store (``MissionCommand`` lists those it does) -> UNSUPPORTED; location commands need
+|lat| <= 90, |lon| <= 180 (INVALID_PARAM5_X / INVALID_PARAM6_Y; NaN in a float MISSION_ITEM
+fails too), finite |alt| < 83000 m (INVALID_PARAM7) and a MISSION, GLOBAL, GLOBAL_RELATIVE_ALT
+or GLOBAL_TERRAIN_ALT (or _INT) frame (UNSUPPORTED_FRAME).
 """
 
 from __future__ import annotations
@@ -98,19 +102,20 @@ class GuidedItemFlag(IntEnum):
     CHANGE_ALT = 3
 
 
-# Executed by the flight core.
-EXECUTED_COMMANDS: frozenset[int] = frozenset({
-    MissionCommand.NAV_WAYPOINT, MissionCommand.NAV_TAKEOFF, MissionCommand.NAV_LAND,
-    MissionCommand.NAV_RETURN_TO_LAUNCH, MissionCommand.DO_CHANGE_SPEED,
-})
-# Stored and returned on download, but without effect (camera, servo, ROI ... commands that
-# ground stations put into survey missions).
-TOLERATED_COMMANDS: frozenset[int] = frozenset(int(c) for c in MissionCommand) - EXECUTED_COMMANDS
-ACCEPTED_COMMANDS: frozenset[int] = EXECUTED_COMMANDS | TOLERATED_COMMANDS
+# Every command AP_Mission stores is accepted (what the flight core executes and what it stores
+# and skips: ``autopilot_bridge.auto_mission``); any other id is UNSUPPORTED, as AP_Mission.
+ACCEPTED_COMMANDS: frozenset[int] = frozenset(int(c) for c in MissionCommand)
 
+# Commands whose x/y/z are a location (AP_Mission::stored_in_location).
 LOCATION_COMMANDS: frozenset[int] = frozenset({
-    MissionCommand.NAV_WAYPOINT, MissionCommand.NAV_LAND, MissionCommand.NAV_TAKEOFF,
-    MissionCommand.DO_SET_ROI,
+    MissionCommand.NAV_WAYPOINT, MissionCommand.NAV_LOITER_UNLIM, MissionCommand.NAV_LOITER_TURNS,
+    MissionCommand.NAV_LOITER_TIME, MissionCommand.NAV_LAND, MissionCommand.NAV_TAKEOFF,
+    MissionCommand.NAV_CONTINUE_AND_CHANGE_ALT, MissionCommand.NAV_LOITER_TO_ALT,
+    MissionCommand.NAV_SPLINE_WAYPOINT, MissionCommand.NAV_GUIDED_ENABLE,
+    MissionCommand.DO_SET_HOME, MissionCommand.DO_LAND_START, MissionCommand.DO_GO_AROUND,
+    MissionCommand.DO_SET_ROI, MissionCommand.DO_SET_ROI_LOCATION,
+    MissionCommand.NAV_VTOL_TAKEOFF, MissionCommand.NAV_VTOL_LAND,
+    MissionCommand.NAV_PAYLOAD_PLACE,
 })
 PARAM4_NAN_ALLOWED: frozenset[int] = frozenset({
     MissionCommand.NAV_WAYPOINT, MissionCommand.NAV_LAND, MissionCommand.NAV_TAKEOFF,
@@ -119,9 +124,12 @@ PARAM4_NAN_ALLOWED: frozenset[int] = frozenset({
 RAW_XY_COMMANDS: frozenset[int] = frozenset({
     MissionCommand.DO_DIGICAM_CONFIGURE, MissionCommand.DO_DIGICAM_CONTROL,
 })
+# MISSION and GLOBAL(_INT) are absolute; the terrain frames are stored as AP_Mission does (built with
+# terrain support) and answered when flown as ArduCopter answers without terrain data.
 LOCATION_FRAMES: frozenset[int] = frozenset({
     MavFrame.GLOBAL, MavFrame.GLOBAL_RELATIVE_ALT, MavFrame.GLOBAL_INT,
-    MavFrame.GLOBAL_RELATIVE_ALT_INT,
+    MavFrame.GLOBAL_RELATIVE_ALT_INT, MavFrame.MISSION, MavFrame.GLOBAL_TERRAIN_ALT,
+    MavFrame.GLOBAL_TERRAIN_ALT_INT,
 })
 
 
@@ -371,7 +379,10 @@ class MissionManager:
             self._guided_item(msg, link, sender, is_int)
             return
         if mtype == MissionType.MISSION and current == GuidedItemFlag.CHANGE_ALT:
-            self._ack(link, sender, MissionResult.UNSUPPORTED, mtype)
+            # ArduCopter: a valid item is accepted, and nothing moves
+            # (GCS_MAVLINK_Copter::handle_change_alt_request)
+            _, result = decode_item(msg, is_int)
+            self._ack(link, sender, result, mtype)
             return
         up = self._upload
         if up is None:

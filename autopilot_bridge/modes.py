@@ -52,6 +52,8 @@ SUPPORTED_MODES: frozenset[CopterMode] = frozenset({
     CopterMode.LAND,
     CopterMode.POSHOLD,
     CopterMode.BRAKE,
+    CopterMode.CIRCLE,
+    CopterMode.SMART_RTL,
 })
 
 # Modes in which ArduCopter's horizontal position controller runs; HEARTBEAT.base_mode then
@@ -75,11 +77,13 @@ POSITION_CONTROLLED_MODES: frozenset[CopterMode] = frozenset({
 # Modes with a position controller in the flight core (failsafes treat them as position modes).
 POSITION_MODES: frozenset[CopterMode] = frozenset({CopterMode.GUIDED, CopterMode.AUTO,
                                                    CopterMode.LOITER, CopterMode.RTL, CopterMode.LAND,
-                                                   CopterMode.POSHOLD, CopterMode.BRAKE})
+                                                   CopterMode.POSHOLD, CopterMode.BRAKE,
+                                                   CopterMode.CIRCLE, CopterMode.SMART_RTL})
 # Modes that need a horizontal position estimate to be entered (ArduCopter requires_GPS()).
 NEEDS_POSITION: frozenset[CopterMode] = frozenset({CopterMode.GUIDED, CopterMode.AUTO,
                                                    CopterMode.LOITER, CopterMode.RTL,
-                                                   CopterMode.POSHOLD, CopterMode.BRAKE})
+                                                   CopterMode.POSHOLD, CopterMode.BRAKE,
+                                                   CopterMode.CIRCLE, CopterMode.SMART_RTL})
 # Modes a ground station may arm in (ArduCopter Mode::allows_arming for GCS arming; BRAKE's is
 # false, POSHOLD's true).
 ARMABLE_MODES: frozenset[CopterMode] = frozenset({CopterMode.STABILIZE, CopterMode.ALT_HOLD,

@@ -94,6 +94,7 @@ class ParamBindingMixin:
             wp_accel_m_s2=p.get("WPNAV_ACCEL") / 100.0, wp_radius_m=p.get("WPNAV_RADIUS") / 100.0,
             yaw_behaviour=yaw, takeoff_speed_m_s=up, rtl_alt_m=p.get("RTL_ALT") / 100.0,
             rtl_loiter_s=p.get("RTL_LOIT_TIME") / 1000.0, land_speed_m_s=p.get("LAND_SPEED") / 100.0,
+            rtl_climb_min_m=p.get("RTL_CLIMB_MIN") / 100.0, rtl_cone_slope=p.get("RTL_CONE_SLOPE"),
             land_speed_high_m_s=p.get("LAND_SPEED_HIGH") / 100.0)
 
     def _apply_speed(self, kind: SpeedType, speed_m_s: float) -> None:

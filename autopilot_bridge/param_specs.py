@@ -7,6 +7,7 @@ from __future__ import annotations
 
 from autopilot_bridge.airframe import AIRFRAME_PARAM_SPECS
 from autopilot_bridge.gcs_param_specs import GCS_PARAM_SPECS
+from autopilot_bridge.mode_param_specs import MODE_PARAM_SPECS
 from autopilot_bridge.params import DEFAULT_PARAM_SPECS, ParamSpec, ParamType
 
 # scenenav parameters of the vision failsafe and of vision fusion.
@@ -20,5 +21,5 @@ SN_PARAM_SPECS: tuple[ParamSpec, ...] = (
               "Vision fixes are used (and expected) only this high above home", safe_min=0.0),
 )
 PARAM_SPECS: tuple[ParamSpec, ...] = (DEFAULT_PARAM_SPECS + SN_PARAM_SPECS + AIRFRAME_PARAM_SPECS
-                                      + GCS_PARAM_SPECS)
+                                      + GCS_PARAM_SPECS + MODE_PARAM_SPECS)
 PARAM_NAMES = frozenset(spec.name for spec in PARAM_SPECS)

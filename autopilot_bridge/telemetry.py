@@ -91,7 +91,7 @@ STREAM_GROUPS: Mapping[DataStream, tuple[int, ...]] = {
                                  _M.MAVLINK_MSG_ID_NAV_CONTROLLER_OUTPUT,
                                  _M.MAVLINK_MSG_ID_GPS_RAW_INT,
                                  _M.MAVLINK_MSG_ID_EXTENDED_SYS_STATE),
-    DataStream.RC_CHANNELS: (),
+    DataStream.RC_CHANNELS: (_M.MAVLINK_MSG_ID_SERVO_OUTPUT_RAW, _M.MAVLINK_MSG_ID_RC_CHANNELS),
     DataStream.RAW_CONTROLLER: (),
     DataStream.POSITION: (_M.MAVLINK_MSG_ID_GLOBAL_POSITION_INT,
                           _M.MAVLINK_MSG_ID_LOCAL_POSITION_NED),
@@ -466,6 +466,29 @@ def encode_power_status(tel: VehicleTelemetry, ctx: EncodeContext) -> mavlink2.M
                                                  mavlink2.MAV_POWER_STATUS_BRICK_VALID)
 
 
+# RC_CHANNELS.rssi: 255 = unknown (there is no receiver; overrides carry no signal strength)
+RSSI_UNKNOWN = 255
+RC_CHANNELS_COUNT = 18
+SERVO_OUTPUT_COUNT = 16
+
+
+def encode_rc_channels(tel: VehicleTelemetry, ctx: EncodeContext) -> mavlink2.MAVLink_message:
+    """RC_CHANNELS: the pilot's overrides (chancount = the channels with input, as ArduPilot's
+    count of received channels)."""
+    pwm = [clamp_int(v, 0, UINT16_MAX, 0) for v in tel.rc_channels_pwm][:RC_CHANNELS_COUNT]
+    pwm += [0] * (RC_CHANNELS_COUNT - len(pwm))
+    count = max((i + 1 for i, v in enumerate(pwm) if v > 0), default=0)
+    return mavlink2.MAVLink_rc_channels_message(_time_ms(tel), count, *pwm, RSSI_UNKNOWN)
+
+
+def encode_servo_output_raw(tel: VehicleTelemetry, ctx: EncodeContext) -> mavlink2.MAVLink_message:
+    """SERVO_OUTPUT_RAW port 0: the motors' PWM on servo1..4, the rest 0."""
+    pwm = [clamp_int(v, 0, UINT16_MAX, 0) for v in tel.servo_pwm][:SERVO_OUTPUT_COUNT]
+    pwm += [0] * (SERVO_OUTPUT_COUNT - len(pwm))
+    usec = clamp_int(tel.time_boot_ms * 1000, 0, 2 ** 32 - 1, 0)
+    return mavlink2.MAVLink_servo_output_raw_message(usec, 0, *pwm)
+
+
 def encode_autopilot_version(tel: VehicleTelemetry, ctx: EncodeContext
                              ) -> mavlink2.MAVLink_message:
     major, minor, patch = FIRMWARE_VERSION
@@ -494,6 +517,8 @@ ENCODERS: Mapping[int, Encoder] = {
     _M.MAVLINK_MSG_ID_GPS_GLOBAL_ORIGIN: encode_gps_global_origin,
     _M.MAVLINK_MSG_ID_POWER_STATUS: encode_power_status,
     _M.MAVLINK_MSG_ID_NAV_CONTROLLER_OUTPUT: encode_nav_controller_output,
+    _M.MAVLINK_MSG_ID_RC_CHANNELS: encode_rc_channels,
+    _M.MAVLINK_MSG_ID_SERVO_OUTPUT_RAW: encode_servo_output_raw,
 }
 
 STREAMABLE_MSG_IDS: frozenset[int] = frozenset(ENCODERS)

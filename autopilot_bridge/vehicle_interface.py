@@ -138,24 +138,72 @@ class SpeedType(IntEnum):
 
 
 class MissionCommand(IntEnum):
-    """MAV_CMD ids that can appear in a mission we accept (see ``autopilot_bridge.mission``)."""
+    """The MAV_CMD ids ArduPilot's AP_Mission stores (``AP_Mission::mavlink_int_to_mission_cmd``,
+    4.5); the mission protocol accepts exactly these (``autopilot_bridge.mission``), the flight
+    core executes some (``autopilot_bridge.auto_mission``) and skips the rest."""
 
     NAV_WAYPOINT = 16
+    NAV_LOITER_UNLIM = 17
+    NAV_LOITER_TURNS = 18
+    NAV_LOITER_TIME = 19
     NAV_RETURN_TO_LAUNCH = 20
     NAV_LAND = 21
     NAV_TAKEOFF = 22
+    NAV_CONTINUE_AND_CHANGE_ALT = 30
+    NAV_LOITER_TO_ALT = 31
+    NAV_SPLINE_WAYPOINT = 82
+    NAV_ALTITUDE_WAIT = 83
+    NAV_VTOL_TAKEOFF = 84
+    NAV_VTOL_LAND = 85
+    NAV_GUIDED_ENABLE = 92
+    NAV_DELAY = 93
+    NAV_PAYLOAD_PLACE = 94
+    CONDITION_DELAY = 112
+    CONDITION_DISTANCE = 114
     CONDITION_YAW = 115
+    DO_SET_MODE = 176
+    DO_JUMP = 177
     DO_CHANGE_SPEED = 178
+    DO_SET_HOME = 179
     DO_SET_RELAY = 181
     DO_REPEAT_RELAY = 182
     DO_SET_SERVO = 183
     DO_REPEAT_SERVO = 184
+    DO_LAND_START = 189
+    DO_GO_AROUND = 191
+    DO_SET_REVERSE = 194
+    DO_SET_ROI_LOCATION = 195
+    DO_SET_ROI_NONE = 197
     DO_SET_ROI = 201
     DO_DIGICAM_CONFIGURE = 202
     DO_DIGICAM_CONTROL = 203
     DO_MOUNT_CONTROL = 205
     DO_SET_CAM_TRIGG_DIST = 206
+    DO_FENCE_ENABLE = 207
+    DO_PARACHUTE = 208
+    DO_INVERTED_FLIGHT = 210
     DO_GRIPPER = 211
+    DO_AUTOTUNE_ENABLE = 212
+    NAV_SET_YAW_SPEED = 213
+    DO_SET_RESUME_REPEAT_DIST = 215
+    DO_SPRAYER = 216
+    DO_SEND_SCRIPT_MESSAGE = 217
+    DO_AUX_FUNCTION = 218
+    DO_GUIDED_LIMITS = 222
+    DO_ENGINE_CONTROL = 223
+    SET_CAMERA_ZOOM = 531
+    SET_CAMERA_FOCUS = 532
+    JUMP_TAG = 600
+    DO_JUMP_TAG = 601
+    DO_GIMBAL_MANAGER_PITCHYAW = 1000
+    IMAGE_START_CAPTURE = 2000
+    IMAGE_STOP_CAPTURE = 2001
+    VIDEO_START_CAPTURE = 2500
+    VIDEO_STOP_CAPTURE = 2501
+    DO_VTOL_TRANSITION = 3000
+    DO_WINCH = 42600
+    NAV_SCRIPT_TIME = 42702
+    NAV_ATTITUDE_TIME = 42703
 
 
 class PositionTargetTypeMask(IntFlag):
@@ -256,9 +304,15 @@ class MissionItem:
         return self.lon_e7 * 1e-7
 
     @property
+    def terrain_frame(self) -> bool:
+        """Altitude above terrain (MAV_FRAME_GLOBAL_TERRAIN_ALT(_INT))."""
+        return self.frame in (MavFrame.GLOBAL_TERRAIN_ALT, MavFrame.GLOBAL_TERRAIN_ALT_INT)
+
+    @property
     def alt_frame(self) -> AltFrame | None:
-        """Altitude reference of a location command, None for frames without one."""
-        if self.frame in (MavFrame.GLOBAL, MavFrame.GLOBAL_INT):
+        """Altitude reference of a location command, None for frames without one (and for the
+        terrain frames: there are no terrain data here, see ``terrain_frame``)."""
+        if self.frame in (MavFrame.GLOBAL, MavFrame.GLOBAL_INT, MavFrame.MISSION):
             return AltFrame.AMSL
         if self.frame in (MavFrame.GLOBAL_RELATIVE_ALT, MavFrame.GLOBAL_RELATIVE_ALT_INT):
             return AltFrame.RELATIVE_HOME
@@ -403,6 +457,10 @@ class VehicleTelemetry:
     wp_dist_m: float = 0.0
     alt_error_m: float = 0.0
     xtrack_error_m: float = 0.0
+    # RC_CHANNELS: the pilot's RC input (18 PWM values, 0 = none); SERVO_OUTPUT_RAW: motor outputs
+    # 1..4 in PWM (ArduPilot's motor order)
+    rc_channels_pwm: tuple[int, ...] = ()
+    servo_pwm: tuple[int, ...] = ()
 
 
 @dataclass(frozen=True)
@@ -462,8 +520,9 @@ class Vehicle(Protocol):
     def set_mode(self, mode: CopterMode) -> Outcome:
         """Change flight mode; only called with a mode in ``modes.SUPPORTED_MODES``."""
 
-    def takeoff(self, alt_m: float) -> Outcome:
-        """Take off to ``alt_m`` metres above home (GUIDED, armed, landed)."""
+    def takeoff(self, alt_m: float, must_navigate: bool = True) -> Outcome:
+        """Take off to ``alt_m`` metres above home (armed, landed; GUIDED, LOITER, POSHOLD, and
+        ALT_HOLD when not ``must_navigate``: NAV_TAKEOFF param3 != 0, as ArduCopter)."""
 
     def land(self) -> Outcome:
         """Land at the current position (ArduCopter switches to LAND)."""
@@ -485,6 +544,22 @@ class Vehicle(Protocol):
 
     def change_speed(self, speed_type: SpeedType, speed_m_s: float) -> Outcome:
         """MAV_CMD_DO_CHANGE_SPEED (speed > 0)."""
+
+    def condition_yaw(self, angle_deg: float, rate_deg_s: float, direction: int,
+                      relative: bool) -> Outcome:
+        """MAV_CMD_CONDITION_YAW: heading 0..360 deg (relative: an offset, ``direction`` -1 ccw)."""
+
+    def set_roi(self, lat_deg: float, lon_deg: float, alt_m: float, alt_frame: AltFrame) -> Outcome:
+        """MAV_CMD_DO_SET_ROI(_LOCATION) / DO_SET_ROI_NONE: face the location; lat = lon = 0 clears."""
+
+    def pause_continue(self, pause: bool) -> Outcome:
+        """MAV_CMD_DO_PAUSE_CONTINUE: stop and hold (``pause``) or continue."""
+
+    def rc_channels_override(self, channels: tuple[int, ...]) -> None:
+        """RC_CHANNELS_OVERRIDE chan1_raw..chan18_raw from SYSID_MYGCS (raw, as sent)."""
+
+    def manual_control(self, x: float, y: float, z: float, r: float) -> None:
+        """MANUAL_CONTROL from SYSID_MYGCS: pitch, roll, throttle, yaw (-1000..1000; z 0..1000)."""
 
     def set_position_target_local_ned(self, target: LocalPositionTarget) -> None:
         """GUIDED setpoint; only called in GUIDED mode with a valid target."""

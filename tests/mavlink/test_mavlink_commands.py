@@ -79,7 +79,8 @@ def test_enums_match_mavlink():
     assert isinstance(FakeVehicle(), Vehicle)   # the fake implements the whole protocol
     assert mode_from_name("guided") == CopterMode.GUIDED
     assert {m.name for m in SUPPORTED_MODES} == {"STABILIZE", "ALT_HOLD", "GUIDED", "AUTO",
-                                                 "LOITER", "RTL", "LAND", "POSHOLD", "BRAKE"}
+                                                 "LOITER", "RTL", "LAND", "POSHOLD", "BRAKE",
+                                                 "CIRCLE", "SMART_RTL"}
 
 
 # ----------------------------------------------------------------------------- arming & modes

@@ -490,7 +490,7 @@ def test_gcs_parameters_are_documented_as_changing_nothing():
 
     from support import REPO_ROOT
 
-    from autopilot_bridge.gcs_param_specs import GCS_PARAM_SPECS
+    from autopilot_bridge.gcs_param_specs import GCS_PARAM_SPECS, PILOT_INPUT_PARAM_NAMES
     doc = (REPO_ROOT / "docs" / "mavlink.md").read_text()
     section = doc[doc.index("### Parameters QGC's setup pages read"):doc.index("## Failsafes")]
     names: set[str] = set()
@@ -504,7 +504,8 @@ def test_gcs_parameters_are_documented_as_changing_nothing():
             else:
                 names.add(t)
     for spec in GCS_PARAM_SPECS:
-        assert "changes nothing" in spec.description, spec.name
+        assert ("changes nothing" in spec.description) != (spec.name in PILOT_INPUT_PARAM_NAMES), \
+            spec.name
         assert spec.name in names, spec.name
 
 
@@ -561,18 +562,18 @@ def test_new_telemetry_and_unknown_message_interval_answered_as_ardupilot():
 # ----------------------------------------------------------------------------- item 3: modes
 
 
-def test_brake_and_poshold_accepted_circle_refused_with_the_arducopter_text():
+def test_brake_poshold_circle_smart_rtl_accepted_drift_refused_with_the_arducopter_text():
     with running_server() as (server, vehicle):
         conn = gcs_connection(server.tcp_port)
         try:
             custom = M.MAV_MODE_FLAG_CUSTOM_MODE_ENABLED
-            for mode in (17, 16):                        # BRAKE (QGC's Pause), POSHOLD
+            for mode in (17, 16, 7, 21):       # BRAKE (QGC's Pause), POSHOLD, CIRCLE, SMART_RTL
                 assert _command(conn, M.MAV_CMD_DO_SET_MODE, custom, mode) == \
                     M.MAV_RESULT_ACCEPTED
                 hb = wait_for(conn, "HEARTBEAT", condition=lambda m, n=mode: m.custom_mode == n)
                 assert hb is not None and hb.base_mode & M.MAV_MODE_FLAG_GUIDED_ENABLED
-            assert _command(conn, M.MAV_CMD_DO_SET_MODE, custom, 7) == M.MAV_RESULT_FAILED
-            text = wait_for(conn, "STATUSTEXT", condition=lambda m: "CIRCLE" in m.text)
-            assert text is not None and text.text == "Flight mode change failed: CIRCLE not supported"
+            assert _command(conn, M.MAV_CMD_DO_SET_MODE, custom, 11) == M.MAV_RESULT_FAILED
+            text = wait_for(conn, "STATUSTEXT", condition=lambda m: "DRIFT" in m.text)
+            assert text is not None and text.text == "Flight mode change failed: DRIFT not supported"
         finally:
             conn.close()

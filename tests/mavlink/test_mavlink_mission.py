@@ -135,9 +135,9 @@ def test_bad_uploads_get_mission_ack_errors():
                 (item_int(1, alt=math.nan), MissionResult.INVALID_PARAM7),
                 (item_int(1, params=(math.nan, 0, 0, 0)), MissionResult.INVALID_PARAM1),
                 (item_int(1, params=(0, math.inf, 0, 0)), MissionResult.INVALID_PARAM2),
-                (item_int(1, command=M.MAV_CMD_DO_JUMP), MissionResult.UNSUPPORTED),
-                (item_int(1, frame=M.MAV_FRAME_GLOBAL_TERRAIN_ALT),
-                 MissionResult.UNSUPPORTED_FRAME),
+                # AP_Mission stores no MAV_CMD_USER_1, nor a waypoint in a local frame
+                (item_int(1, command=M.MAV_CMD_USER_1), MissionResult.UNSUPPORTED),
+                (item_int(1, frame=M.MAV_FRAME_LOCAL_NED), MissionResult.UNSUPPORTED_FRAME),
             ]
             for bad, expected in cases:
                 items = four_waypoints()

@@ -202,5 +202,6 @@ def test_param_set_for_another_system_is_ignored():
 
 def test_every_parameter_is_documented():
     doc = (REPO_ROOT / "docs" / "mavlink.md").read_text()
-    for spec in DEFAULT_PARAM_SPECS:
+    from autopilot_bridge.mode_param_specs import MODE_PARAM_SPECS
+    for spec in DEFAULT_PARAM_SPECS + MODE_PARAM_SPECS:
         assert f"| `{spec.name}` | {spec.ptype.name} |" in doc, spec.name

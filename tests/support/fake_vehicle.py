@@ -49,7 +49,8 @@ HOME = (47.397742, 8.545594, 488.0)  # lat, lon, alt AMSL (PX4/ArduPilot SITL de
 MOVING_CALLS = frozenset({"arm", "disarm", "set_mode", "takeoff", "land", "return_to_launch",
                           "start_mission", "set_current_mission_item", "reposition",
                           "change_speed", "set_position_target_local_ned",
-                          "set_position_target_global_int"})
+                          "set_position_target_global_int", "condition_yaw", "set_roi",
+                          "pause_continue", "rc_channels_override", "manual_control"})
 
 
 class FakeVehicle:
@@ -134,9 +135,12 @@ class FakeVehicle:
             self._set_mode(mode)
             return Outcome(True)
 
-    def takeoff(self, alt_m: float) -> Outcome:
+    def takeoff(self, alt_m: float, must_navigate: bool = True) -> Outcome:
         with self._lock:
-            self._record("takeoff", alt_m)
+            if must_navigate:
+                self._record("takeoff", alt_m)
+            else:                                   # NAV_TAKEOFF param3 != 0
+                self._record("takeoff", alt_m, must_navigate)
             if not self.armed:
                 return Outcome(False, "Takeoff: motors not armed")
             if self.mode != CopterMode.GUIDED:
@@ -181,6 +185,32 @@ class FakeVehicle:
     def change_speed(self, speed_type: SpeedType, speed_m_s: float) -> Outcome:
         with self._lock:
             self._record("change_speed", speed_type, speed_m_s)
+            return Outcome(True)
+
+    def condition_yaw(self, angle_deg: float, rate_deg_s: float, direction: int,
+                      relative: bool) -> Outcome:
+        with self._lock:
+            self._record("condition_yaw", angle_deg, rate_deg_s, direction, relative)
+            return Outcome(True)
+
+    def set_roi(self, lat_deg: float, lon_deg: float, alt_m: float, alt_frame: AltFrame) -> Outcome:
+        with self._lock:
+            self._record("set_roi", lat_deg, lon_deg, alt_m, alt_frame)
+            return Outcome(True)
+
+    def rc_channels_override(self, channels: tuple[int, ...]) -> None:
+        with self._lock:
+            self._record("rc_channels_override", channels)
+
+    def manual_control(self, x: float, y: float, z: float, r: float) -> None:
+        with self._lock:
+            self._record("manual_control", x, y, z, r)
+
+    def pause_continue(self, pause: bool) -> Outcome:
+        with self._lock:
+            self._record("pause_continue", pause)
+            if self.mode not in (CopterMode.GUIDED, CopterMode.AUTO):
+                return Outcome(False, "Failed to pause" if pause else "Failed to resume")
             return Outcome(True)
 
     def set_position_target_local_ned(self, target: LocalPositionTarget) -> None:

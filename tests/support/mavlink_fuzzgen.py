@@ -23,10 +23,13 @@ STATE_CHANGING_COMMANDS = frozenset({
     M.MAV_CMD_COMPONENT_ARM_DISARM, M.MAV_CMD_NAV_TAKEOFF, M.MAV_CMD_NAV_LAND,
     M.MAV_CMD_NAV_RETURN_TO_LAUNCH, M.MAV_CMD_NAV_LOITER_UNLIM, M.MAV_CMD_DO_SET_MODE,
     M.MAV_CMD_MISSION_START, M.MAV_CMD_DO_SET_MISSION_CURRENT, M.MAV_CMD_DO_REPOSITION,
-    M.MAV_CMD_DO_CHANGE_SPEED,
+    M.MAV_CMD_DO_CHANGE_SPEED, M.MAV_CMD_CONDITION_YAW, M.MAV_CMD_DO_SET_ROI_LOCATION,
+    M.MAV_CMD_DO_SET_ROI, M.MAV_CMD_DO_SET_ROI_NONE, M.MAV_CMD_DO_PAUSE_CONTINUE,
 })
-# what the server-only fuzz leaves out (the fake vehicle records mission changes separately)
-EXCLUDED_TYPES = frozenset({"SET_MODE", "MISSION_SET_CURRENT"})
+# what the server-only fuzz leaves out (the fake vehicle records mission changes separately);
+# RC overrides and MANUAL_CONTROL are the pilot's sticks: deliberate input that flies the vehicle
+EXCLUDED_TYPES = frozenset({"SET_MODE", "MISSION_SET_CURRENT", "RC_CHANNELS_OVERRIDE",
+                            "MANUAL_CONTROL"})
 # in flight, mission uploads and clears are deliberate ground-station actions too
 FLIGHT_EXCLUDED_TYPES = EXCLUDED_TYPES | frozenset({
     "MISSION_COUNT", "MISSION_CLEAR_ALL", "MISSION_WRITE_PARTIAL_LIST"})
