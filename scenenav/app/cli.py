@@ -20,7 +20,9 @@ log = logging.getLogger("scenenav")
 
 def _run(args: argparse.Namespace) -> int:
     from scenenav.app.launcher import run
-    summary = run(args.scenario, args.out, tuple(args.set or ()), progress=not args.quiet)
+    summary = run(args.scenario, args.out, tuple(args.set or ()), progress=not args.quiet,
+                  external=tuple(args.external or ()),
+                  announce=lambda text: print(text, file=sys.stderr, flush=True))
     from scenenav.app.evaluation import format_summary
     print(format_summary(summary))
     print(f"run folder: {args.out}")
@@ -135,6 +137,10 @@ def build_parser(domain_commands: bool = True) -> argparse.ArgumentParser:
     r.add_argument("--out", required=True, metavar="RUN_DIR", help="run folder to create (must be new or empty)")
     r.add_argument("--set", action="append", metavar="KEY=VALUE",
                    help="override a scenario key, e.g. --set duration_s=30 --set perception.method=statistical")
+    r.add_argument("--external", action="append", metavar="ROLE:ID",
+                   help="a node you start yourself (repeatable), e.g. perception:my_matcher: the built-in "
+                        "node of that role is not started and the clock waits for yours (external.nodes, "
+                        "external.join_timeout_s; it joins with RUN_DIR/run.json, see docs/interfaces.md)")
     r.add_argument("--quiet", action="store_true", help="no progress bar")
     r.set_defaults(func=_run)
 
