@@ -78,17 +78,18 @@ MAP_MARGIN_M = 200.0
 
 def malformed_frames() -> list[tuple[str, bytes]]:
     """Payloads on ``sensors/camera`` that are not CameraFrames (docs/interfaces.md, section 3)."""
-    good_header = json.dumps({"type": "CameraFrame", "version": 1, "timestamp_us": 0, "seq": 0,
-                              "width_px": 4, "height_px": 4, "encoding": "rgb8", "fov_deg": 60.0,
-                              "mount": "gimbal"}).encode()
+    def frame(header: dict, n_pixel_bytes: int) -> bytes:
+        h = json.dumps({"type": "CameraFrame", "version": 1, "timestamp_us": 0, "seq": 0, "width_px": 4,
+                        "height_px": 4, "encoding": "rgb8", "fov_deg": 60.0, "mount": "gimbal",
+                        **header}).encode()
+        return len(h).to_bytes(4, "little") + h + bytes(n_pixel_bytes)
     return [
         ("truncated length", b"\x05\x00"),
         ("header length beyond the payload", (1000).to_bytes(4, "little") + b"{}"),
         ("header not JSON", (9).to_bytes(4, "little") + b"not json!" + bytes(48)),
-        ("wrong version", len(good_header).to_bytes(4, "little")
-         + good_header.replace(b'"version": 1', b'"version": 99') + bytes(48)),
-        ("pixel bytes do not match the size", len(good_header).to_bytes(4, "little") + good_header
-         + bytes(47)),
+        ("unknown version", frame({"version": 99}, 48)),
+        ("seq not an integer", frame({"seq": None}, 48)),
+        ("pixel bytes do not match the size", frame({}, 47)),
     ]
 
 
