@@ -210,8 +210,8 @@ def build_parser(domain_commands: bool = True) -> argparse.ArgumentParser:
     nc.add_argument("--node-id", default="node_under_check", help="node id your node must use (default "
                                                                   "node_under_check; run.json lists it)")
     nc.add_argument("--duration-s", type=float, default=10.0, help="simulated seconds of the run (default 10)")
-    nc.add_argument("--ack-timeout-s", type=float, default=5.0,
-                    help="wall seconds within which every frame must be acknowledged (default 5)")
+    nc.add_argument("--ack-timeout-s", type=float, default=10.0,
+                    help="wall seconds within which every frame must be acknowledged (default 10)")
     nc.add_argument("--scenario", help="scenario YAML to fly (default: the scripted flight over the default world)")
     nc.add_argument("--set", action="append", metavar="KEY=VALUE", help="override a scenario key")
     nc.add_argument("--out", metavar="DIR", help="folder for the run, the logs and check.json (default: a "

@@ -366,7 +366,7 @@ class CheckOptions:
     command: tuple[str, ...]
     node_id: str = "node_under_check"
     duration_s: float = 10.0
-    ack_timeout_s: float = 5.0
+    ack_timeout_s: float = 10.0
     scenario: str | None = None
     overrides: tuple[str, ...] = ()
     out: str | None = None
@@ -398,6 +398,8 @@ def run_check(opts: CheckOptions, say: Callable[[str], None] = lambda _t: None) 
     overrides = ("clock.mode=lockstep", f"duration_s={opts.duration_s}",
                  f"external.join_timeout_s={JOIN_TIMEOUT_S}",
                  f"clock.member_timeout_s={opts.ack_timeout_s}", "perception.lockstep=true",
+                 # the autopilot waits for a fix less long than the simulator for the autopilot
+                 f"autopilot.vision_wait_s={opts.ack_timeout_s / 2}",
                  "recorder.camera_every_n=0", "autopilot.mavlink_tcp_port=0",
                  "autopilot.mavlink_udp_out=none", *opts.overrides)
     load_scenario(opts.scenario, overrides, (f"{opts.role}:{opts.node_id}",))   # bad keys: one line now
