@@ -53,7 +53,7 @@ def wait_for_run_json(run_dir: Path, timeout_s: float = 300.0) -> dict:
             return json.loads(path.read_text())
         except (OSError, ValueError):
             if time.monotonic() > deadline:
-                raise SystemExit(f"{path}: not there after {timeout_s:.0f} s (is the run started?)")
+                raise SystemExit(f"{path}: not there after {timeout_s:.0f} s (is the run started?)") from None
             time.sleep(0.1)
 
 
