@@ -121,8 +121,6 @@ def run_sim(run_dir: Path, bus_cfg: BusConfig, expect: tuple[str, ...]) -> int:
     except HubPortTaken as exc:
         log.error("%s; the launcher starts the run again on another port", exc)
         return EXIT_HUB_PORT_TAKEN
-    # the hub listens: say so (the launcher waits for this file before it trusts the port)
-    write_stats(run_dir / HUB_FILE, {"hub_port": bus_cfg.hub_port})
     stop = stop_event()
     threading.Thread(target=lambda: (stop.wait(), node.stop()), daemon=True).start()
     if "recorder" in expect:
@@ -131,6 +129,10 @@ def run_sim(run_dir: Path, bus_cfg: BusConfig, expect: tuple[str, ...]) -> int:
                                   lambda _k, alive: node_ready.set() if alive else None)
         if not node_ready.wait(cfg.clock.startup_timeout_s):
             log.warning("recorder did not come up; running without it")
+    # the hub listens (and the recorder records): say so. The launcher waits for this file before
+    # it writes run.json, so an outside node that joins from run.json never talks before the
+    # recorder listens (its NodeInfo is recorded).
+    write_stats(run_dir / HUB_FILE, {"hub_port": bus_cfg.hub_port})
     if not wait_external_nodes(node, cfg, run_dir, stop):
         node.close()
         return 0 if stop.is_set() else EXIT_EXTERNAL_MISSING
