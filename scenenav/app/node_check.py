@@ -289,8 +289,12 @@ def judge(seen: Observed, keys: Keys, role: str, node_id: str, ack_timeout_s: fl
                                                   "no malformed frame was sent"))
     else:
         later = [s for s in acks if s > seen.last_seq_before_inject and acks[s] > seen.injected_at]
-        down = [t for t, key, alive in seen.tokens if key == node_key and not alive
-                and t > seen.injected_at and (seen.finished_at is None or t < seen.finished_at)]
+        # gone for good: the token went away after the malformed frames and was not back before the
+        # run's end (a token that blinks is Zenoh's link, e.g. a lease on a loaded machine, not the node)
+        end = seen.finished_at if seen.finished_at is not None else math.inf
+        changes = sorted((t, alive) for t, key, alive in seen.tokens
+                         if key == node_key and seen.injected_at < t < end)
+        down = bool(changes) and not changes[-1][1]
         problems = []
         if node_alive_after_inject is False:
             problems.append("the process exited after the malformed frames")

@@ -115,6 +115,11 @@ def test_the_autopilot_flies_on_the_external_nodes_fixes(flights):
     assert NODE_ID in {str(v) for v in est["vision_node_id"]}
     assert summary["rms_error_m"] is not None and summary["rms_error_m"] < 5.0, summary
     assert summary["max_error_m"] < 15.0, summary
+    # its NodeInfo was recorded: run.json appears only once the recorder listens
+    from mcap.reader import make_reader
+    with (run / "bus.mcap").open("rb") as f:
+        topics = {ch.topic for ch in make_reader(f).get_summary().channels.values()}
+    assert any(t.endswith(f"/info/{NODE_ID}") for t in topics), sorted(topics)
 
 
 def test_run_json_tells_an_outside_node_everything(flights):

@@ -88,6 +88,12 @@ def test_malformed_and_leaving():
     seen = _good()
     verdict = _judge(seen, alive=False)
     assert "exited after the malformed frames" in verdict["malformed"]
+    node_key = KEYS.node_alive("perception", NODE)
+    blink = _good()
+    blink.tokens += [(12.0, node_key, False), (12.5, node_key, True)]
+    assert _judge(blink)["malformed"] is None                  # back before the end: Zenoh's link
+    blink.tokens = blink.tokens[:-1]
+    assert "token went away" in _judge(blink)["malformed"]
     seen.acks = [a for a in seen.acks if a[1].seq <= 10]
     assert "0 frames answered after" in _judge(seen)["malformed"]
     assert "still running" in _judge(_good(), code=None, left=None)["leaves"]
