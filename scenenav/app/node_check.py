@@ -6,7 +6,7 @@ and ``{node_id}`` in COMMAND are replaced; the environment has ``SCENENAV_RUN_DI
 ``SCENENAV_NODE_ID``), watches the bus with its own Zenoh session, sends the node malformed camera
 frames part-way, and judges each rule of docs/interfaces.md ("Conformance") with a reason:
 
-* ``liveliness``: ``nodes/<role>/<id>`` and ``lockstep/member/camera/<id>`` declared before the first frame;
+* ``liveliness``: ``nodes/<role>/<id>`` and ``lockstep/member/camera/<id>`` declared, the clock started with them;
 * ``acks``: a LockstepAck (role camera, the frame's seq) for every frame within ``--ack-timeout-s``;
 * ``fixes``: a VisionFix for every frame (valid or not), published before the frame's ack;
 * ``encoding``: every message on the node's keys decodes with the real codec (type, version, fields);
@@ -66,6 +66,8 @@ LEAVE_TIMEOUT_S = 10.0
 LEAVE_EARLY_TOL_S = 0.5
 #: Wall seconds to wait for run.json (the run's hub) after the launcher started.
 RUN_JSON_TIMEOUT_S = 240.0
+#: What the simulator logs when a lockstep member it expected was not there when its clock started.
+SIM_MEMBERS_LATE = "not every expected node joined"
 #: Wall seconds the check run waits for the node to declare its token.
 JOIN_TIMEOUT_S = 60.0
 #: Frames the node must answer after the malformed ones to pass ``malformed``.
@@ -188,23 +190,41 @@ def _first(items: list, n: int = 3) -> str:
     return ", ".join(str(i) for i in items[:n]) + (" ..." if len(items) > n else "")
 
 
+@dataclass(frozen=True)
+class RunSide:
+    """What the run itself saw of the node (its simulator's files): did the clock start with it?"""
+
+    joined_before_clock: bool = True     # external.json: the simulator saw nodes/<role>/<id> first
+    member_at_start: bool = True         # no "not every expected node joined" from the simulator
+
+
 def judge(seen: Observed, keys: Keys, role: str, node_id: str, ack_timeout_s: float,
           map_half_extent_m: tuple[float, float], node_alive_after_inject: bool | None,
-          exit_code: int | None, left_after_s: float | None) -> list[RuleResult]:
-    """Every rule of the perception profile from what was observed (pure: unit-testable)."""
+          exit_code: int | None, left_after_s: float | None, run: RunSide = RunSide()) -> list[RuleResult]:
+    """Every rule of the perception profile from what was observed (pure: unit-testable).
+
+    Liveliness is judged from the run's side (the simulator waited for the tokens before its
+    clock started): the check's own session may see a token after the first frame, since tokens
+    and samples from different peers reach it by different paths."""
     out: list[RuleResult] = []
     frames = seen.frames
-    first_frame = min((t for t, _ in frames.values()), default=math.inf)
     node_key = keys.node_alive(role, node_id)
     member_key = keys.lockstep_member(LockstepRole.CAMERA, node_id)
-    up = {k: min((t for t, key, alive in seen.tokens if key == k and alive), default=None)
-          for k in (node_key, member_key)}
-    late = [k for k, t in up.items() if t is None or t > first_frame]
-    out.append(RuleResult("liveliness", not late and bool(frames),
-                          "no camera frame was published" if not frames else
-                          f"not declared before the first frame: {', '.join(late)}" if late else
-                          f"{node_key.split('/', 2)[2]} and {member_key.split('/', 2)[2]} declared "
-                          "before the first frame"))
+    short = {k: k.split("/", 2)[2] for k in (node_key, member_key)}
+    never = [short[k] for k in (node_key, member_key)
+             if not any(key == k and alive for _, key, alive in seen.tokens)]
+    problems = []
+    if not frames:
+        problems.append("no camera frame was published")
+    if never:
+        problems.append(f"never declared: {', '.join(never)}")
+    if not run.joined_before_clock:
+        problems.append(f"the run's clock did not start with {short[node_key]} (not declared in time)")
+    if not run.member_at_start:
+        problems.append(f"the simulator started without {short[member_key]} (declare it before "
+                        f"{short[node_key]})")
+    out.append(RuleResult("liveliness", not problems, "; ".join(problems) or
+                          f"{short[node_key]} and {short[member_key]} declared; the clock started with them"))
 
     acks: dict[int, float] = {}
     wrong_role = []
@@ -444,13 +464,27 @@ def run_check(opts: CheckOptions, say: Callable[[str], None] = lambda _t: None) 
                     _interrupt(proc)
     half = (meta["m_per_px"] * _map_size(meta)[0] / 2.0, meta["m_per_px"] * _map_size(meta)[1] / 2.0)
     rules = judge(seen, keys, opts.role, opts.node_id, opts.ack_timeout_s, half, alive_after_inject,
-                  exit_code, left_after)
+                  exit_code, left_after, run_side(run_dir, f"{opts.role}:{opts.node_id}"))
     report = {"role": opts.role, "node_id": opts.node_id, "command": list(opts.command),
               "passed": all(r.passed for r in rules), "rules": [r.to_dict() for r in rules],
               "frames": len(seen.frames), "fixes": len(seen.fixes), "acks": len(seen.acks),
               "check_dir": str(out), "run_dir": str(run_dir), "node_log": str(out / "node.log")}
     (out / "check.json").write_text(json.dumps(report, indent=2))
     return report
+
+
+def run_side(run_dir: Path, spec: str) -> RunSide:
+    """RunSide from the run folder: external.json and the simulator's log."""
+    from scenenav.app.nodes import EXTERNAL_FILE
+    try:
+        joined = spec in (json.loads((run_dir / EXTERNAL_FILE).read_text()).get("joined") or [])
+    except (OSError, ValueError, AttributeError):
+        joined = False
+    try:
+        sim_log = (run_dir / "logs" / "sim.log").read_text(errors="replace")
+    except OSError:
+        sim_log = ""
+    return RunSide(joined_before_clock=joined, member_at_start=SIM_MEMBERS_LATE not in sim_log)
 
 
 def _map_size(meta: dict) -> tuple[int, int]:

@@ -6,7 +6,7 @@ import math
 
 import pytest
 
-from scenenav.app.node_check import RULES, Observed, judge, malformed_frames
+from scenenav.app.node_check import RULES, Observed, RunSide, judge, malformed_frames
 from scenenav.app.scenario import load_scenario
 from scenenav.core.contracts import CameraFrame, DecodeError, LockstepAck, LockstepRole, VisionFix, decode
 from scenenav.core.errors import UserError
@@ -71,11 +71,19 @@ def test_missing_fix_late_ack_and_late_token():
     seen = _good()
     del seen.fixes[4]
     seen.acks[2] = (seen.frames[2][0] + 3.0, seen.acks[2][1])   # 3 s > the 2 s timeout
-    seen.tokens[0] = (1.5, seen.tokens[0][1], True)             # node token after the first frame
+    del seen.tokens[1]                                          # no lockstep member token
     verdict = _judge(seen)
     assert "without a VisionFix (seq 4)" in verdict["fixes"]
     assert "later than 2 s (seq 2)" in verdict["acks"]
-    assert "not declared before the first frame" in verdict["liveliness"]
+    assert "never declared: lockstep/member/camera/n1" in verdict["liveliness"]
+
+
+def test_liveliness_is_judged_from_the_runs_side():
+    late = judge(_good(), KEYS, "perception", NODE, 2.0, HALF_M, True, 0, 0.3,
+                 RunSide(joined_before_clock=False, member_at_start=False))
+    detail = {r.rule: r.detail for r in late if not r.passed}
+    assert set(detail) == {"liveliness"}
+    assert "clock did not start with" in detail["liveliness"] and "started without" in detail["liveliness"]
 
 
 def test_fix_after_its_ack_fails_fixes():
