@@ -24,6 +24,7 @@ def _run(args: argparse.Namespace) -> int:
     from scenenav.app.launcher import run
     summary = run(args.scenario, args.out, tuple(args.set or ()), progress=not args.quiet,
                   live_port=args.live_port if args.live else None,
+                  external=tuple(args.external or ()),
                   announce=lambda text: print(text, file=sys.stderr, flush=True))
     from scenenav.app.evaluation import format_summary, plain_summary
     print(format_summary(summary))
@@ -66,6 +67,20 @@ def _node(args: argparse.Namespace) -> int:
             raise UserError("node guidance: --run-dir is required (the run's scenario.yaml names the goals)")
         return nodes.run_guidance(run_dir, bus)
     raise UserError(f"unknown node kind {args.kind!r}")
+
+
+def _node_check(args: argparse.Namespace) -> int:
+    from scenenav.app.node_check import CheckOptions, format_report, run_check
+    command = list(args.command or ())
+    opts = CheckOptions(role=args.role, command=tuple(command), node_id=args.node_id,
+                        duration_s=args.duration_s, ack_timeout_s=args.ack_timeout_s,
+                        scenario=args.scenario, overrides=tuple(args.set or ()), out=args.out)
+    report = run_check(opts, say=lambda text: print(text, file=sys.stderr, flush=True))
+    if args.json:
+        emit_json(report)
+    else:
+        print(format_report(report), end="")
+    return 0 if report["passed"] else 1
 
 
 def _bench(args: argparse.Namespace) -> int:
@@ -156,6 +171,10 @@ def build_parser(domain_commands: bool = True) -> argparse.ArgumentParser:
     r.add_argument("--out", required=True, metavar="RUN_DIR", help="run folder to create (must be new or empty)")
     r.add_argument("--set", action="append", metavar="KEY=VALUE",
                    help="override a scenario key, e.g. --set duration_s=30 --set perception.method=statistical")
+    r.add_argument("--external", action="append", metavar="ROLE:ID",
+                   help="a node you start yourself (repeatable), e.g. perception:my_matcher: the built-in "
+                        "node of that role is not started and the clock waits for yours (external.nodes, "
+                        "external.join_timeout_s; it joins with RUN_DIR/run.json, see docs/interfaces.md)")
     r.add_argument("--quiet", action="store_true", help="no progress bar")
     _live_args(r)
     r.set_defaults(func=_run)
@@ -169,24 +188,60 @@ def build_parser(domain_commands: bool = True) -> argparse.ArgumentParser:
     sm.add_argument("run_dir", metavar="RUN_DIR", help="run folder (holds scenario.yaml)")
     sm.set_defaults(func=_summarize)
 
-    n = sub.add_parser("node", help="run one node of a run (the launcher uses this)",
+    n = sub.add_parser("node", help="run one node of a run (the launcher uses this), or check yours",
                        description="Run a single bus node. Normally started by `scenenav run` or "
                                    "`scenenav sitl`; start one by hand to swap a node in a live run "
-                                   "(same --namespace and --hub-port as the run, see its run.json).")
-    n.add_argument("kind", choices=["sim", "recorder", "perception", "autopilot", "guidance", "live"])
-    n.add_argument("--namespace", required=True, help="key namespace of the run (run.json: namespace)")
-    n.add_argument("--hub-port", required=True, type=int, help="the simulator's Zenoh port (run.json: hub_port)")
-    n.add_argument("--run-dir", help="run folder (reads scenario.yaml from it)")
-    n.add_argument("--expect", help="sim only: comma list of nodes to wait for (recorder,tick,camera)")
-    n.add_argument("--method", choices=["cnn", "assistant-map", "statistical", "none"],
-                   help="perception only: false-match method (default: the scenario's)")
-    n.add_argument("--node-id", default="perception", help="perception only: node id on the bus")
-    n.add_argument("--world", help="perception only: world folder (default: the scenario's)")
-    n.add_argument("--assistant-map", help="perception only: assistant map .npz")
-    n.add_argument("--lockstep", choices=["on", "off"], help="perception only: answer each frame in lockstep")
-    n.add_argument("--live-port", type=port_number, default=DEFAULT_LIVE_PORT,
-                   help=f"live only: WebSocket port (default {DEFAULT_LIVE_PORT}; 0: any free port)")
-    n.set_defaults(func=_node)
+                                   "(same --namespace and --hub-port as the run, see its run.json). "
+                                   "`scenenav node check perception -- COMMAND...` checks a node you "
+                                   "wrote against the bus contract.")
+    nsub = n.add_subparsers(dest="kind", metavar="KIND")
+    nsub.required = True
+    bus_args = argparse.ArgumentParser(add_help=False)
+    bus_args.add_argument("--namespace", required=True, help="key namespace of the run (run.json: namespace)")
+    bus_args.add_argument("--hub-port", required=True, type=int,
+                          help="the simulator's Zenoh port (run.json: hub_port)")
+    bus_args.add_argument("--run-dir", help="run folder (reads scenario.yaml from it)")
+    kinds = {"sim": "the simulator (the run's hub and clock)", "recorder": "the recorder (CSV, bus.mcap)",
+             "perception": "a perception node (scene-matching fixes)", "autopilot": "the MAVLink autopilot",
+             "guidance": "the guidance node (plans and uploads the mission)",
+             "live": "the live view (Foxglove WebSocket server)"}
+    node_parsers = {kind: nsub.add_parser(kind, parents=[bus_args], help=text, description=f"Run {text}.")
+                    for kind, text in kinds.items()}
+    node_parsers["sim"].add_argument("--expect", help="comma list of nodes to wait for (recorder,tick,camera)")
+    pn = node_parsers["perception"]
+    pn.add_argument("--method", choices=["cnn", "assistant-map", "statistical", "none"],
+                    help="false-match method (default: the scenario's)")
+    pn.add_argument("--node-id", default="perception", help="node id on the bus")
+    pn.add_argument("--world", help="world folder (default: the scenario's)")
+    pn.add_argument("--assistant-map", help="assistant map .npz")
+    pn.add_argument("--lockstep", choices=["on", "off"], help="answer each frame in lockstep")
+    node_parsers["live"].add_argument("--live-port", type=port_number, default=DEFAULT_LIVE_PORT,
+                                      help=f"WebSocket port (default {DEFAULT_LIVE_PORT}; 0: any free port)")
+    for np_ in node_parsers.values():
+        np_.set_defaults(func=_node)
+    nc = nsub.add_parser(
+        "check", help="conformance check of a node you wrote (flies a short lockstep run)",
+        description="Fly a short lockstep run that waits for your node (scenenav run --external "
+                    "ROLE:ID), start COMMAND once RUN_DIR/run.json exists ({run_dir} and {node_id} in "
+                    "COMMAND are replaced; the environment has SCENENAV_RUN_DIR and SCENENAV_NODE_ID), "
+                    "send it malformed camera frames part-way, and report pass/fail per rule of "
+                    "docs/interfaces.md (section 9): liveliness, acks, fixes, encoding, timestamps, "
+                    "fields, covariance, malformed, leaves. Exit code 0 only if every rule passes.",
+        usage="scenenav node check ROLE [options] -- COMMAND...",
+        epilog="example: scenenav node check perception -- python "
+               "examples/perception_node_python/node.py {run_dir}")
+    nc.add_argument("role", choices=["perception"], help="the role your node takes")
+    nc.add_argument("--node-id", default="node_under_check", help="node id your node must use (default "
+                                                                  "node_under_check; run.json lists it)")
+    nc.add_argument("--duration-s", type=float, default=10.0, help="simulated seconds of the run (default 10)")
+    nc.add_argument("--ack-timeout-s", type=float, default=10.0,
+                    help="wall seconds within which every frame must be acknowledged (default 10)")
+    nc.add_argument("--scenario", help="scenario YAML to fly (default: the scripted flight over the default world)")
+    nc.add_argument("--set", action="append", metavar="KEY=VALUE", help="override a scenario key")
+    nc.add_argument("--out", metavar="DIR", help="folder for the run, the logs and check.json (default: a "
+                                                 "new temporary folder, kept)")
+    nc.add_argument("--json", action="store_true", help="print only the JSON report on stdout")
+    nc.set_defaults(func=_node_check, command=())
 
     e = sub.add_parser("experiment", help="the paper's experiments, reproduced",
                        description="Experiments that regenerate the paper's results from flights.")
@@ -361,10 +416,26 @@ def _command_of(argv: list[str]) -> str | None:
     return None
 
 
+def split_node_command(argv: list[str]) -> tuple[list[str], tuple[str, ...] | None]:
+    """``scenenav node check ... -- COMMAND...``: the arguments before ``--`` and COMMAND (None
+    for every other command line); COMMAND is never parsed as options of ours."""
+    try:
+        i = argv.index("node")
+    except ValueError:
+        return argv, None
+    if argv[i + 1:i + 2] != ["check"] or "--" not in argv[i:]:
+        return argv, None
+    j = argv.index("--", i)
+    return argv[:j], tuple(argv[j + 1:])
+
+
 def main(argv: list[str] | None = None) -> int:
-    argv = glue_negative_values(list(sys.argv[1:] if argv is None else argv))
+    argv, node_command = split_node_command(list(sys.argv[1:] if argv is None else argv))
+    argv = glue_negative_values(argv)
     parser = build_parser(domain_commands=_command_of(argv) not in _OWN_COMMANDS)
     args = parser.parse_args(argv)
+    if node_command is not None:
+        args.command = node_command
     logging.basicConfig(level=getattr(logging, args.log_level),
                         format="%(asctime)s %(levelname)s %(name)s: %(message)s")
     return run_json_aware(args)

@@ -27,22 +27,22 @@ import subprocess
 import sys
 import time
 import uuid
+from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Callable
 
 import yaml
 
 from scenenav.app.evaluation import NodeFailure, last_sim_time_s
 from scenenav.app.mavlink_claim import DEFAULT_SYSID, SysidClaim, claim_sysid
-from scenenav.app.nodes import HUB_FILE
+from scenenav.app.nodes import EXIT_EXTERNAL_MISSING, HUB_FILE
 
 LIVE_FILE = "live.json"           # written by the live node (scenenav.app.live): its port and URL
 from scenenav.app.preflight import check_free_space, free_bytes, mount_point, validate_inputs
 from scenenav.app.scenario import FlightMode, ScenarioConfig, load_scenario, scenario_to_dict
 from scenenav.app.signals import interrupt_on_stop_signals
 from scenenav.core.bus import EXIT_HUB_PORT_TAKEN, free_port
-from scenenav.core.contracts import ClockMode
+from scenenav.core.contracts import ClockMode, LockstepRole
 from scenenav.core.errors import UserError
 
 log = logging.getLogger(__name__)
@@ -75,12 +75,30 @@ class Child:
     stopping: bool = False        # the launcher is stopping it: its exit is not a failure
 
 
+RUN_FILE = "run.json"
+
+
 @dataclass
 class Launch:
     run_dir: Path
     namespace: str
     hub_port: int
     children: list[Child] = field(default_factory=list)
+    #: what run.json holds; written only once the hub listens (``publish_run_json``)
+    meta: dict = field(default_factory=dict)
+    published: bool = False
+
+    def update_meta(self, **fields) -> None:
+        """Add ``fields`` to run.json's contents (and to the file, once it is published)."""
+        self.meta.update(fields)
+        if self.published:
+            write_atomic(self.run_dir / RUN_FILE, json.dumps(self.meta, indent=2))
+
+    def publish_run_json(self) -> None:
+        """Write run.json: the hub listens on ``hub_port`` now, so a node may read it and join."""
+        self.meta.update(hub_port=self.hub_port, bus=bus_facts(self.namespace, self.hub_port))
+        write_atomic(self.run_dir / RUN_FILE, json.dumps(self.meta, indent=2))
+        self.published = True
 
     def spawn(self, name: str, args: list[str]) -> Child:
         logs = self.run_dir / "logs"
@@ -174,13 +192,10 @@ def await_mavlink(launch: Launch, autopilot: Child, timeout_s: float = MAVLINK_R
         except (OSError, ValueError):
             info = None
         if isinstance(info, dict):
-            meta_path = launch.run_dir / "run.json"
-            meta = json.loads(meta_path.read_text())
-            meta.update({"mavlink_tcp_port": info.get("tcp_port"),
-                         "mavlink_udp_port": info.get("udp_port"),
-                         "mavlink_udp_out": info.get("udp_out"),
-                         "mavlink_system_id": info.get("system_id")})
-            write_atomic(meta_path, json.dumps(meta, indent=2))
+            launch.update_meta(mavlink_tcp_port=info.get("tcp_port"),
+                               mavlink_udp_port=info.get("udp_port"),
+                               mavlink_udp_out=info.get("udp_out"),
+                               mavlink_system_id=info.get("system_id"))
             return info
         if autopilot.proc.poll() is not None:
             return None
@@ -194,8 +209,8 @@ HUB_ATTEMPTS = 5
 
 
 def await_hub(launch: Launch, sim: Child, timeout_s: float = MAVLINK_READY_TIMEOUT_S) -> bool:
-    """Wait until the simulator's Zenoh hub listens (its ``hub.json``), then write the bound port
-    into run.json. False when the simulator exited because the port was taken meanwhile (the port
+    """Wait until the simulator's Zenoh hub listens (its ``hub.json``), then write run.json (it
+    does not exist before: a node that sees run.json can join at once). False when the simulator exited because the port was taken meanwhile (the port
     was chosen free, but another process may bind it before the simulator does): the caller starts
     the run again on another port. True otherwise (a simulator that dies of something else is
     reported by the ChildWatch as usual)."""
@@ -203,16 +218,14 @@ def await_hub(launch: Launch, sim: Child, timeout_s: float = MAVLINK_READY_TIMEO
     deadline = time.monotonic() + timeout_s
     while time.monotonic() < deadline:
         if path.is_file():
-            meta_path = launch.run_dir / "run.json"
-            meta = json.loads(meta_path.read_text())
-            meta["hub_port"] = launch.hub_port
-            write_atomic(meta_path, json.dumps(meta, indent=2))
+            launch.publish_run_json()
             return True
         code = sim.proc.poll()
         if code is not None:
             return code != EXIT_HUB_PORT_TAKEN
         time.sleep(0.05)
     log.warning("the simulator did not report its Zenoh hub within %.0f s", timeout_s)
+    launch.publish_run_json()
     return True
 
 
@@ -224,10 +237,6 @@ def restart_on_new_hub_port(launch: Launch) -> None:
     for name in ("mavlink.json", HUB_FILE):
         (launch.run_dir / name).unlink(missing_ok=True)
     launch.hub_port = free_port()
-    meta_path = launch.run_dir / "run.json"
-    meta = json.loads(meta_path.read_text())
-    meta["hub_port"] = launch.hub_port
-    write_atomic(meta_path, json.dumps(meta, indent=2))
     log.warning("the Zenoh hub port %d was taken before the simulator could listen on it: starting "
                 "the run again on port %d", old, launch.hub_port)
 
@@ -257,22 +266,63 @@ def _resolve_guidance_map(cfg: ScenarioConfig, progress: bool) -> ScenarioConfig
 def spawn_recorder_and_perception(launch: Launch, cfg: ScenarioConfig,
                                   live_port: int | None = None) -> list[str]:
     """Start the recorder, the live view (``live_port`` not None; never a lockstep member) and (if
-    enabled) the perception node; returns the lockstep members they add (``camera`` for a
-    lockstep perception node)."""
+    enabled, and no external node has the role) the perception node; returns the lockstep members
+    they add (``camera`` for each lockstep perception node, the external ones included)."""
     launch.spawn("recorder", ["recorder", "--run-dir", str(launch.run_dir)])
     if live_port is not None:
         (launch.run_dir / LIVE_FILE).unlink(missing_ok=True)
         launch.spawn("live", ["live", "--run-dir", str(launch.run_dir), "--live-port", str(live_port)])
+    external = cfg.external.of_role("perception")
+    camera = [LockstepRole.CAMERA.value] if cfg.perception.lockstep else []
+    if external:
+        return camera * len(external)
     if not cfg.perception.enabled:
         return []
     launch.spawn("perception", ["perception", "--run-dir", str(launch.run_dir), "--node-id", "perception"])
-    return ["camera"] if cfg.perception.lockstep else []
+    return camera
+
+
+def bus_facts(namespace: str, hub_port: int) -> dict:
+    """run.json's ``bus``: where a node connects and the key prefix of the run."""
+    return {"endpoint": f"tcp/127.0.0.1:{hub_port}", "namespace": namespace,
+            "key_prefix": f"scenenav/{namespace}"}
+
+
+def node_facts(cfg: ScenarioConfig, world) -> dict:
+    """What a node needs to work in this run, for run.json: the world folder, the reference map it
+    matches against, the assistant map if any, the camera (docs/interfaces.md section 1)."""
+    from scenenav.core.camera_geometry import focal_length_px
+    from scenenav.core.formats.world_manifest import (
+        PERSPECTIVE_REFERENCE_FILE,
+        REFERENCE_FILE,
+        ReferenceKind,
+    )
+    from worlds.default import world_folder
+    folder = world_folder(cfg.world).resolve()
+    ref = cfg.perception.reference
+    kind = world.manifest.reference.kind if ref == "default" else ReferenceKind(ref)
+    reference = PERSPECTIVE_REFERENCE_FILE if kind is ReferenceKind.PERSPECTIVE else REFERENCE_FILE
+    amap = cfg.perception.assistant_map or cfg.guidance.assistant_map
+    cam = cfg.sim.camera
+    f = focal_length_px(cam.width_px, cam.fov_deg)
+    return {
+        "world_dir": str(folder), "reference_map": str(folder / reference),
+        "reference_kind": kind.value, "m_per_px": world.m_per_px,
+        "assistant_map": str(Path(amap).resolve()) if amap else None,
+        "camera": {"width_px": cam.width_px, "height_px": cam.height_px, "fov_deg": cam.fov_deg,
+                   "fov_axis": "width", "fx_px": f, "fy_px": f,
+                   "cx_px": (cam.width_px - 1) / 2.0, "cy_px": (cam.height_px - 1) / 2.0,
+                   "rate_hz": cam.rate_hz, "latency_s": cam.latency_s, "mount": cam.mount.value},
+        "clock_mode": cfg.clock.mode.value,
+        "external": list(cfg.external.nodes),
+        "external_join_timeout_s": cfg.external.join_timeout_s,
+    }
 
 
 def prepare_run(cfg: ScenarioConfig, world, run_dir: Path, label: str, prefix: str,
                 reserve_mb: float = 0.0) -> Launch:
-    """Create the run folder (must be new or empty) with scenario.yaml and run.json, and the
-    Launch holding the run's own namespace and hub port. ``reserve_mb`` > 0: also set that much
+    """Create the run folder (must be new or empty) with scenario.yaml, and the Launch holding the
+    run's own namespace, hub port and the contents of run.json (written once the hub listens). ``reserve_mb`` > 0: also set that much
     disk aside (``.disk_reserve``; the caller gives it back with ``DiskWatch.release``)."""
     if run_dir.exists() and any(run_dir.iterdir()):
         raise UserError(f"{run_dir}: run folder exists and is not empty (choose a new --out)")
@@ -282,10 +332,10 @@ def prepare_run(cfg: ScenarioConfig, world, run_dir: Path, label: str, prefix: s
         run_dir.mkdir(parents=True, exist_ok=True)
         write_atomic(run_dir / "scenario.yaml", yaml.safe_dump(scenario_to_dict(cfg), sort_keys=False))
         launch = Launch(run_dir, f"{prefix}-{uuid.uuid4().hex[:12]}", free_port())
-        meta = {"scenario": label, "namespace": launch.namespace, "hub_port": launch.hub_port,
-                "world": world.manifest.name, "mavlink_tcp_port": cfg.autopilot.mavlink_tcp_port,
-                "started_utc": time.strftime("%Y-%m-%dT%H:%M:%SZ", time.gmtime())}
-        write_atomic(run_dir / "run.json", json.dumps(meta, indent=2))
+        launch.meta = {"scenario": label, "namespace": launch.namespace, "hub_port": launch.hub_port,
+                       "world": world.manifest.name, **node_facts(cfg, world),
+                       "mavlink_tcp_port": cfg.autopilot.mavlink_tcp_port,
+                       "started_utc": time.strftime("%Y-%m-%dT%H:%M:%SZ", time.gmtime())}
         if reserve_mb > 0:
             _reserve(run_dir / RESERVE_FILE, reserve_mb)
     except OSError as exc:
@@ -381,19 +431,22 @@ def resolve_world(cfg: ScenarioConfig):
 
 
 def run(scenario_path: str | None, out_dir: str, overrides: tuple[str, ...] = (),
-        progress: bool = True, live_port: int | None = None,
-        announce: Callable[[str], None] = log.warning) -> dict:
+        progress: bool = True, live_port: int | None = None, external: tuple[str, ...] = (),
+        announce: Callable[[str], None] | None = None) -> dict:
     """Fly one scenario into ``out_dir``; Ctrl-C and SIGTERM stop every node cleanly (the summary is
     still written, then KeyboardInterrupt is raised again). ``live_port``: also stream the run to
-    Foxglove on that port (``scenenav run --live``); ``announce`` gets its URL."""
+    Foxglove on that port (``scenenav run --live``); ``external``: ``ROLE:ID`` of nodes the user
+    starts (added to ``external.nodes``); ``announce(text)`` tells the user the live view's URL and
+    which nodes to start."""
     with interrupt_on_stop_signals():
-        return _prepare_and_fly(scenario_path, out_dir, overrides, progress, live_port, announce)
+        return _prepare_and_fly(scenario_path, out_dir, overrides, progress, live_port, external,
+                                announce or (lambda text: log.warning("%s", text)))
 
 
 def _prepare_and_fly(scenario_path: str | None, out_dir: str, overrides: tuple[str, ...],
-                     progress: bool, live_port: int | None = None,
-                     announce: Callable[[str], None] = log.warning) -> dict:
-    cfg = load_scenario(scenario_path, overrides)
+                     progress: bool, live_port: int | None = None, external: tuple[str, ...] = (),
+                     announce: Callable[[str], None] = print) -> dict:
+    cfg = load_scenario(scenario_path, overrides, external)
     world = resolve_world(cfg)          # fail early, with a one-line error, on a bad world
     cfg = _resolve_guidance_map(cfg, progress)
     validate_inputs(cfg, world)          # every file a node will read, before any node starts
@@ -405,8 +458,28 @@ def _prepare_and_fly(scenario_path: str | None, out_dir: str, overrides: tuple[s
             claim.release()
 
 
+def external_wait_text(cfg: ScenarioConfig, run_dir: Path) -> str:
+    """What the user reads while the run waits for its external nodes."""
+    specs = ", ".join(cfg.external.nodes)
+    return (f"waiting up to {cfg.external.join_timeout_s:.0f} s for external node(s) {specs}: start "
+            f"them now; they join with {run_dir / RUN_FILE} (docs/interfaces.md)")
+
+
+def external_missing_text(cfg: ScenarioConfig, run_dir: Path) -> str:
+    """One line for a run whose external node never joined (the simulator's external.json)."""
+    from scenenav.app.nodes import EXTERNAL_FILE
+    try:
+        missing = json.loads((run_dir / EXTERNAL_FILE).read_text()).get("missing") or []
+    except (OSError, ValueError, AttributeError):
+        missing = list(cfg.external.nodes)
+    return (f"external node {', '.join(missing)} did not join within "
+            f"{cfg.external.join_timeout_s:.0f} s (external.join_timeout_s): start it with the bus "
+            f"endpoint and namespace of {run_dir / RUN_FILE} and declare its liveliness token "
+            f"nodes/<role>/<id> (docs/interfaces.md), or raise external.join_timeout_s")
+
+
 def _fly(cfg: ScenarioConfig, world, scenario_path: str | None, out_dir: str, progress: bool,
-         live_port: int | None = None, announce: Callable[[str], None] = log.warning) -> dict:
+         live_port: int | None = None, announce: Callable[[str], None] = print) -> dict:
     launch = prepare_run(cfg, world, Path(out_dir), scenario_path or "(defaults)", "run",
                          reserve_mb=DISK_RESERVE_MB)
     run_dir = launch.run_dir
@@ -421,10 +494,11 @@ def _fly(cfg: ScenarioConfig, world, scenario_path: str | None, out_dir: str, pr
         for attempt in range(HUB_ATTEMPTS):
             expect = ["recorder"] + spawn_recorder_and_perception(launch, cfg, live_port)
             if cfg.flight.mode == FlightMode.AUTOPILOT:
-                autopilot = launch.spawn("autopilot", ["autopilot", "--run-dir", str(run_dir)])
                 expect.append("tick")
-                await_mavlink(launch, autopilot)     # run.json names the ports it bound
-            if cfg.guidance.enabled:
+                if not cfg.external.of_role("autopilot"):
+                    autopilot = launch.spawn("autopilot", ["autopilot", "--run-dir", str(run_dir)])
+                    await_mavlink(launch, autopilot)     # run.json names the ports it bound
+            if cfg.guidance.enabled and not cfg.external.of_role("guidance"):
                 launch.spawn("guidance", ["guidance", "--run-dir", str(run_dir)])
                 if cfg.clock.mode == ClockMode.LOCKSTEP:
                     expect.append("tick")
@@ -434,9 +508,14 @@ def _fly(cfg: ScenarioConfig, world, scenario_path: str | None, out_dir: str, pr
             restart_on_new_hub_port(launch)
         if live_port is not None:
             announce_live(launch, announce)
+        if cfg.external.nodes and launch.published:
+            announce(external_wait_text(cfg, run_dir))
         swap = PerceptionSwap(launch, cfg) if cfg.perception.enabled and cfg.perception.swap_at_s > 0 \
-            else None
+            and not cfg.external.of_role("perception") else None
         _wait_sim(sim, launch, cfg, progress, swap, watch, disk)
+        if sim.proc.returncode == EXIT_EXTERNAL_MISSING:
+            abort = external_missing_text(cfg, run_dir)
+            log.error("%s", abort)
     except KeyboardInterrupt:
         interrupted = True
         log.warning("interrupted: stopping every node")
@@ -501,8 +580,8 @@ class ChildWatch:
             self._seen.add(c.proc.pid)
             if code in _CLEAN_EXITS and c.name != "sim":
                 continue
-            if c.name == "sim" and code == 0:
-                continue
+            if c.name == "sim" and code in (0, EXIT_EXTERNAL_MISSING):
+                continue      # the launcher reports a missing external node itself
             f = NodeFailure(c.name, int(code), round(time.time() - self.wall0, 3),
                             last_sim_time_s(self.launch.run_dir),
                             last_error_line(c.log_path) if c.log_path else "")

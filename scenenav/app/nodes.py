@@ -63,6 +63,53 @@ def sim_node_config(cfg: ScenarioConfig, world, expect: tuple[str, ...] = ()):
 
 #: Written by the simulator once its Zenoh hub endpoint listens (``{"hub_port": N}``).
 HUB_FILE = "hub.json"
+#: Written by the simulator once it stopped waiting for the external nodes: which joined, which not.
+EXTERNAL_FILE = "external.json"
+#: Exit code of the simulator when an external node did not join in time (``EX_UNAVAILABLE``).
+EXIT_EXTERNAL_MISSING = 69
+
+
+def wait_external_nodes(node, cfg: ScenarioConfig, run_dir: Path,
+                        stop: threading.Event | None = None) -> bool:
+    """Before the clock starts: wait until every external node (``external.nodes``) has declared
+    its liveliness token ``nodes/<role>/<id>``, at most ``external.join_timeout_s`` wall seconds.
+    Writes ``EXTERNAL_FILE`` (joined and missing ``ROLE:ID``); False if one is missing (or
+    ``stop`` was set meanwhile)."""
+    members = cfg.external.members()
+    if not members:
+        return True
+    live: set[str] = set()
+    changed = threading.Condition()
+
+    def on_change(spec: str, alive: bool) -> None:
+        with changed:
+            (live.add if alive else live.discard)(spec)
+            changed.notify_all()
+
+    for m in members:
+        node.bus.watch_liveliness(node.keys.node_alive(m.role, m.node_id),
+                                  lambda _k, alive, spec=m.spec: on_change(spec, alive))
+    specs = [m.spec for m in members]
+    log.info("waiting up to %.0f s for external node(s) %s", cfg.external.join_timeout_s,
+             ", ".join(specs))
+    t0 = time.monotonic()
+    deadline = t0 + cfg.external.join_timeout_s
+    with changed:
+        while not live.issuperset(specs) and time.monotonic() < deadline:
+            if stop is not None and stop.is_set():
+                break
+            changed.wait(min(0.2, max(0.0, deadline - time.monotonic())))
+        joined = [s for s in specs if s in live]
+    missing = [s for s in specs if s not in joined]
+    write_stats(run_dir / EXTERNAL_FILE, {"joined": joined, "missing": missing,
+                                          "waited_s": round(time.monotonic() - t0, 3),
+                                          "join_timeout_s": cfg.external.join_timeout_s})
+    if missing:
+        log.error("external node(s) %s did not join within %.0f s (external.join_timeout_s)",
+                  ", ".join(missing), cfg.external.join_timeout_s)
+        return False
+    log.info("external node(s) joined: %s", ", ".join(joined))
+    return True
 
 
 def run_sim(run_dir: Path, bus_cfg: BusConfig, expect: tuple[str, ...]) -> int:
@@ -74,8 +121,6 @@ def run_sim(run_dir: Path, bus_cfg: BusConfig, expect: tuple[str, ...]) -> int:
     except HubPortTaken as exc:
         log.error("%s; the launcher starts the run again on another port", exc)
         return EXIT_HUB_PORT_TAKEN
-    # the hub listens: say so (the launcher waits for this file before it trusts the port)
-    write_stats(run_dir / HUB_FILE, {"hub_port": bus_cfg.hub_port})
     stop = stop_event()
     threading.Thread(target=lambda: (stop.wait(), node.stop()), daemon=True).start()
     if "recorder" in expect:
@@ -84,6 +129,13 @@ def run_sim(run_dir: Path, bus_cfg: BusConfig, expect: tuple[str, ...]) -> int:
                                   lambda _k, alive: node_ready.set() if alive else None)
         if not node_ready.wait(cfg.clock.startup_timeout_s):
             log.warning("recorder did not come up; running without it")
+    # the hub listens (and the recorder records): say so. The launcher waits for this file before
+    # it writes run.json, so an outside node that joins from run.json never talks before the
+    # recorder listens (its NodeInfo is recorded).
+    write_stats(run_dir / HUB_FILE, {"hub_port": bus_cfg.hub_port})
+    if not wait_external_nodes(node, cfg, run_dir, stop):
+        node.close()
+        return 0 if stop.is_set() else EXIT_EXTERNAL_MISSING
     try:
         stats = node.run()
     finally:

@@ -71,6 +71,61 @@ class EvaluationConfig:
               self.false_fix_threshold_m, "> 0 m")
 
 
+#: Roles whose node a run starts itself unless an external node of that role is named.
+BUILTIN_ROLES = ("perception", "autopilot", "guidance")
+#: Roles that are the run itself (the hub and the run's records): never external.
+RUN_ROLES = ("sim", "recorder")
+
+
+@dataclass(frozen=True)
+class ExternalNode:
+    """One node started outside the launcher: its role and its node id on the bus."""
+
+    role: str
+    node_id: str
+
+    @property
+    def spec(self) -> str:
+        return f"{self.role}:{self.node_id}"
+
+
+def parse_external(spec: str, key: str = "nodes") -> ExternalNode:
+    """``ROLE:ID`` -> ExternalNode; ConfigError (one line) for anything else."""
+    from scenenav.core.keys import check_name
+    role, sep, node_id = str(spec).partition(":")
+    try:
+        if not sep:
+            raise ValueError("no ':'")
+        check_name("role", role)
+        check_name("node id", node_id)
+    except ValueError:
+        check(False, key, spec, "ROLE:ID (letters, digits, '_' or '-' on each side), e.g. "
+                                "perception:my_matcher")
+    check(role not in RUN_ROLES, key, spec,
+          f"a role other than {' or '.join(RUN_ROLES)} (the run itself is never external)")
+    return ExternalNode(role, node_id)
+
+
+@dataclass(frozen=True)
+class ExternalConfig:
+    """Nodes the user starts (``scenenav run --external ROLE:ID``); docs/interfaces.md section 1."""
+
+    nodes: tuple[str, ...] = ()        # ROLE:ID of each node started outside the run; the clock waits for it
+    join_timeout_s: float = 120.0      # wall seconds the run waits for them (from run.json on), then gives up
+
+    def __post_init__(self) -> None:
+        members = [parse_external(s) for s in self.nodes]
+        ids = [m.node_id for m in members]
+        check(len(set(ids)) == len(ids), "nodes", list(self.nodes), "distinct node ids")
+        check(self.join_timeout_s > 0, "join_timeout_s", self.join_timeout_s, "> 0 s")
+
+    def members(self) -> tuple[ExternalNode, ...]:
+        return tuple(parse_external(s) for s in self.nodes)
+
+    def of_role(self, role: str) -> tuple[ExternalNode, ...]:
+        return tuple(m for m in self.members() if m.role == role)
+
+
 @dataclass(frozen=True)
 class ScenarioConfig:
     name: str = "default"
@@ -85,6 +140,7 @@ class ScenarioConfig:
     evaluation: EvaluationConfig = field(default_factory=EvaluationConfig)
     autopilot: AutopilotNodeConfig = field(default_factory=AutopilotNodeConfig)
     guidance: GuidanceNodeConfig = field(default_factory=GuidanceNodeConfig)
+    external: ExternalConfig = field(default_factory=ExternalConfig)
 
     def __post_init__(self) -> None:
         check(self.duration_s > 0, "duration_s", self.duration_s, "a positive number of seconds")
@@ -156,14 +212,22 @@ def scenario_yaml(path: str | Path, _seen: tuple[Path, ...] = ()) -> dict:
     return _merged(scenario_yaml(base_path, (*_seen, p.resolve())), data)
 
 
-def load_scenario(path: str | Path | None, overrides: tuple[str, ...] = ()) -> ScenarioConfig:
-    """Load a scenario YAML (None: all defaults; ``base:`` merged, see :func:`scenario_yaml`) and
-    apply ``key=value`` overrides."""
+def load_scenario(path: str | Path | None, overrides: tuple[str, ...] = (),
+                  external: tuple[str, ...] = ()) -> ScenarioConfig:
+    """Load a scenario YAML (None: all defaults; ``base:`` merged, see :func:`scenario_yaml`), apply
+    ``key=value`` overrides and add the ``external`` nodes (``ROLE:ID``, from ``--external``) to
+    ``external.nodes``."""
     data = scenario_yaml(path) if path else {}
     source = str(path) if path else "scenario"
     if overrides:
         data = apply_overrides(data, list(overrides))
         source += " (with --set overrides)"
+    if external:
+        data = dict(data)
+        section = dict(data.get("external") or {})
+        section["nodes"] = [*(section.get("nodes") or []), *external]
+        data["external"] = section
+        source += " (with --external)"
     return load_config(ScenarioConfig, data, source)
 
 

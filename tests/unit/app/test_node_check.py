@@ -1,0 +1,143 @@
+"""``scenenav node check``'s rules judged on hand-made observations, and the ``external`` section."""
+
+from __future__ import annotations
+
+import math
+
+import pytest
+
+from scenenav.app.node_check import RULES, Observed, RunSide, judge, malformed_frames
+from scenenav.app.scenario import load_scenario
+from scenenav.core.contracts import CameraFrame, DecodeError, LockstepAck, LockstepRole, VisionFix, decode
+from scenenav.core.errors import UserError
+from scenenav.core.keys import Keys
+
+KEYS = Keys("ns")
+NODE = "n1"
+HALF_M = (240.0, 265.0)
+
+
+def _fix(seq: int, t_us: int, **changes) -> VisionFix:
+    fields = dict(timestamp_us=t_us, frame_seq=seq, node_id=NODE, method="m", valid=True, accepted=True,
+                  position_xy_enu_m=(10.0, -5.0), covariance_xy_m2=(4.0, 1.0, 1.0, 9.0), p_true=math.nan,
+                  p_classes=(math.nan,) * 4, ncc_peak=0.8, ncc_psr=9.0, ncc_second_peak_ratio=0.5,
+                  time_align_ms=1.0, time_ncc_ms=2.0, time_cnn_ms=0.0, time_lookup_ms=0.0, time_total_ms=3.0)
+    fields.update(changes)
+    return VisionFix(**fields)
+
+
+def _good(n: int = 20) -> Observed:
+    """A node that answers every frame 0.05 s after it, fix before ack, and leaves on time."""
+    seen = Observed()
+    seen.tokens = [(0.0, KEYS.node_alive("perception", NODE), True),
+                   (0.0, KEYS.lockstep_member(LockstepRole.CAMERA, NODE), True)]
+    for seq in range(n):
+        t, t_us = 1.0 + seq, seq * 100_000
+        seen.frames[seq] = (t, t_us)
+        seen.fixes.append((t + 0.04, _fix(seq, t_us)))
+        seen.acks.append((t + 0.05, LockstepAck(t_us, NODE, "camera", seq)))
+    seen.injected_at, seen.last_seq_before_inject = 10.5, 10
+    seen.finished_at = n + 1.0
+    return seen
+
+
+def _judge(seen: Observed, alive=True, code=0, left=0.3) -> dict[str, str | None]:
+    """rule -> None when it passed, else its detail."""
+    rules = judge(seen, KEYS, "perception", NODE, 2.0, HALF_M, alive, code, left)
+    assert [r.rule for r in rules] == list(RULES)
+    return {r.rule: None if r.passed else r.detail for r in rules}
+
+
+def test_a_good_node_passes_every_rule():
+    assert set(_judge(_good()).values()) == {None}
+
+
+def test_each_defect_fails_its_own_rule():
+    seen = _good()
+    del seen.acks[3]                                            # frame 3 never acknowledged
+    seen.fixes[5] = (seen.fixes[5][0], _fix(5, 555))            # publish time, not capture time
+    seen.fixes[6] = (seen.fixes[6][0], _fix(6, 600_000, covariance_xy_m2=(4.0, 1.0, 0.0, 9.0)))
+    seen.fixes[7] = (seen.fixes[7][0], _fix(7, 700_000, covariance_xy_m2=(1.0, 3.0, 3.0, 1.0)))  # not PSD
+    seen.fixes[8] = (seen.fixes[8][0], _fix(8, 800_000, p_true=1.5))
+    verdict = _judge(seen)
+    assert {r for r, d in verdict.items() if d} == {"acks", "timestamps", "covariance", "fields"}
+    assert "seq 3" in verdict["acks"] and "seq 5" in verdict["timestamps"]
+    assert "seq 6: not symmetric" in verdict["covariance"] and "p_true outside [0, 1]" in verdict["fields"]
+    seen.fixes[6] = (seen.fixes[6][0], _fix(6, 600_000))
+    assert "seq 7: not positive semi-definite" in _judge(seen)["covariance"]
+
+
+def test_missing_fix_late_ack_and_late_token():
+    seen = _good()
+    del seen.fixes[4]
+    seen.acks[2] = (seen.frames[2][0] + 3.0, seen.acks[2][1])   # 3 s > the 2 s timeout
+    del seen.tokens[1]                                          # no lockstep member token
+    verdict = _judge(seen)
+    assert "without a VisionFix (seq 4)" in verdict["fixes"]
+    assert "later than 2 s (seq 2)" in verdict["acks"]
+    assert "never declared: lockstep/member/camera/n1" in verdict["liveliness"]
+
+
+def test_liveliness_is_judged_from_the_runs_side():
+    late = judge(_good(), KEYS, "perception", NODE, 2.0, HALF_M, True, 0, 0.3,
+                 RunSide(joined_before_clock=False, member_at_start=False))
+    detail = {r.rule: r.detail for r in late if not r.passed}
+    assert set(detail) == {"liveliness"}
+    assert "clock did not start with" in detail["liveliness"] and "started without" in detail["liveliness"]
+
+
+def test_fix_after_its_ack_fails_fixes():
+    seen = _good()
+    seen.fixes[1] = (seen.acks[1][0] + 0.01, seen.fixes[1][1])
+    assert "after the ack for seq 1" in _judge(seen)["fixes"]
+
+
+def test_malformed_and_leaving():
+    seen = _good()
+    verdict = _judge(seen, alive=False)
+    assert "exited after the malformed frames" in verdict["malformed"]
+    node_key = KEYS.node_alive("perception", NODE)
+    blink = _good()
+    blink.tokens += [(12.0, node_key, False), (12.5, node_key, True)]
+    assert _judge(blink)["malformed"] is None                  # back before the end: Zenoh's link
+    blink.tokens = blink.tokens[:-1]
+    assert "token went away" in _judge(blink)["malformed"]
+    seen.acks = [a for a in seen.acks if a[1].seq <= 10]
+    assert "0 frames answered after" in _judge(seen)["malformed"]
+    assert "still running" in _judge(_good(), code=None, left=None)["leaves"]
+    assert "code 3" in _judge(_good(), code=3)["leaves"]
+    assert "before the run ended" in _judge(_good(), code=0, left=-4.0)["leaves"]
+    unfinished = _good()
+    unfinished.finished_at = None
+    assert "did not end" in _judge(unfinished)["leaves"]
+
+
+def test_invalid_fixes_may_lack_position_and_covariance():
+    seen = _good()
+    seen.fixes[3] = (seen.fixes[3][0], _fix(3, 300_000, valid=False, accepted=False,
+                                           position_xy_enu_m=(math.nan, math.nan),
+                                           covariance_xy_m2=(math.nan,) * 4))
+    assert set(_judge(seen).values()) == {None}
+    seen.fixes[4] = (seen.fixes[4][0], _fix(4, 400_000, valid=False, accepted=True))
+    assert "accepted without valid" in _judge(seen)["fields"]
+
+
+def test_the_malformed_frames_are_malformed():
+    for name, payload in malformed_frames():
+        with pytest.raises(DecodeError):
+            decode(CameraFrame, payload)
+        assert name
+
+
+def test_external_nodes_in_the_scenario():
+    cfg = load_scenario(None, external=("perception:a", "guidance:b"))
+    assert [m.spec for m in cfg.external.members()] == ["perception:a", "guidance:b"]
+    assert [m.node_id for m in cfg.external.of_role("perception")] == ["a"]
+    for spec, expected in (("perception", "ROLE:ID"), ("sim:x", "never external"),
+                           ("perception:a b", "ROLE:ID"), ("recorder:r", "never external")):
+        with pytest.raises(UserError, match=expected):
+            load_scenario(None, external=(spec,))
+    with pytest.raises(UserError, match="distinct node ids"):
+        load_scenario(None, external=("perception:a", "guidance:a"))
+    with pytest.raises(UserError, match="join_timeout_s"):
+        load_scenario(None, ("external.join_timeout_s=0",))
