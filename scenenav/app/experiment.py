@@ -259,8 +259,8 @@ def results_page_markdown(tables: dict[str, dict]) -> str:
     for method in METHODS:
         cells = []
         for k in keys:
-            row = next((r for r in tables[k]["rows"] if r["method"] == method
-                        and r.get("rule") in ("combined", "—", tables[k].get("decision_rule"))), None)
+            # the first row of a method is its main flight (the paper-rule repeats come after)
+            row = next((r for r in tables[k]["rows"] if r["method"] == method), None)
             cells.append("—" if row is None else f"{_f(row['rms_error_m'])} / "
                          f"{_f(row['detected_false_pct'], '{:.1f}')} / {row['false_fixes_accepted']}")
         p = PAPER[method]
@@ -342,6 +342,8 @@ def plot_figures(out_dir: Path, rows: list[dict], threshold_m: float, reference=
     plt.close(fig)
     stat = next(r for r in rows if r["method"] == "statistical")
     fx = fix_table(Path(stat["run_dir"]), threshold_m, reference)
+    ok = (fx["valid"] > 0.5) & np.isfinite(fx["x_m"]) & np.isfinite(fx["y_m"])
+    fx = {k: (np.asarray(v)[ok] if np.ndim(v) == 1 and len(v) == len(ok) else v) for k, v in fx.items()}
     det = StatisticalDetector()
     var = [det.update(x, y, t)[1] for x, y, t in zip(fx["x_m"], fx["y_m"], fx["t_s"], strict=False)]
     fig, ax = plt.subplots(figsize=(10, 4))
