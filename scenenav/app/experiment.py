@@ -271,7 +271,7 @@ def results_page_markdown(tables: dict[str, dict]) -> str:
               + " | ".join(_yes(tables[k].get("identical_frames")) for k in keys) + " |", ""]
     for k in keys:
         t = tables[k]
-        md = table2_markdown(t).replace("# Table 2 reproduced", f"## {k}:", 1)
+        md = table2_markdown(t).replace("# Table 2 reproduced", f"## {k}", 1)
         md = md.replace("Figures: figure7.png (paths), figure8.png (statistical variance).",
                         f"Figures: ![Figure 7](table2-{k}-figure7.png) ![Figure 8](table2-{k}-figure8.png)")
         lines += [md, f"Command: `{t.get('command', 'scenenav experiment table2')}`", ""]
