@@ -62,38 +62,99 @@ class ImuConfig:
     gyro_bias_std_rad_s: float = 0.002
     accel_bias_walk_m_s2_per_sqrt_s: float = 0.0   # bias random walk; 0 = constant bias
     gyro_bias_walk_rad_s_per_sqrt_s: float = 0.0
+    # Motor vibration (ArduPilot SITL's SIM_ACC_RND / SIM_GYR_RND "motor noise", scaled with the
+    # throttle): extra white noise of this std x throttle fraction (mean rotor speed / maximum).
+    vibration_accel_m_s2: float = 0.0
+    vibration_gyro_rad_s: float = 0.0
 
     def __post_init__(self) -> None:
         for name in ("accel_noise_std_m_s2", "gyro_noise_std_rad_s", "accel_bias_std_m_s2",
                      "gyro_bias_std_rad_s", "accel_bias_walk_m_s2_per_sqrt_s",
-                     "gyro_bias_walk_rad_s_per_sqrt_s"):
+                     "gyro_bias_walk_rad_s_per_sqrt_s", "vibration_accel_m_s2",
+                     "vibration_gyro_rad_s"):
             value = getattr(self, name)
             check(_non_negative(value), name, value, "a number >= 0")
 
 
 @dataclass(frozen=True)
 class BaroConfig:
+    """Barometric altimeter: bias + white noise, optional Gauss-Markov drift and ground effect."""
+
     rate_hz: float = 20.0
     noise_std_m: float = 0.3
     bias_m: float = 0.0
+    drift_std_m: float = 0.0                # slow first-order Gauss-Markov error, stationary std; 0 = off
+    drift_time_constant_s: float = 300.0
+    # Rotor-downwash ground effect (ArduPilot SITL SIM_BARO_GEFF_M): this error (m; negative = the
+    # baro reads low) with the rotors turning on the surface, decaying linearly to zero at
+    # ground_effect_height_m above the surface below (the DSM: a roof counts as ground); 0 = off.
+    ground_effect_m: float = 0.0
+    ground_effect_height_m: float = 2.0
 
     def __post_init__(self) -> None:
         check(_positive(self.rate_hz), "rate_hz", self.rate_hz, "a number > 0")
         check(_non_negative(self.noise_std_m), "noise_std_m", self.noise_std_m, "a number >= 0")
         check(_finite(self.bias_m), "bias_m", self.bias_m, "a finite number")
+        check(_non_negative(self.drift_std_m), "drift_std_m", self.drift_std_m, "a number >= 0")
+        check(_positive(self.drift_time_constant_s), "drift_time_constant_s",
+              self.drift_time_constant_s, "a number > 0")
+        check(_finite(self.ground_effect_m), "ground_effect_m", self.ground_effect_m,
+              "a finite number (m)")
+        check(_positive(self.ground_effect_height_m), "ground_effect_height_m",
+              self.ground_effect_height_m, "a number > 0")
 
 
 @dataclass(frozen=True)
 class CompassConfig:
+    """Compass heading (declination-corrected): white noise and bias, plus the magnetometer errors
+    of ArduPilot SITL's SIM_MAG_* set, turned into the heading error they cause (sitl.sensors)."""
+
     rate_hz: float = 20.0
     noise_std_rad: float = 0.01   # about 0.6 degrees
     bias_rad: float = 0.0
+    # Earth field (declination 0: the heading is declination-corrected); mid-latitude values
+    # (NOAA/BGS World Magnetic Model, central Europe: ~48-50 uT total, ~64-66 deg inclination).
+    earth_field_mgauss: float = 500.0
+    inclination_deg: float = 65.0
+    # Body-frame magnetometer errors (FLU axes), measured = S (field + motor + anomaly) + o:
+    hard_iron_mgauss: tuple[float, float, float] = (0.0, 0.0, 0.0)       # o (SIM_MAG1_OFS)
+    soft_iron_diag: tuple[float, float, float] = (1.0, 1.0, 1.0)         # S diagonal (SIM_MAG1_DIA)
+    soft_iron_offdiag: tuple[float, float, float] = (0.0, 0.0, 0.0)      # S xy, xz, yz (SIM_MAG1_ODI)
+    motor_mgauss_per_a: tuple[float, float, float] = (0.0, 0.0, 0.0)     # x battery current (SIM_MAG_MOT)
+    # Local anomalies near buildings (SIM_MAG_ALY / SIM_MAG_ALY_HGT): a seeded field, std of each
+    # component at the surface of a fully built-up cell, decaying as (h0 / (h0 + h))^3 with the
+    # height h above the DSM (h0 = anomaly_height_m: the height where it has fallen to 1/8).
+    anomaly_mgauss: float = 0.0
+    anomaly_height_m: float = 1.0
+    anomaly_cell_m: float = 20.0          # size of the anomaly field's cells
 
     def __post_init__(self) -> None:
         check(_positive(self.rate_hz), "rate_hz", self.rate_hz, "a number > 0")
         check(_non_negative(self.noise_std_rad), "noise_std_rad", self.noise_std_rad,
               "a number >= 0")
         check(_finite(self.bias_rad), "bias_rad", self.bias_rad, "a finite number")
+        check(_positive(self.earth_field_mgauss), "earth_field_mgauss", self.earth_field_mgauss,
+              "a number > 0 (mGauss)")
+        check(_finite(self.inclination_deg) and -85.0 <= self.inclination_deg <= 85.0,
+              "inclination_deg", self.inclination_deg, "a number in [-85, 85] degrees")
+        for name in ("hard_iron_mgauss", "soft_iron_diag", "soft_iron_offdiag", "motor_mgauss_per_a"):
+            value = getattr(self, name)
+            check(len(value) == 3 and all(_finite(v) for v in value), name, value,
+                  "three finite numbers")
+        check(all(v > 0 for v in self.soft_iron_diag), "soft_iron_diag", self.soft_iron_diag,
+              "three numbers > 0")
+        check(_non_negative(self.anomaly_mgauss), "anomaly_mgauss", self.anomaly_mgauss,
+              "a number >= 0")
+        check(_positive(self.anomaly_height_m), "anomaly_height_m", self.anomaly_height_m,
+              "a number > 0")
+        check(_positive(self.anomaly_cell_m), "anomaly_cell_m", self.anomaly_cell_m, "a number > 0")
+
+    @property
+    def distorted(self) -> bool:
+        """True when any magnetometer error beyond the heading noise and bias is on."""
+        return (any(v != 0.0 for v in self.hard_iron_mgauss) or any(v != 1.0 for v in self.soft_iron_diag)
+                or any(v != 0.0 for v in self.soft_iron_offdiag)
+                or any(v != 0.0 for v in self.motor_mgauss_per_a) or self.anomaly_mgauss > 0.0)
 
 
 @dataclass(frozen=True)
@@ -108,16 +169,22 @@ class GpsConfig:
     drift_std_m: float = 0.0              # slow horizontal/vertical error, stationary std; 0 = off
     drift_time_constant_s: float = 60.0
     satellites: int = 10
+    # Urban multipath: an extra Gauss-Markov horizontal error whose std is this times the share of
+    # the sky (above a 15 deg elevation mask) the DSM's buildings hide from the antenna; 0 = off.
+    multipath_std_m: float = 0.0
+    multipath_time_constant_s: float = 5.0
 
     def __post_init__(self) -> None:
         check(isinstance(self.enabled, bool), "enabled", self.enabled, "true or false")
         check(_positive(self.rate_hz), "rate_hz", self.rate_hz, "a number > 0")
         for name in ("horizontal_noise_std_m", "vertical_noise_std_m", "velocity_noise_std_m_s",
-                     "drift_std_m"):
+                     "drift_std_m", "multipath_std_m"):
             value = getattr(self, name)
             check(_non_negative(value), name, value, "a number >= 0")
         check(_positive(self.drift_time_constant_s), "drift_time_constant_s",
               self.drift_time_constant_s, "a number > 0")
+        check(_positive(self.multipath_time_constant_s), "multipath_time_constant_s",
+              self.multipath_time_constant_s, "a number > 0")
         check(isinstance(self.satellites, int) and 0 <= self.satellites <= 64, "satellites",
               self.satellites, "an integer in [0, 64]")
 

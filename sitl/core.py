@@ -57,11 +57,13 @@ from sitl.config import ScriptedFlight, SimConfig
 from sitl.physics import PhysicsWorld, VehicleState
 from sitl.scripted import ScriptedTrajectory
 from sitl.sensors import BaroModel, CameraEffects, CompassModel, GpsModel, ImuModel
+from sitl.surroundings import MagneticAnomalyField, Surface
 from sitl.vehicle import VehicleParams
 
 logger = logging.getLogger(__name__)
 
-RNG_STREAMS = ("wind", "imu", "baro", "compass", "gps", "camera_effects", "power", "camera_optics")
+RNG_STREAMS = ("wind", "imu", "baro", "compass", "gps", "camera_effects", "power", "camera_optics",
+               "magnetic_anomaly")   # append only: earlier streams keep their seeds
 
 
 @dataclass(frozen=True)
@@ -121,7 +123,8 @@ class SimulatorCore:
     docstring). ``origin_*`` is the world's geodetic origin (map centre) for the GPS fixes."""
 
     def __init__(self, sim: SimConfig, tick_rate_hz: float, seed: int, origin_lat_deg: float,
-                 origin_lon_deg: float, params: VehicleParams | None = None) -> None:
+                 origin_lon_deg: float, params: VehicleParams | None = None,
+                 surface: Surface | None = None) -> None:
         self.sim = sim
         self.params = params if params is not None else VehicleParams()
         self.origin_lat_deg = float(origin_lat_deg)
@@ -133,9 +136,14 @@ class SimulatorCore:
         streams = {name: np.random.default_rng(s) for name, s in zip(RNG_STREAMS, seeds, strict=True)}
         self.physics = PhysicsWorld(self.params, sim, streams["wind"])
         self.imu = ImuModel(sim.imu, streams["imu"])
+        self.surface = surface   # the world's buildings (None: flat), for the sensors' surroundings
+        anomalies = None
+        if surface is not None and sim.compass.anomaly_mgauss > 0.0:
+            anomalies = MagneticAnomalyField(surface, sim.compass.anomaly_mgauss, sim.compass.anomaly_height_m,
+                                             sim.compass.anomaly_cell_m, streams["magnetic_anomaly"])
         self.baro = BaroModel(sim.baro, streams["baro"])
-        self.compass = CompassModel(sim.compass, streams["compass"])
-        self.gps = GpsModel(sim.gps, streams["gps"])
+        self.compass = CompassModel(sim.compass, streams["compass"], anomalies)
+        self.gps = GpsModel(sim.gps, streams["gps"], surface)
         self.effects = CameraEffects(sim.camera, streams["camera_effects"])
         self.battery = BatteryModel(sim.battery, self.params.max_rotor_speed_rad_s)
         self.power_module = PowerModuleModel(sim.battery, streams["power"])
@@ -210,15 +218,19 @@ class SimulatorCore:
         heading = heading_from_quat(state.q_wxyz)
         truth = TruthPose(t_us, tuple(pos), tuple(vel), tuple(np.asarray(state.q_wxyz, dtype=float)),
                           tuple(np.asarray(state.angular_velocity_flu_rad_s, dtype=float)), heading)
-        acc, gyr = self.imu.sample(self._accel_sum / self._n_sum, self._gyro_sum / self._n_sum, dt_tick_s)
+        throttle = self._throttle(state)
+        acc, gyr = self.imu.sample(self._accel_sum / self._n_sum, self._gyro_sum / self._n_sum, dt_tick_s,
+                                   throttle)
         imu = ImuSample(t_us, tick, dt_tick_s, (float(acc[0]), float(acc[1]), float(acc[2])),
                         (float(gyr[0]), float(gyr[1]), float(gyr[2])))
         baro = compass = gps = power = None
         if self.rate_baro.due(tick):
-            alt, pa = self.baro.sample(float(pos[2]))
+            surface_m = self.surface.height_at(float(pos[0]), float(pos[1])) if self.surface else 0.0
+            alt, pa = self.baro.sample(float(pos[2]), float(pos[2]) - surface_m, throttle > 0.0)
             baro = BaroSample(t_us, float(alt), float(pa))
         if self.rate_compass.due(tick):
-            compass = CompassSample(t_us, float(self.compass.sample(heading)))
+            compass = CompassSample(t_us, float(self.compass.sample(heading, state.q_wxyz,
+                                                                    self._power.current_a, pos)))
         if self.sim.gps.enabled and self.rate_gps.due(tick):
             g = self.gps.sample(pos, vel, self.origin_lat_deg, self.origin_lon_deg)
             v = g.velocity_enu_m_s
@@ -278,6 +290,13 @@ class SimulatorCore:
         self.physics.close()
 
     # ------------------------------------------------------------------ internals
+    def _throttle(self, state: VehicleState) -> float:
+        """Mean rotor speed over its maximum (0..1): what scales the motor vibration."""
+        speeds = np.asarray(state.rotor_speeds_rad_s, dtype=float)
+        if speeds.size == 0:
+            return 0.0
+        return float(min(1.0, max(0.0, float(np.mean(np.abs(speeds))) / self.params.max_rotor_speed_rad_s)))
+
     def _scripted_pose(self, t_s: float) -> None:
         assert self.trajectory is not None
         ks = self.trajectory.state(t_s)

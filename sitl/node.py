@@ -53,6 +53,8 @@ from scenenav.core.keys import Keys
 from scenenav.core.lockstep import LockstepBarrier
 from sitl.config import SimNodeConfig
 from sitl.core import SimulatorCore, TickOutput
+from sitl.surroundings import BUILDING_MIN_HEIGHT_M, Surface
+from worlds.landcover import LandCover
 
 log = logging.getLogger(__name__)
 
@@ -80,6 +82,20 @@ class SimStats:
     member_answer_ms_mean: dict[str, float] = field(default_factory=dict)
 
 
+def sensor_surface(sim, world) -> Surface | None:
+    """The world's buildings for the sensor models that need them (magnetic anomalies, GPS
+    multipath, baro ground effect over roofs); None when none of them is on or the world is flat."""
+    needed = (sim.compass.anomaly_mgauss > 0.0 or sim.gps.multipath_std_m > 0.0
+              or sim.baro.ground_effect_m != 0.0)
+    if not needed or world.dsm_m is None:
+        return None
+    if world.landcover is not None:
+        built = np.isin(world.landcover, [int(LandCover.BUILDING_UNIFORM), int(LandCover.BUILDING_TEXTURED)])
+    else:   # an imported world: every raised pixel may be a building
+        built = world.dsm_m > BUILDING_MIN_HEIGHT_M
+    return Surface(world.dsm_m, built, world.m_per_px)
+
+
 class SimulatorNode:
     """The simulator on the bus. ``world`` gives the orthophoto, the surface model (``dsm_m``,
     ``facade_rgb``, None on a flat world), ``m_per_px`` and the geodetic origin
@@ -93,7 +109,7 @@ class SimulatorNode:
         self.keys = Keys(bus_cfg.namespace)
         m = world.manifest
         self.core = SimulatorCore(cfg.sim, cfg.clock.tick_rate_hz, cfg.seed, m.origin_lat_deg,
-                                  m.origin_lon_deg)
+                                  m.origin_lon_deg, surface=sensor_surface(cfg.sim, world))
         self.camera = CameraPipeline(world.orthophoto, world.m_per_px, cfg.sim.camera,
                                      heights_m=world.dsm_m, facade_rgb=world.facade_rgb,
                                      optics_seed=self.core.optics_seed)

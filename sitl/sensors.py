@@ -15,7 +15,9 @@ import numpy as np
 
 from scenenav.core.contracts import GpsFixType
 from scenenav.core.frames import enu_to_geodetic
+from scenenav.core.rotations import quat_to_rotation_matrix
 from sitl.config import BaroConfig, CameraConfig, CompassConfig, GpsConfig, ImuConfig
+from sitl.surroundings import MagneticAnomalyField, Surface
 
 logger = logging.getLogger(__name__)
 
@@ -56,9 +58,10 @@ class ImuModel:
         self.gyro_bias_flu_rad_s = cfg.gyro_bias_std_rad_s * rng.standard_normal(3)
 
     def sample(self, specific_force_flu_m_s2: np.ndarray, angular_velocity_flu_rad_s: np.ndarray,
-               dt_s: float = 0.0) -> tuple[np.ndarray, np.ndarray]:
+               dt_s: float = 0.0, throttle: float = 0.0) -> tuple[np.ndarray, np.ndarray]:
         """(accel_flu_m_s2, gyro_flu_rad_s). ``dt_s`` (time since the previous sample) drives the
-        bias random walk; with the default 0 the biases stay constant."""
+        bias random walk; with the default 0 the biases stay constant. ``throttle`` (0..1, mean rotor
+        speed over its maximum) scales the motor vibration (``vibration_*``)."""
         cfg = self.cfg
         if dt_s > 0.0:
             root_dt = math.sqrt(dt_s)
@@ -73,37 +76,114 @@ class ImuModel:
                  + cfg.accel_noise_std_m_s2 * noise[:3])
         gyro = (np.asarray(angular_velocity_flu_rad_s, dtype=float) + self.gyro_bias_flu_rad_s
                 + cfg.gyro_noise_std_rad_s * noise[3:])
+        if (cfg.vibration_accel_m_s2 > 0.0 or cfg.vibration_gyro_rad_s > 0.0) and throttle > 0.0:
+            vib = self._rng.standard_normal(6) * throttle
+            accel = accel + cfg.vibration_accel_m_s2 * vib[:3]
+            gyro = gyro + cfg.vibration_gyro_rad_s * vib[3:]
         return accel, gyro
 
 
+class GaussMarkov:
+    """First-order Gauss-Markov process of stationary std ``sigma`` and correlation time ``tau_s``,
+    advanced by a fixed step ``dt_s`` (exact discretisation: x <- a x + sigma sqrt(1 - a^2) n,
+    a = exp(-dt / tau)); starts in its stationary distribution. ``size`` independent components."""
+
+    def __init__(self, sigma: float, tau_s: float, dt_s: float, rng: np.random.Generator,
+                 size: int = 1) -> None:
+        self._rng = rng
+        self._size = size
+        self.sigma = float(sigma)
+        self._a = math.exp(-dt_s / tau_s)
+        self._b = self.sigma * math.sqrt(-math.expm1(-2.0 * dt_s / tau_s))
+        self.value = self.sigma * rng.standard_normal(size)
+
+    def step(self) -> np.ndarray:
+        self.value = self._a * self.value + self._b * self._rng.standard_normal(self._size)
+        return self.value
+
+
 class BaroModel:
-    """Barometric altimeter: altitude + bias + white noise, and the ISA static pressure of that reading."""
+    """Barometric altimeter: altitude + bias + Gauss-Markov drift + ground effect + white noise,
+    and the ISA static pressure of that reading. The drift is advanced by 1/rate_hz per sample."""
 
     def __init__(self, cfg: BaroConfig, rng: np.random.Generator) -> None:
         self.cfg = cfg
         self._rng = rng
+        self._drift = (GaussMarkov(cfg.drift_std_m, cfg.drift_time_constant_s, 1.0 / cfg.rate_hz, rng)
+                       if cfg.drift_std_m > 0.0 else None)
 
-    def sample(self, altitude_m: float) -> tuple[float, float]:
-        """(altitude_m, pressure_pa) for a true altitude above mean sea level (m).
+    def ground_effect_m(self, height_above_surface_m: float, rotors_on: bool) -> float:
+        """The downwash error: ``ground_effect_m`` on the surface, zero from
+        ``ground_effect_height_m`` up, linear between (only with the rotors turning)."""
+        cfg = self.cfg
+        if not rotors_on or cfg.ground_effect_m == 0.0:
+            return 0.0
+        share = 1.0 - max(0.0, float(height_above_surface_m)) / cfg.ground_effect_height_m
+        return cfg.ground_effect_m * max(0.0, share)
+
+    def sample(self, altitude_m: float, height_above_surface_m: float = math.inf,
+               rotors_on: bool = False) -> tuple[float, float]:
+        """(altitude_m, pressure_pa) for a true altitude above mean sea level (m); the height above
+        the surface below and whether the rotors turn drive the ground effect.
 
         The pressure is the ISA pressure of the measured (noisy) altitude, so the pair is consistent.
         """
         measured = float(altitude_m) + self.cfg.bias_m + self.cfg.noise_std_m * float(
             self._rng.standard_normal())
+        if self._drift is not None:
+            measured += float(self._drift.step()[0])
+        measured += self.ground_effect_m(height_above_surface_m, rotors_on)
         return measured, isa_pressure_pa(measured)
 
 
 class CompassModel:
-    """Magnetic compass already corrected for declination: heading + bias + white noise."""
+    """Magnetic compass already corrected for declination: heading + bias + white noise, plus
+    (``cfg.distorted``) the heading error of a distorted magnetometer reading.
 
-    def __init__(self, cfg: CompassConfig, rng: np.random.Generator) -> None:
+    The magnetometer model (body FLU axes, mGauss): ``m = S (R^T (B + A) + k I) + o`` with ``B``
+    the earth field (ENU, declination 0), ``A`` the local anomaly of the buildings
+    (``sitl.surroundings.MagneticAnomalyField``), ``R`` the body-to-world rotation, ``k`` the
+    motor-current coefficients (SIM_MAG_MOT) times the battery current ``I``, ``S`` the soft-iron
+    matrix and ``o`` the hard-iron offset. The autopilot tilt-compensates the reading with its
+    roll and pitch; the heading it gets is the true heading minus the angle of ``R m`` from north
+    (here with the true roll and pitch, so the error is the magnetometer's alone).
+    """
+
+    def __init__(self, cfg: CompassConfig, rng: np.random.Generator,
+                 anomalies: MagneticAnomalyField | None = None) -> None:
         self.cfg = cfg
         self._rng = rng
+        self.anomalies = anomalies
+        inc = math.radians(cfg.inclination_deg)
+        self.earth_enu_mgauss = cfg.earth_field_mgauss * np.array([0.0, math.cos(inc), -math.sin(inc)])
+        d, o = cfg.soft_iron_diag, cfg.soft_iron_offdiag
+        self.soft_iron = np.array([[d[0], o[0], o[1]], [o[0], d[1], o[2]], [o[1], o[2], d[2]]])
+        self.hard_iron = np.array(cfg.hard_iron_mgauss, dtype=float)
+        self.motor = np.array(cfg.motor_mgauss_per_a, dtype=float)
 
-    def sample(self, heading_rad: float) -> float:
-        """Heading (rad, clockwise from north) -> measured heading wrapped to [0, 2*pi)."""
+    def field_body_mgauss(self, q_wxyz, current_a: float = 0.0, position_enu_m=None) -> np.ndarray:
+        """The distorted magnetometer reading (body FLU, mGauss)."""
+        rot = quat_to_rotation_matrix(q_wxyz)
+        world = self.earth_enu_mgauss
+        if self.anomalies is not None and position_enu_m is not None:
+            world = world + self.anomalies.at(position_enu_m)
+        current = float(current_a) if math.isfinite(current_a) else 0.0
+        return self.soft_iron @ (rot.T @ world + self.motor * current) + self.hard_iron
+
+    def heading_error_rad(self, q_wxyz, current_a: float = 0.0, position_enu_m=None) -> float:
+        """Measured minus true heading caused by the magnetometer errors (rad, in (-pi, pi])."""
+        seen = quat_to_rotation_matrix(q_wxyz) @ self.field_body_mgauss(q_wxyz, current_a, position_enu_m)
+        return -math.atan2(float(seen[0]), float(seen[1]))
+
+    def sample(self, heading_rad: float, q_wxyz=None, current_a: float = 0.0,
+               position_enu_m=None) -> float:
+        """Heading (rad, clockwise from north) -> measured heading wrapped to [0, 2*pi). The
+        attitude ``q_wxyz`` (and the battery current and position) drive the magnetometer errors
+        when ``cfg.distorted``."""
         value = float(heading_rad) + self.cfg.bias_rad + self.cfg.noise_std_rad * float(
             self._rng.standard_normal())
+        if self.cfg.distorted and q_wxyz is not None:
+            value += self.heading_error_rad(q_wxyz, current_a, position_enu_m)
         wrapped = value % (2.0 * math.pi)
         # float modulo can return exactly 2*pi for tiny negative inputs.
         return 0.0 if wrapped >= 2.0 * math.pi else wrapped
@@ -131,9 +211,12 @@ class GpsModel:
     is a NO_FIX sample whose numeric fields are NaN.
     """
 
-    def __init__(self, cfg: GpsConfig, rng: np.random.Generator) -> None:
+    def __init__(self, cfg: GpsConfig, rng: np.random.Generator, surface: Surface | None = None) -> None:
         self.cfg = cfg
         self._rng = rng
+        self.surface = surface
+        self._multipath = (GaussMarkov(1.0, cfg.multipath_time_constant_s, 1.0 / cfg.rate_hz, rng, size=2)
+                           if cfg.multipath_std_m > 0.0 else None)
         self._sigma = np.array([cfg.horizontal_noise_std_m, cfg.horizontal_noise_std_m,
                                 cfg.vertical_noise_std_m])
         self._drift = cfg.drift_std_m * rng.standard_normal(3) if cfg.drift_std_m > 0.0 else np.zeros(3)
@@ -153,11 +236,22 @@ class GpsModel:
             self._drift = self._drift_a * self._drift + self._drift_b * self._rng.standard_normal(3)
         noise = self._rng.standard_normal(6)
         pos = np.asarray(position_enu_m, dtype=float) + self._drift + self._sigma * noise[:3]
+        if self._multipath is not None:
+            unit = self._multipath.step()
+            pos[:2] += self.multipath_std_m(position_enu_m) * unit
         vel = np.asarray(velocity_enu_m_s, dtype=float) + self.cfg.velocity_noise_std_m_s * noise[3:]
         lat, lon = enu_to_geodetic(pos[0], pos[1], origin_lat_deg, origin_lon_deg)
         return GpsFix(lat_deg=float(lat), lon_deg=float(lon), alt_m=float(origin_alt_m + pos[2]),
                       velocity_enu_m_s=vel, eph_m=self.eph_m, epv_m=self.epv_m,
                       fix_type=GpsFixType.FIX_3D, satellites=self.cfg.satellites)
+
+
+    def multipath_std_m(self, position_enu_m) -> float:
+        """Std of the multipath error at a position: ``multipath_std_m`` x the share of the sky
+        the buildings hide (0 without a surface model)."""
+        if self.surface is None or self.cfg.multipath_std_m <= 0.0:
+            return 0.0
+        return self.cfg.multipath_std_m * self.surface.sky_obstruction(position_enu_m)
 
 
 def gaussian_kernel(sigma_px: float) -> np.ndarray:

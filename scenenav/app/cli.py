@@ -15,6 +15,7 @@ from scenenav.app.arg_types import nonneg_int, port_number, positive_int
 
 DEFAULT_LIVE_PORT = 8765          # Foxglove's default WebSocket port (scenenav.app.live)
 from scenenav.app.json_output import emit_json, run_json_aware
+from scenenav.app.realism import Realism
 from scenenav.core.errors import UserError
 
 log = logging.getLogger("scenenav")
@@ -104,7 +105,8 @@ def _table2(args: argparse.Namespace) -> int:
     from scenenav.app.experiment import run_table2
     run_table2(args.world, args.out, seed=args.seed, threshold_m=args.false_fix_threshold_m,
                overrides=tuple(args.set or ()), progress=not args.quiet,
-               results_page=args.results_page)
+               results_page=args.results_page, realism=args.realism, scripted=args.scripted,
+               paper_rows=not args.no_paper_rows)
     return 0
 
 
@@ -253,7 +255,7 @@ def build_parser(domain_commands: bool = True) -> argparse.ArgumentParser:
                                      "that flight, the statistical indicator, no exclusion. CNN and "
                                      "assistant map fly the combined decision rule and, for comparison, "
                                      "again the paper's rule P(bad) > 0.5 with their own map: six "
-                                     "flights (about 9 min on 2 cores). Writes table2.json, table2.md, "
+                                     "flights, flown by the autopilot on GPS (--scripted: the kinematic path). Writes table2.json, table2.md, "
                                      "figure7.png, figure8.png and one run folder per flight.")
     t2.add_argument("--world", help="world folder (default: the built-in default world)")
     t2.add_argument("--out", required=True, metavar="DIR")
@@ -263,7 +265,16 @@ def build_parser(domain_commands: bool = True) -> argparse.ArgumentParser:
     t2.add_argument("--set", action="append", metavar="KEY=VALUE", help="scenario override for every flight")
     t2.add_argument("--quiet", action="store_true", help="no progress bars")
     t2.add_argument("--results-page", metavar="FILE.md",
-                    help="also write the table as a results page (e.g. docs/results.md) with its figures")
+                    help="also update the results page (e.g. docs/results.md): this run's column "
+                         "(its profile and flight kind) beside the tables stored there")
+    t2.add_argument("--realism", choices=[r.value for r in Realism],
+                    help="realism profile of every flight (docs/realism.md; default: the scenario "
+                         "default, ideal)")
+    t2.add_argument("--scripted", action="store_true",
+                    help="fly the kinematic path without the autopilot (the old table) instead of "
+                         "the autopilot mission on GPS")
+    t2.add_argument("--no-paper-rows", action="store_true",
+                    help="skip the two extra flights of the paper's rule (four flights, not six)")
     t2.set_defaults(func=_table2)
     rl = esub.add_parser("relief", help="what relief does to matching: flat vs 3-D captures, ortho vs "
                                         "500 m perspective reference",

@@ -3,7 +3,17 @@
 The same path at 100 m and 10 m/s is flown four times in lockstep (so every flight sees the
 identical camera frames): online CNN (which builds an assistant map as it flies), the assistant
 map built during that first flight, the statistical indicator, and no exclusion. Each flight is a
-full ``scenenav run`` (simulator, perception node, recorder) in its own run folder.
+full ``scenenav run`` (simulator, autopilot, perception node, recorder) in its own run folder.
+
+By default the autopilot flies each flight as a mission, as in the paper: it takes off at the
+route's first waypoint, climbs to the flight altitude, flies the route and lands, navigating on GPS
+(the logging flights of the paper had GPS), so the perception method never steers the vehicle and
+the four flights are the same flight: the command checks that their truth.csv files are
+byte-identical (``identical_frames`` in table2.json). Only the fixes captured within
+``SURVEY_BAND_M`` of the flight altitude are scored (not the climb and the landing).
+``scripted=True`` (``--scripted``) flies the kinematic path instead (no autopilot; the old table).
+``realism`` selects the realism profile (docs/realism.md) of every flight; the results page keeps
+one table per profile and flight kind, side by side (``update_results_page``).
 
 Definitions (printed in table2.md):
 * a fix's error is against the vehicle's true position at the capture, after undoing the reference
@@ -29,6 +39,7 @@ each flight really used is read back from its ``perception_diag_perception.csv``
 
 from __future__ import annotations
 
+import hashlib
 import json
 import logging
 import math
@@ -47,6 +58,41 @@ PAPER = {  # Table 2 of the seed paper: RMS m, time ms, detected %
 }
 METHODS = ("cnn", "assistant-map", "statistical", "none")
 DECISION_RULES = ("combined", "paper")
+#: Autopilot flights: fixes captured within this of the flight altitude are scored (the survey
+#: leg), not those of the climb and the landing.
+SURVEY_BAND_M = 10.0
+#: Autopilot flights: simulated-time budget beyond the route at cruise speed (take-off, climb,
+#: turns, descent and landing); the run ends when the vehicle has landed.
+MISSION_MARGIN_S = 300.0
+#: Autopilot flights descend briskly (3 m/s to 10 m, then 1 m/s; the landing is not scored).
+FAST_LANDING_PARAMS = "{LAND_SPEED_HIGH: 300, LAND_SPEED: 100}"
+
+
+def route_length_m(route) -> float:
+    return float(sum(math.dist(a, b) for a, b in zip(route[:-1], route[1:], strict=True)))
+
+
+def at_survey_altitude(fx: dict, altitude_m: float, band_m: float = SURVEY_BAND_M) -> dict:
+    """The fix table's rows captured within ``band_m`` of ``altitude_m`` (true height)."""
+    keep = np.abs(np.asarray(fx["truth_z_m"], dtype=float) - altitude_m) <= band_m
+    return {k: (np.asarray(v)[keep] if np.ndim(v) == 1 and len(v) == len(keep) else v)
+            for k, v in fx.items()}
+
+
+def file_sha256(path: Path) -> str | None:
+    return hashlib.sha256(path.read_bytes()).hexdigest() if path.is_file() else None
+
+
+def flight_settings(route, altitude_m: float, speed_m_s: float, scripted: bool) -> list[str]:
+    """The ``--set`` items that make every table2 flight the same flight."""
+    sets = ["flight.route_enu_m=" + json.dumps([list(p) for p in route])]
+    if scripted:
+        return ["flight.mode=scripted", *sets, "duration_s=100000"]   # ends when the route is done
+    duration = route_length_m(route) / speed_m_s + MISSION_MARGIN_S
+    return ["flight.mode=autopilot", *sets, f"flight.start_enu_m={json.dumps(list(route[0]))}",
+            f"flight.altitude_m={altitude_m}", f"flight.speed_m_s={speed_m_s}",
+            "sim.gps.enabled=true", "guidance.enabled=false", "autopilot.mission_end=land",
+            f"autopilot.params={FAST_LANDING_PARAMS}", f"duration_s={duration:.0f}"]
 
 
 def default_decision_model() -> Path:
@@ -89,24 +135,29 @@ def rejection_metrics(fx: dict) -> dict:
 def run_table2(world_dir: str | None, out: str, seed: int = 0, threshold_m: float = 5.0,
                overrides: tuple[str, ...] = (), progress: bool = True,
                results_page: str | None = None, decision_rule: str = "combined",
-               paper_rows: bool = True) -> dict:
+               paper_rows: bool = True, realism: str | None = None, scripted: bool = False) -> dict:
     from scenenav.app.evaluation import fix_height_splits, fix_table
     from scenenav.app.launcher import run
     from scenenav.app.nodes import load_world_for
+    from scenenav.app.realism import parse_realism
     from scenenav.app.scenario import load_scenario, route_for
     if decision_rule not in DECISION_RULES:
         raise UserError(f"decision rule {decision_rule!r}: expected one of {', '.join(DECISION_RULES)}")
+    if realism is not None:
+        parse_realism(realism, "--realism")
     out_dir = Path(out)
     if out_dir.exists() and any(out_dir.iterdir()):
         raise UserError(f"{out_dir}: output folder exists and is not empty (choose a new --out)")
-    base = ["flight.mode=scripted", f"seed={seed}", f"evaluation.false_fix_threshold_m={threshold_m}"]
+    base = [f"seed={seed}", f"evaluation.false_fix_threshold_m={threshold_m}"]
+    if realism is not None:
+        base.append(f"realism={realism}")
     if world_dir:
         base.append(f"world={Path(world_dir).resolve()}")
-    cfg0 = load_scenario(None, tuple(base) + tuple(overrides))
+    cfg0 = load_scenario(None, tuple(base) + ("flight.mode=scripted",) + tuple(overrides))
     world = load_world_for(cfg0)
     route = route_for(cfg0, world)
-    base.append("flight.route_enu_m=" + json.dumps([list(p) for p in route]))
-    base.append("duration_s=100000")          # ends when the scripted route is done
+    base += flight_settings(route, cfg0.flight.altitude_m, cfg0.flight.speed_m_s, scripted)
+    cfg0 = load_scenario(None, tuple(base) + tuple(overrides))   # what every flight flies
     out_dir.mkdir(parents=True, exist_ok=True)
     rows = []
     flights = [(m, decision_rule) for m in METHODS]
@@ -132,16 +183,25 @@ def run_table2(world_dir: str | None, out: str, seed: int = 0, threshold_m: floa
             if built.is_file():
                 shutil.copy(built, map_path)
         fx = fix_table(run_dir, threshold_m, world.manifest.reference)
-        if not fx:
+        if fx and not scripted:
+            fx = at_survey_altitude(fx, cfg0.flight.altitude_m)
+        if not fx or len(fx["t_s"]) == 0:
             raise UserError(f"{run_dir}: the flight produced no fixes (see {run_dir / 'logs'})")
         splits = fix_height_splits(fx, world, cfg0.sim.camera.fov_deg, threshold_m)
         row = {"method": method, "rule": flown_rule(run_dir) if method in ("cnn", "assistant-map")
                else "—", **rejection_metrics(fx), "run_dir": str(run_dir),
                "real_time_factor": summary.get("real_time_factor"),
+               "truth_sha256": file_sha256(run_dir / "truth.csv"),
                "errors_by_height_accepted": splits[1].to_dict() if splits else None}
         rows.append(row)
+    digests = {r["truth_sha256"] for r in rows}
+    identical = len(digests) == 1 and None not in digests
+    if not identical:
+        log.warning("table2: the flights' truth.csv differ: the methods did not see identical frames")
     result = {"world": world.manifest.name, "threshold_m": threshold_m, "seed": seed,
-              "decision_rule": decision_rule,
+              "decision_rule": decision_rule, "realism": cfg0.realism.value,
+              "flight": "scripted" if scripted else "autopilot", "identical_frames": identical,
+              "survey_band_m": None if scripted else SURVEY_BAND_M,
               "rows": rows, "paper": {m: {"rms_error_m": p[0], "fix_time_ms": p[1],
                                           "detected_false_pct": p[2]} for m, p in PAPER.items()}}
     (out_dir / "table2.json").write_text(json.dumps(result, indent=2))
@@ -152,17 +212,74 @@ def run_table2(world_dir: str | None, out: str, seed: int = 0, threshold_m: floa
     except Exception:  # plots never lose the table
         log.exception("could not draw the figures")
     if results_page:
-        page = Path(results_page)
-        page.parent.mkdir(parents=True, exist_ok=True)
-        for fig in ("figure7.png", "figure8.png"):
-            if (out_dir / fig).is_file():
-                shutil.copy(out_dir / fig, page.parent / f"table2-{fig}")
-        page.write_text(md.replace("Figures: figure7.png (paths), figure8.png (statistical variance).",
-                                   "Figures: ![Figure 7](table2-figure7.png) ![Figure 8](table2-figure8.png)")
-                        + f"\nCommand: `scenenav experiment table2 --out {out} --results-page {results_page}`"
-                        + (f" with overrides {list(overrides)}" if overrides else "") + "\n")
+        command = (f"scenenav experiment table2 --out {out} --results-page {results_page}"
+                   + (f" --realism {realism}" if realism else "") + (" --scripted" if scripted else "")
+                   + "".join(f" --set {o}" for o in overrides))
+        update_results_page(Path(results_page), result, out_dir, command)
     print(md)
     return result
+
+
+def profile_key(result: dict) -> str:
+    """The results page's name for a table: its realism profile and flight kind."""
+    return f"{result.get('realism', 'ideal')}-{result.get('flight', 'scripted')}"
+
+
+#: Column order of the results page (others follow, sorted).
+PAGE_ORDER = ("ideal-scripted", "ideal-autopilot", "paper-autopilot", "realistic-autopilot")
+
+
+def update_results_page(page: Path, result: dict, out_dir: Path, command: str) -> None:
+    """Store ``result`` beside ``page`` (``table2-<profile>-<flight>.json`` and its figures) and
+    rewrite the page from every table stored there: the profiles side by side, then each table."""
+    page.parent.mkdir(parents=True, exist_ok=True)
+    key = profile_key(result)
+    for fig in ("figure7.png", "figure8.png"):
+        if (out_dir / fig).is_file():
+            shutil.copy(out_dir / fig, page.parent / f"table2-{key}-{fig}")
+    (page.parent / f"table2-{key}.json").write_text(json.dumps({**result, "command": command}, indent=2))
+    tables = {}
+    for path in sorted(page.parent.glob("table2-*.json")):
+        data = json.loads(path.read_text())
+        tables[profile_key(data)] = data
+    page.write_text(results_page_markdown(tables))
+
+
+def results_page_markdown(tables: dict[str, dict]) -> str:
+    keys = [k for k in PAGE_ORDER if k in tables] + sorted(k for k in tables if k not in PAGE_ORDER)
+    lines = ["# Table 2 reproduced, per realism profile", "",
+             "Each column is one `scenenav experiment table2` run (four flights, one per method, in "
+             "lockstep) on the realism profile and flight kind of its heading (docs/realism.md): "
+             "`scripted` = the kinematic path without the autopilot, `autopilot` = the mission flown "
+             "by the autopilot on GPS, scored over the fixes at the survey altitude. Regenerated by "
+             "the command under each table; a run updates its own column.", "",
+             "RMS error over accepted fixes (m) / detected false (%) / false fixes accepted:", "",
+             "| method | " + " | ".join(keys) + " | paper |",
+             "|---|" + "---|" * (len(keys) + 1)]
+    for method in METHODS:
+        cells = []
+        for k in keys:
+            # the first row of a method is its main flight (the paper-rule repeats come after)
+            row = next((r for r in tables[k]["rows"] if r["method"] == method), None)
+            cells.append("—" if row is None else f"{_f(row['rms_error_m'])} / "
+                         f"{_f(row['detected_false_pct'], '{:.1f}')} / {row['false_fixes_accepted']}")
+        p = PAPER[method]
+        lines.append(f"| {method} | " + " | ".join(cells) + f" | {p[0]} / {_f(p[2], '{:g}')} / — |")
+    lines += ["", "| | " + " | ".join(keys) + " |", "|---|" + "---|" * len(keys),
+              "| world | " + " | ".join(f"`{tables[k]['world']}`" for k in keys) + " |",
+              "| identical frames in the four flights | "
+              + " | ".join(_yes(tables[k].get("identical_frames")) for k in keys) + " |", ""]
+    for k in keys:
+        t = tables[k]
+        md = table2_markdown(t).replace("# Table 2 reproduced", f"## {k}", 1)
+        md = md.replace("Figures: figure7.png (paths), figure8.png (statistical variance).",
+                        f"Figures: ![Figure 7](table2-{k}-figure7.png) ![Figure 8](table2-{k}-figure8.png)")
+        lines += [md, f"Command: `{t.get('command', 'scenenav experiment table2')}`", ""]
+    return "\n".join(lines)
+
+
+def _yes(value) -> str:
+    return "—" if value is None else ("yes" if value else "no")
 
 
 def _f(v, fmt="{:.2f}") -> str:
@@ -225,6 +342,8 @@ def plot_figures(out_dir: Path, rows: list[dict], threshold_m: float, reference=
     plt.close(fig)
     stat = next(r for r in rows if r["method"] == "statistical")
     fx = fix_table(Path(stat["run_dir"]), threshold_m, reference)
+    ok = (fx["valid"] > 0.5) & np.isfinite(fx["x_m"]) & np.isfinite(fx["y_m"])
+    fx = {k: (np.asarray(v)[ok] if np.ndim(v) == 1 and len(v) == len(ok) else v) for k, v in fx.items()}
     det = StatisticalDetector()
     var = [det.update(x, y, t)[1] for x, y, t in zip(fx["x_m"], fx["y_m"], fx["t_s"], strict=False)]
     fig, ax = plt.subplots(figsize=(10, 4))

@@ -14,6 +14,7 @@ from pathlib import Path
 from autopilot_bridge.config import AutopilotNodeConfig
 from guidance.config import GuidanceNodeConfig
 from perception.config import PerceptionNodeConfig
+from scenenav.app.realism import Realism, apply_realism
 from scenenav.core.camera_geometry import ground_footprint_m
 from scenenav.core.clock import ClockConfig
 from scenenav.core.config import apply_overrides, check, load_config, load_yaml, to_dict
@@ -130,6 +131,7 @@ class ExternalConfig:
 class ScenarioConfig:
     name: str = "default"
     seed: int = 0
+    realism: Realism = Realism.IDEAL   # ideal | paper | realistic: a bundle of settings under the file's keys (docs/realism.md)
     world: str = "default"             # a world folder, "default", or "generated:seed=N,width_px=W,..."
     duration_s: float = 90.0           # simulated seconds at most
     clock: ClockConfig = field(default_factory=ClockConfig)
@@ -215,8 +217,9 @@ def scenario_yaml(path: str | Path, _seen: tuple[Path, ...] = ()) -> dict:
 def load_scenario(path: str | Path | None, overrides: tuple[str, ...] = (),
                   external: tuple[str, ...] = ()) -> ScenarioConfig:
     """Load a scenario YAML (None: all defaults; ``base:`` merged, see :func:`scenario_yaml`), apply
-    ``key=value`` overrides and add the ``external`` nodes (``ROLE:ID``, from ``--external``) to
-    ``external.nodes``."""
+    ``key=value`` overrides, add the ``external`` nodes (``ROLE:ID``, from ``--external``) to
+    ``external.nodes``, then lay the ``realism`` profile's settings under whatever the file and the
+    overrides set (scenenav/app/realism.py)."""
     data = scenario_yaml(path) if path else {}
     source = str(path) if path else "scenario"
     if overrides:
@@ -228,7 +231,7 @@ def load_scenario(path: str | Path | None, overrides: tuple[str, ...] = (),
         section["nodes"] = [*(section.get("nodes") or []), *external]
         data["external"] = section
         source += " (with --external)"
-    return load_config(ScenarioConfig, data, source)
+    return load_config(ScenarioConfig, apply_realism(data, source), source)
 
 
 def scenario_to_dict(cfg: ScenarioConfig) -> dict:

@@ -34,6 +34,7 @@ from scenenav.app.launcher import (
     restart_on_new_hub_port,
     spawn_recorder_and_perception,
 )
+from scenenav.app.realism import apply_realism
 from scenenav.app.scenario import ScenarioConfig, scenario_yaml
 from scenenav.app.signals import interrupt_on_stop_signals
 from scenenav.core.config import apply_overrides, load_config, set_dotted
@@ -102,7 +103,7 @@ def sitl_scenario(opts: SitlOptions) -> ScenarioConfig:
     if opts.overrides:
         data = apply_overrides(data, list(opts.overrides))
         source += " (with --set overrides)"
-    return load_config(ScenarioConfig, data, source)
+    return load_config(ScenarioConfig, apply_realism(data, source), source)
 
 
 def _check_tcp_port(port: int) -> None:
