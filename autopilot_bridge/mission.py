@@ -108,6 +108,13 @@ EXECUTED_COMMANDS: frozenset[int] = frozenset({
 TOLERATED_COMMANDS: frozenset[int] = frozenset(int(c) for c in MissionCommand) - EXECUTED_COMMANDS
 ACCEPTED_COMMANDS: frozenset[int] = EXECUTED_COMMANDS | TOLERATED_COMMANDS
 
+# The messages MissionManager.handle processes (docs/mavlink.md's compatibility table lists them).
+HANDLED_MESSAGES: frozenset[str] = frozenset({
+    "MISSION_COUNT", "MISSION_ITEM_INT", "MISSION_ITEM", "MISSION_REQUEST_LIST",
+    "MISSION_REQUEST_INT", "MISSION_REQUEST", "MISSION_CLEAR_ALL", "MISSION_WRITE_PARTIAL_LIST",
+    "MISSION_SET_CURRENT", "MISSION_ACK",
+})
+
 LOCATION_COMMANDS: frozenset[int] = frozenset({
     MissionCommand.NAV_WAYPOINT, MissionCommand.NAV_LAND, MissionCommand.NAV_TAKEOFF,
     MissionCommand.DO_SET_ROI,
