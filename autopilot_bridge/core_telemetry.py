@@ -16,6 +16,7 @@ from enum import IntFlag
 import numpy as np
 
 from autopilot_bridge.config import PositionSource
+from autopilot_bridge.failsafe_checks import BatteryLevel
 from autopilot_bridge.flight_laws import LawKind
 from autopilot_bridge.geo_frame import enu_to_ned
 from autopilot_bridge.vehicle_interface import (
@@ -164,7 +165,8 @@ class TelemetryMixin:
     def _system_status(self) -> SystemStatus:
         if not self.nav.aligned:
             return SystemStatus.BOOT
-        if self.failsafe.any_active:
+        if (self.failsafe.any_active or self.ekf_check.active
+                or self.battery_failsafe.level != BatteryLevel.OK):
             return SystemStatus.CRITICAL
         return SystemStatus.ACTIVE if self._armed and not self.fc.landed else SystemStatus.STANDBY
 

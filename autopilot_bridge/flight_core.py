@@ -62,10 +62,10 @@ from autopilot_bridge.failsafe import (
     FailsafeAction,
     FailsafeEvent,
     FailsafeInputs,
-    FailsafeKind,
     FailsafeMonitor,
     FailsafeSettings,
 )
+from autopilot_bridge.failsafe_checks import BatteryFailsafe, BatterySettings, EkfCheck, EkfVariances
 from autopilot_bridge.flight_laws import Hold, Land, LawKind, Rtl, Tracker
 from autopilot_bridge.fusion import ImuReading, SensorFusionMixin
 from autopilot_bridge.geo_frame import GeoFrame
@@ -131,6 +131,8 @@ class FlightCore(SensorFusionMixin, ArmingMixin, GuidedMixin, AutoMissionMixin,
         self.fc = FlightController(self._control_config(), self.airframe)
         self.mixer = QuadXMixer(self.airframe)
         self.failsafe = FailsafeMonitor()
+        self.ekf_check = EkfCheck()
+        self.battery_failsafe = BatteryFailsafe()
         self.battery = BatteryMonitor()
         self.stats: Counter[str] = Counter()
         self._now_s = 0.0
@@ -331,6 +333,29 @@ class FlightCore(SensorFusionMixin, ArmingMixin, GuidedMixin, AutoMissionMixin,
             last_vision_fix_s=self._last_usable_vision_s)
         for ev in self.failsafe.update(inputs, settings):
             self._apply_failsafe(ev, est)
+        for ev in self._failsafe_checks(inputs):
+            self._apply_failsafe(ev, est)
+
+    def _failsafe_checks(self, inputs: FailsafeInputs) -> list[FailsafeEvent]:
+        """The EKF and battery failsafes (``failsafe_checks``)."""
+        p = self.params
+
+        def variances() -> EkfVariances:    # EKF_STATUS_REPORT's, built only when a check is due
+            tel = self._build_telemetry()
+            return EkfVariances(tel.ekf_velocity_variance, tel.ekf_pos_horiz_variance,
+                                tel.ekf_compass_variance)
+        events = self.ekf_check.update(self._now_s, self._armed, inputs.position_mode, variances,
+                                       p.get("FS_EKF_THRESH"), p.get_int("FS_EKF_ACTION"))
+        if p.get_int("BATT_MONITOR") == 0:
+            return events
+        battery = self.battery.state(p.get("BATT_CAPACITY"))
+        events += self.battery_failsafe.update(self._now_s, inputs.flying, battery.voltage_v,
+                                               battery.consumed_mah, BatterySettings(
+            low_volt_v=p.get("BATT_LOW_VOLT"), low_timer_s=p.get("BATT_LOW_TIMER"),
+            low_mah=p.get("BATT_LOW_MAH"), crt_volt_v=p.get("BATT_CRT_VOLT"),
+            crt_mah=p.get("BATT_CRT_MAH"), capacity_mah=p.get("BATT_CAPACITY"),
+            low_action=p.get_int("BATT_FS_LOW_ACT"), crt_action=p.get_int("BATT_FS_CRT_ACT")))
+        return events
 
     def _apply_failsafe(self, ev: FailsafeEvent, est: NavState) -> None:
         self._announce(ev.severity, ev.text)
@@ -340,16 +365,16 @@ class FlightCore(SensorFusionMixin, ArmingMixin, GuidedMixin, AutoMissionMixin,
         elif ev.action == FailsafeAction.LAND:
             self._vision_hold = None
             self._enter_mode(CopterMode.LAND, from_gcs=False)
+        elif ev.action == FailsafeAction.ALT_HOLD:
+            self._vision_hold = None
+            self._enter_mode(CopterMode.ALT_HOLD, from_gcs=False)
         elif ev.action == FailsafeAction.HOLD:
             stop = stopping_point(est.position_enu_m, est.velocity_enu_m_s, self._gcfg.wp_accel_m_s2)
             self._vision_hold = Hold(stop, float(est.heading_rad))
         elif ev.action == FailsafeAction.RESUME and self._vision_hold is not None:
             self._vision_hold = None
             self._restart_mode_law(est)
-        if ev.kind == FailsafeKind.GCS:
-            self.stats[f"failsafe_gcs_{ev.action.value}"] += 1
-        else:
-            self.stats[f"failsafe_vision_{ev.action.value}"] += 1
+        self.stats[f"failsafe_{ev.kind.value}_{ev.action.value}"] += 1
 
     # --------------------------------------------------------------------------- control
     def _law_kind(self) -> LawKind | None:

@@ -16,8 +16,10 @@ device ids are those of ArduPilot SITL's simulated compasses. The checks QGC mak
 ``APMSensorsComponent``: offsets non-zero for every used compass, INS_ACCOFFS not all zero;
 ``APMAirframeComponent``: FRAME_CLASS > 0) are in tests/mavlink/test_mavlink_gcs.py.
 
-Enabling what does not exist is refused rather than stored (FENCE_ENABLE 1, a battery failsafe
-action): a ground station must not show a protection the vehicle does not have.
+Enabling what does not exist is refused rather than stored (FENCE_ENABLE 1, battery failsafe
+action 5 = terminate): a ground station must not show a protection the vehicle does not have.
+BATT_FS_LOW_ACT / BATT_FS_CRT_ACT with the BATT_LOW_* / BATT_CRT_* thresholds drive the battery
+failsafe (``failsafe_checks``).
 """
 
 from __future__ import annotations
@@ -32,6 +34,9 @@ RC_DEAD_ZONES = {1: 20, 2: 20, 3: 30, 4: 20}   # Copter: roll/pitch/yaw 20, thro
 SITL_FLIGHT_MODES = (7, 9, 6, 3, 5, 0)  # copter.parm FLTMODE1..6: CIRCLE LAND RTL AUTO LOITER STAB
 SITL_COMPASS_OFFSETS = (5.0, 13.0, -18.0)  # copter.parm COMPASS_OFS*_X/Y/Z (mGauss)
 SITL_COMPASS_DEV_IDS = (97539, 131874, 263178)  # ArduPilot SITL's three simulated compasses
+# BATT_FS_LOW_ACT / BATT_FS_CRT_ACT values the battery failsafe implements (5, terminate, is not)
+BATT_FS_ACTIONS = ((0, "None"), (1, "Land"), (2, "RTL"), (3, "SmartRTL or RTL"),
+                   (4, "SmartRTL or Land"), (6, "Auto DO_LAND_START or RTL"), (7, "Brake or Land"))
 
 
 def _p(name: str, ptype: ParamType, default: float, lo: float, hi: float, units: str,
@@ -94,7 +99,6 @@ def _sensor_specs() -> list[ParamSpec]:
 
 
 def _power_specs() -> list[ParamSpec]:
-    none = ((0, "None"),)
     return [
         _p("BATT_VOLT_PIN", _I8, 13, -1, 127, "", "Battery voltage sensing pin (SITL board)"),
         _p("BATT_CURR_PIN", _I8, 12, -1, 127, "", "Battery current sensing pin (SITL board)"),
@@ -109,10 +113,11 @@ def _power_specs() -> list[ParamSpec]:
         _p("BATT_CRT_MAH", _F, 0.0, 0.0, 1e6, "mAh", "Critical battery capacity left"),
         _p("BATT_LOW_TIMER", _I32, 10, 0, 120, "s", "Low battery for this long triggers"),
         _p("BATT_FS_VOLTSRC", _I8, 0, 0, 1, "", "Failsafe voltage source (0 raw, 1 sag compensated)"),
-        _p("BATT_FS_LOW_ACT", _I8, 0, 0, 0, "",
-           "Low battery failsafe action (no battery failsafe yet: only 0)", none),
-        _p("BATT_FS_CRT_ACT", _I8, 0, 0, 0, "",
-           "Critical battery failsafe action (no battery failsafe yet: only 0)", none),
+        # these two do change something: the battery failsafe (failsafe_checks.BatteryFailsafe)
+        ParamSpec("BATT_FS_LOW_ACT", _I8, 0, 0, 7, "", "Low battery failsafe action",
+                  BATT_FS_ACTIONS),
+        ParamSpec("BATT_FS_CRT_ACT", _I8, 0, 0, 7, "", "Critical battery failsafe action",
+                  BATT_FS_ACTIONS),
     ]
 
 

@@ -24,7 +24,7 @@ from autopilot_bridge.vehicle_interface import Vehicle
 DOC = (REPO_ROOT / "docs" / "mavlink.md").read_text()
 SECTION = "## ArduCopter compatibility table"
 NOT_IMPLEMENTED = "not implemented"
-STATUS = re.compile(r"^(as ArduCopter|differs: \S.*|not implemented)$")
+STATUS = re.compile(r"^(as ArduCopter(: \S.*)?|differs: \S.*|not implemented)$")
 KINDS = ("mode", "command", "mission item", "message in", "telemetry", "failsafe")
 
 
