@@ -139,6 +139,7 @@ class FlightCore(SensorFusionMixin, ArmingMixin, GuidedMixin, AutoMissionMixin,
         self._armed = False
         self._mode = CopterMode.STABILIZE
         self._home: np.ndarray | None = None
+        self._home_locked = False       # DO_SET_HOME locks home: arming keeps it (ArduCopter)
         self._origin: np.ndarray | None = None
         self._ground_xy = np.array(self.cfg.start_enu_m, dtype=float)
         self._ground_next_s = 0.0

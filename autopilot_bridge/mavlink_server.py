@@ -51,6 +51,7 @@ from autopilot_bridge.param_pack import PackedParam, pack_params, parse_query
 from autopilot_bridge.params import ParameterStore
 from autopilot_bridge.setpoints import global_position_target, local_position_target, odometry_from_message
 from autopilot_bridge.signing import Signer, SigningConfig
+from autopilot_bridge.system_commands import SystemCommands
 from autopilot_bridge.telemetry import (
     STREAMABLE_MSG_IDS,
     EncodeContext,
@@ -129,6 +130,13 @@ class MavlinkServerConfig:
               self.tcp_send_buffer_max_bytes, ">= 4096")
 
 
+def command_handler(vehicle: Vehicle, services: MavlinkServer) -> CommandHandler:
+    """Every command the server answers: ``commands`` plus the modules registered into it."""
+    handler = CommandHandler(vehicle, services)
+    handler.register(SystemCommands(vehicle, services).handlers())
+    return handler
+
+
 class MavlinkServer(LinkTransportMixin, ParamProtocolMixin):
     """ArduCopter-compatible MAVLink endpoint for a Vehicle. See the module docstring."""
 
@@ -162,7 +170,7 @@ class MavlinkServer(LinkTransportMixin, ParamProtocolMixin):
         self.missions = MissionManager(vehicle, self,
                                        upload_timeout_s=self.cfg.mission_upload_timeout_s,
                                        request_retry_s=self.cfg.mission_request_retry_s)
-        self.commands = CommandHandler(vehicle, self)
+        self.commands = command_handler(vehicle, self)
         self.ftp = FtpServer(self._ftp_file)
         self._open_sockets()
         params.add_observer(self._on_param_changed)
@@ -335,6 +343,9 @@ class MavlinkServer(LinkTransportMixin, ParamProtocolMixin):
 
     def set_mission_current(self, seq: int) -> bool:
         return self.missions.set_current(seq, None)
+
+    def erase_stored_params(self) -> None:
+        self.params.erase_persisted()
 
     # ----------------------------------------------------------------- input
     def _handle_frame(self, link: Link, frame: bytes, now_s: float) -> None:

@@ -266,6 +266,16 @@ class MissionItem:
 
 
 @dataclass(frozen=True)
+class HomeLocation:
+    """A DO_SET_HOME location: degrees, metres in ``alt_frame`` (AMSL or above the current home)."""
+
+    lat_deg: float
+    lon_deg: float
+    alt_m: float
+    alt_frame: AltFrame
+
+
+@dataclass(frozen=True)
 class LocalPositionTarget:
     """SET_POSITION_TARGET_LOCAL_NED, already validated by the server.
 
@@ -507,3 +517,9 @@ class Vehicle(Protocol):
 
     def mission_changed(self, items: tuple[MissionItem, ...]) -> Outcome:
         """A complete new mission (items seq 1..n; empty = cleared). Refuse to keep the old one."""
+
+    def run_prearm_checks(self) -> list[str]:
+        """RUN_PREARM_CHECKS (disarmed): every failing pre-arm check's text, [] when all pass."""
+
+    def set_home(self, home: HomeLocation | None) -> Outcome:
+        """DO_SET_HOME: at ``home``, or at the current position for None; emits HomeChangedEvent."""

@@ -6,10 +6,17 @@ BATT_LOW_TIMER and RTL. Each announced as a CRITICAL STATUSTEXT, HEARTBEAT CRITI
 
 from __future__ import annotations
 
+import pytest
 from support.sim_flight import CoreFlight
 
 from autopilot_bridge.modes import CopterMode
-from autopilot_bridge.vehicle_interface import MavSeverity, StatusTextEvent, SystemStatus
+from autopilot_bridge.vehicle_interface import (
+    AltFrame,
+    HomeLocation,
+    MavSeverity,
+    StatusTextEvent,
+    SystemStatus,
+)
 
 
 def _texts(core) -> list[tuple[MavSeverity, str]]:
@@ -41,5 +48,23 @@ def test_ekf_then_battery_failsafe_in_flight():
                    for sev, t in texts), texts
         assert c.telemetry().system_status == SystemStatus.CRITICAL
         assert c.stats["failsafe_battery_rtl"] == 1 and c.stats["failsafe_ekf_alt_hold"] == 1
+    finally:
+        f.close()
+
+
+def test_do_set_home_on_the_flight_core_is_kept_at_arming():
+    f = CoreFlight(8, gps=True, SN_VIS_TIMEOUT=0, EK3_SRC1_POSXY=3, EK3_SRC1_VELXY=3)
+    c = f.core
+    try:
+        assert not c.set_home(None).ok                       # before the EKF is aligned
+        f.run(3.0)
+        lat, lon = c.geo.to_geodetic(30.0, -20.0)
+        assert c.set_home(HomeLocation(lat, lon, c.geo.origin_alt_amsl_m + 2.0, AltFrame.AMSL)).ok
+        assert c.home_enu_m == pytest.approx([30.0, -20.0, 2.0], abs=1e-6)
+        far_lat, far_lon = c.geo.to_geodetic(60_000.0, 0.0)
+        assert not c.set_home(HomeLocation(far_lat, far_lon, 0.0, AltFrame.AMSL)).ok
+        assert c.set_mode(CopterMode.GUIDED).ok and c.arm(False).ok
+        assert c.home_enu_m == pytest.approx([30.0, -20.0, 2.0], abs=1e-6)   # locked: kept
+        assert c.telemetry().home_set
     finally:
         f.close()

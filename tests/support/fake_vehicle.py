@@ -28,6 +28,8 @@ from autopilot_bridge.params import ParameterStore
 from autopilot_bridge.vehicle_interface import (
     AltFrame,
     GlobalPositionTarget,
+    HomeChangedEvent,
+    HomeLocation,
     LandedState,
     LocalPositionTarget,
     MavSeverity,
@@ -103,6 +105,17 @@ class FakeVehicle:
         with self._lock:
             events, self._events = self._events, []
         return events
+
+    def run_prearm_checks(self) -> list[str]:
+        with self._lock:
+            self._record("run_prearm_checks")
+            return [self.prearm_failure] if self.prearm_failure else []
+
+    def set_home(self, home: HomeLocation | None) -> Outcome:
+        with self._lock:
+            self._record("set_home", home)
+            self._events.append(HomeChangedEvent())
+            return Outcome(True)
 
     def arm(self, force: bool) -> Outcome:
         with self._lock:

@@ -16,8 +16,7 @@ from pymavlink.dialects.v20 import ardupilotmega as mavlink2
 from support import REPO_ROOT
 
 from autopilot_bridge import failsafe, mission, telemetry
-from autopilot_bridge.commands import CommandHandler, CommandServices
-from autopilot_bridge.mavlink_server import MavlinkServer
+from autopilot_bridge.mavlink_server import MavlinkServer, command_handler
 from autopilot_bridge.modes import SUPPORTED_MODES
 from autopilot_bridge.vehicle_interface import Vehicle
 
@@ -81,7 +80,7 @@ def test_command_names_are_mavlink_commands(kind):
 
 
 def test_commands_match_the_dispatcher():
-    handler = CommandHandler(cast(Vehicle, object()), cast(CommandServices, object()))
+    handler = command_handler(cast(Vehicle, object()), cast(MavlinkServer, object()))
     assert {_command_id(n) for n in implemented("command")} == set(handler.supported_commands)
 
 
