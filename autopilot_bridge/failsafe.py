@@ -52,6 +52,7 @@ class FailsafeKind(Enum):
     VISION = "vision"
     EKF = "ekf"            # failsafe_checks.EkfCheck
     BATTERY = "battery"    # failsafe_checks.BatteryFailsafe
+    FENCE = "fence"        # geofence.FenceMonitor
 
 
 class FailsafeAction(Enum):
@@ -64,6 +65,7 @@ class FailsafeAction(Enum):
     CLEARED = "cleared"    # announcement only (GCS heartbeats are back)
     REPORT = "report"      # announcement only (the failsafe's action is "report" or not applicable)
     ALT_HOLD = "alt_hold"  # switch to ALT_HOLD (FS_EKF_ACTION 2)
+    BRAKE = "brake"        # switch to BRAKE, LAND if refused (FENCE_ACTION 4)
 
 
 class VisionFailsafeState(Enum):

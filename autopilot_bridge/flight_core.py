@@ -56,6 +56,7 @@ from autopilot_bridge.auto_mission import AutoMissionMixin, AutoStage
 from autopilot_bridge.battery import BatteryMonitor
 from autopilot_bridge.config import AutopilotAlgorithmsConfig, FlightCoreConfig, PositionSource, YawBehaviour
 from autopilot_bridge.control import ControlOutput, FlightController, PositionTarget, stopping_point
+from autopilot_bridge.core_geofence import GeofenceMixin
 from autopilot_bridge.core_telemetry import TelemetryMixin
 from autopilot_bridge.ekf import NavFilter, NavState
 from autopilot_bridge.failsafe import (
@@ -109,7 +110,7 @@ class CoreStatus:
 
 
 class FlightCore(SensorFusionMixin, ArmingMixin, GuidedMixin, AutoMissionMixin,
-                 ParamBindingMixin, TelemetryMixin):
+                 ParamBindingMixin, TelemetryMixin, GeofenceMixin):
     """The flight core; see the module docstring. Not thread-safe: call from one thread.
 
     One class, one concept per module: the control tick, modes and failsafes are here (alignment:
@@ -133,6 +134,7 @@ class FlightCore(SensorFusionMixin, ArmingMixin, GuidedMixin, AutoMissionMixin,
         self.failsafe = FailsafeMonitor()
         self.ekf_check = EkfCheck()
         self.battery_failsafe = BatteryFailsafe()
+        self._init_geofence()
         self.battery = BatteryMonitor()
         self.stats: Counter[str] = Counter()
         self._now_s = 0.0
@@ -336,6 +338,8 @@ class FlightCore(SensorFusionMixin, ArmingMixin, GuidedMixin, AutoMissionMixin,
             self._apply_failsafe(ev, est)
         for ev in self._failsafe_checks(inputs):
             self._apply_failsafe(ev, est)
+        for ev in self._fence_events(inputs.flying, inputs.landing, est.position_enu_m):
+            self._apply_failsafe(ev, est)
 
     def _failsafe_checks(self, inputs: FailsafeInputs) -> list[FailsafeEvent]:
         """The EKF and battery failsafes (``failsafe_checks``)."""
@@ -366,6 +370,10 @@ class FlightCore(SensorFusionMixin, ArmingMixin, GuidedMixin, AutoMissionMixin,
         elif ev.action == FailsafeAction.LAND:
             self._vision_hold = None
             self._enter_mode(CopterMode.LAND, from_gcs=False)
+        elif ev.action == FailsafeAction.BRAKE:
+            self._vision_hold = None
+            if not self._enter_mode(CopterMode.BRAKE, from_gcs=False).ok:
+                self._enter_mode(CopterMode.LAND, from_gcs=False)
         elif ev.action == FailsafeAction.ALT_HOLD:
             self._vision_hold = None
             self._enter_mode(CopterMode.ALT_HOLD, from_gcs=False)
@@ -524,7 +532,7 @@ class FlightCore(SensorFusionMixin, ArmingMixin, GuidedMixin, AutoMissionMixin,
             cfg = dataclasses.replace(cfg, wp_speed_m_s=rtl_speed)
         if self.params.get_int("WP_YAW_BEHAVIOR") in (0, 2):
             cfg = dataclasses.replace(cfg, yaw_behaviour=YawBehaviour.NEVER_CHANGE)
-        home = self._home if self._home is not None else est.position_enu_m
+        home = self._rtl_destination(est)      # home or a rally point (core_geofence)
         return Rtl(cfg, home, est, self.params.get("RTL_ALT_FINAL") / 100.0,
                     heading_rad=float(est.heading_rad))
 

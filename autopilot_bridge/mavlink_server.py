@@ -41,6 +41,7 @@ from typing import Callable, Iterable
 from pymavlink.dialects.v20 import ardupilotmega as mavlink2
 
 from autopilot_bridge.commands import CommandHandler, CommandRequest, MavResult
+from autopilot_bridge.fence_rally_protocol import FenceRallyProtocols
 from autopilot_bridge.mavlink_framing import frame_is_signed, frame_msg_id
 from autopilot_bridge.mavlink_ftp import PAYLOAD_LEN, FtpServer
 from autopilot_bridge.mavlink_links import Link, LinkKind, LinkTransportMixin, close_socket
@@ -171,6 +172,9 @@ class MavlinkServer(LinkTransportMixin, ParamProtocolMixin):
                                        upload_timeout_s=self.cfg.mission_upload_timeout_s,
                                        request_retry_s=self.cfg.mission_request_retry_s)
         self.commands = command_handler(vehicle, self)
+        self.fence_rally = FenceRallyProtocols(vehicle, self,
+                                               upload_timeout_s=self.cfg.mission_upload_timeout_s,
+                                               request_retry_s=self.cfg.mission_request_retry_s)
         self.ftp = FtpServer(self._ftp_file)
         self._open_sockets()
         params.add_observer(self._on_param_changed)
@@ -235,6 +239,7 @@ class MavlinkServer(LinkTransportMixin, ParamProtocolMixin):
         self._guarded(self._drain_vehicle_events)
         self._guarded(self._flush_statustexts)
         self._guarded(self.missions.update, now_s)
+        self._guarded(self.fence_rally.update, now_s)
         self._send_param_batches()
         self._guarded(self._send_streams, now_s)
         self._expire_udp_peers(now_s)
@@ -389,6 +394,8 @@ class MavlinkServer(LinkTransportMixin, ParamProtocolMixin):
         if handler is not None:
             handler(self, msg, link, now_s)
         elif kind.startswith("MISSION_"):
+            if self.fence_rally.handle(msg, link, now_s):
+                return
             if not self.missions.handle(msg, link, now_s):
                 self.stats["ignored"] += 1
         else:

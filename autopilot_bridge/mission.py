@@ -20,9 +20,8 @@ Shell module (uses pymavlink). Behaviour follows ArduPilot's ``MissionItemProtoc
 * MISSION_WRITE_PARTIAL_LIST (items start..end replaced, or appended when end is one past the
   last item), MISSION_CLEAR_ALL, MISSION_SET_CURRENT; MAV_CMD_DO_SET_MISSION_CURRENT lives in
   commands.py.
-* Fence and rally (mission_type 1, 2) are not implemented: downloads report 0 items, empty
-  uploads and clears are accepted, non-empty uploads get MAV_MISSION_UNSUPPORTED. We do not
-  claim MISSION_FENCE / MISSION_RALLY in AUTOPILOT_VERSION.
+* Fence and rally (mission_type 1, 2) are ``fence_rally_protocol``'s: the server routes them
+  there before this manager sees them (what this one still answers for them is a fallback).
 * "Guided waypoint" (MISSION_ITEM(_INT) with current == 2, sent by older MAVProxy and QGC): in GUIDED mode it becomes ``Vehicle.reposition``; MISSION_ACK ACCEPTED/ERROR.
 
 Item validation as ``AP_Mission::mavlink_int_to_mission_cmd``: param1..4 must be finite

@@ -49,8 +49,8 @@ FIRMWARE_VERSION_TYPE = mavlink2.FIRMWARE_VERSION_TYPE_OFFICIAL
 FLIGHT_CUSTOM_VERSION = b"scenenav"  # 8 bytes where ArduPilot puts its git hash
 
 # AUTOPILOT_VERSION.capabilities: what this emulator implements (FTP: the packed parameter file,
-# autopilot_bridge.mavlink_ftp). Not claimed: MISSION_FENCE / MISSION_RALLY (fence and rally are
-# answered as empty lists), SET_ATTITUDE_TARGET, FLIGHT_TERMINATION, COMPASS_CALIBRATION, TERRAIN.
+# autopilot_bridge.mavlink_ftp; MISSION_FENCE / MISSION_RALLY: geofence.py). Not claimed:
+# SET_ATTITUDE_TARGET, FLIGHT_TERMINATION, COMPASS_CALIBRATION, TERRAIN.
 CAPABILITIES = (mavlink2.MAV_PROTOCOL_CAPABILITY_MISSION_FLOAT
                 | mavlink2.MAV_PROTOCOL_CAPABILITY_FTP
                 | mavlink2.MAV_PROTOCOL_CAPABILITY_PARAM_FLOAT
@@ -58,7 +58,9 @@ CAPABILITIES = (mavlink2.MAV_PROTOCOL_CAPABILITY_MISSION_FLOAT
                 | mavlink2.MAV_PROTOCOL_CAPABILITY_COMMAND_INT
                 | mavlink2.MAV_PROTOCOL_CAPABILITY_SET_POSITION_TARGET_LOCAL_NED
                 | mavlink2.MAV_PROTOCOL_CAPABILITY_SET_POSITION_TARGET_GLOBAL_INT
-                | mavlink2.MAV_PROTOCOL_CAPABILITY_MAVLINK2)
+                | mavlink2.MAV_PROTOCOL_CAPABILITY_MAVLINK2
+                | mavlink2.MAV_PROTOCOL_CAPABILITY_MISSION_FENCE    # fence_rally_protocol
+                | mavlink2.MAV_PROTOCOL_CAPABILITY_MISSION_RALLY)
 
 
 class DataStream(IntEnum):

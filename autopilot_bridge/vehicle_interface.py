@@ -518,6 +518,12 @@ class Vehicle(Protocol):
     def mission_changed(self, items: tuple[MissionItem, ...]) -> Outcome:
         """A complete new mission (items seq 1..n; empty = cleared). Refuse to keep the old one."""
 
+    def fence_changed(self, items: tuple[MissionItem, ...]) -> Outcome:
+        """A complete new fence (mission_type FENCE items, seq 0..n-1; empty = cleared)."""
+
+    def rally_changed(self, items: tuple[MissionItem, ...]) -> Outcome:
+        """New rally points (mission_type RALLY, NAV_RALLY_POINT items; empty = cleared)."""
+
     def run_prearm_checks(self) -> list[str]:
         """RUN_PREARM_CHECKS (disarmed): every failing pre-arm check's text, [] when all pass."""
 

@@ -200,7 +200,8 @@ def test_reposition_change_speed_and_messages():
             for cap in ("MISSION_INT", "COMMAND_INT", "MAVLINK2", "PARAM_FLOAT", "FTP",
                         "SET_POSITION_TARGET_LOCAL_NED", "SET_POSITION_TARGET_GLOBAL_INT"):
                 assert ver.capabilities & getattr(M, "MAV_PROTOCOL_CAPABILITY_" + cap), cap
-            assert not ver.capabilities & M.MAV_PROTOCOL_CAPABILITY_MISSION_FENCE  # no fence yet
+            assert ver.capabilities & M.MAV_PROTOCOL_CAPABILITY_MISSION_FENCE
+            assert ver.capabilities & M.MAV_PROTOCOL_CAPABILITY_MISSION_RALLY
             assert ver.flight_sw_version >> 24 == 4
             assert long_cmd(conn, M.MAV_CMD_REQUEST_MESSAGE, 60000) == MavResult.DENIED
             assert long_cmd(conn, M.MAV_CMD_GET_HOME_POSITION) == MavResult.ACCEPTED

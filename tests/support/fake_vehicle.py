@@ -106,6 +106,16 @@ class FakeVehicle:
             events, self._events = self._events, []
         return events
 
+    def fence_changed(self, items: tuple[MissionItem, ...]) -> Outcome:
+        with self._lock:
+            self._record("fence_changed", items)
+            return Outcome(True)
+
+    def rally_changed(self, items: tuple[MissionItem, ...]) -> Outcome:
+        with self._lock:
+            self._record("rally_changed", items)
+            return Outcome(True)
+
     def run_prearm_checks(self) -> list[str]:
         with self._lock:
             self._record("run_prearm_checks")
