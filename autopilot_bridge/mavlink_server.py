@@ -82,7 +82,7 @@ STAT_KEYS = (
     "rx_bytes", "rx_msgs", "tx_msgs", "tx_bytes", "tx_dropped", "garbage_bytes", "bad_crc",
     "parse_errors", "unknown", "truncated", "dropped_unsigned", "bad_signature", "not_for_us",
     "own_echo", "ignored", "handler_errors", "setpoints_ignored", "setpoints_rejected",
-    "vision_ignored", "vision_rejected", "param_set_refused", "param_set_clamped", "tcp_clients", "tcp_refused",
+    "vision_ignored", "vision_rejected", "param_set_refused", "param_set_clamped", "signing_setups", "tcp_clients", "tcp_refused",
     "udp_peers", "udp_refused", "socket_errors", "encode_errors",
 )
 
@@ -106,6 +106,7 @@ class MavlinkServerConfig:
     component_id: int = MAV_COMP_ID_AUTOPILOT1
     signing: SigningConfig = field(default_factory=SigningConfig)
     tlog_path: str = ""
+    signing_key_path: str = ""      # SETUP_SIGNING's key is kept there ("" = not kept)
     params_per_poll: int = 25
     partial_frame_timeout_s: float = 1.0
     mission_upload_timeout_s: float = 8.0
@@ -155,7 +156,7 @@ class MavlinkServer(LinkTransportMixin, ParamProtocolMixin):
         self.last_any_gcs_heartbeat_s: float | None = None
         self._wallclock_s = wallclock_s
         self._monotonic_s = monotonic_s
-        self._signer = Signer(self.cfg.signing, wallclock_s)
+        self._signer = Signer(self.cfg.signing, wallclock_s, self.cfg.signing_key_path)
         self._links: list[Link] = []
         self._udp_peers: dict[tuple[str, int], Link] = {}
         self._next_link_id = 0
@@ -412,9 +413,17 @@ class MavlinkServer(LinkTransportMixin, ParamProtocolMixin):
             self.send(link, mavlink2.MAVLink_timesync_message(int(now_s * 1e9), msg.ts1))
 
     def _on_setup_signing(self, msg: mavlink2.MAVLink_message, link: Link, now_s: float) -> None:
-        logger.warning("SETUP_SIGNING from %d refused: the key comes from the configuration",
-                       msg.get_srcSystem())
-        self.statustext(MavSeverity.WARNING, "SETUP_SIGNING refused: key is set in config")
+        """Install the key on every link (``signing``: ArduPilot's handle_setup_signing)."""
+        if self.vehicle.telemetry().armed:
+            self.statustext(MavSeverity.WARNING, "ERROR: Won't setup signing when armed")
+            return
+        key = bytes(msg.secret_key)
+        self._signer.install(key, int(msg.initial_timestamp))
+        for other in self._links:
+            self._signer.configure(other.mav, other.mav.signing.link_id)
+        logger.info("SETUP_SIGNING from %d: signing %s", msg.get_srcSystem(),
+                    "on" if self._signer.enabled else "off")
+        self.stats["signing_setups"] += 1
 
     def _on_file_transfer_protocol(self, msg: mavlink2.MAVLink_message, link: Link,
                                    now_s: float) -> None:
