@@ -87,6 +87,7 @@ from autopilot_bridge.vehicle_interface import (
     VehicleEvent,
     VehicleTelemetry,
 )
+from autopilot_bridge.vibration import VibrationMonitor
 
 logger = logging.getLogger(__name__)
 
@@ -166,6 +167,8 @@ class FlightCore(SensorFusionMixin, ArmingMixin, GuidedMixin, AutoMissionMixin,
         self._motors = np.zeros(4)
         self._last_out: ControlOutput | None = None
         self._gyro = np.zeros(3)
+        self._accel = np.full(3, math.nan)     # last IMU accelerometer sample (FLU), RAW_IMU
+        self.vibration = VibrationMonitor()
         self._events: list[VehicleEvent] = []
         self._texts: list[tuple[MavSeverity, str]] = []
         self._tel: VehicleTelemetry | None = None
@@ -253,6 +256,8 @@ class FlightCore(SensorFusionMixin, ArmingMixin, GuidedMixin, AutoMissionMixin,
             self.stats["imu_bad"] += 1
             return self._motors.copy()
         self._gyro = gyro
+        self._accel = accel
+        self.vibration.add(accel, dt_s)
         if not self.nav.aligned:
             self.alignment.add_imu(self._now_s, accel, gyro)
             self._try_align()

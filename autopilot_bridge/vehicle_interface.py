@@ -413,6 +413,20 @@ class VehicleTelemetry:
     wp_dist_m: float = 0.0
     alt_error_m: float = 0.0
     xtrack_error_m: float = 0.0
+    # RAW_IMU / SCALED_IMU (body FRD, the IMU sample the flight core last used; NaN = none yet)
+    imu_accel_frd_m_s2: tuple[float, float, float] = (math.nan, math.nan, math.nan)
+    imu_gyro_frd_rad_s: tuple[float, float, float] = (math.nan, math.nan, math.nan)
+    # VIBRATION (autopilot_bridge.vibration): levels m/s/s and accelerometer clipping counts
+    vibration_m_s2: tuple[float, float, float] = (0.0, 0.0, 0.0)
+    accel_clipping: tuple[int, int, int] = (0, 0, 0)
+    # POSITION_TARGET_*: the position controller's target (NED from the EKF origin); None = none
+    target_position_ned_m: tuple[float, float, float] | None = None
+    target_velocity_ned_m_s: tuple[float, float, float] = (0.0, 0.0, 0.0)
+    target_accel_ned_m_s2: tuple[float, float, float] = (0.0, 0.0, 0.0)
+    target_yaw_rad: float = math.nan
+    target_lat_deg: float = math.nan
+    target_lon_deg: float = math.nan
+    target_alt_amsl_m: float = math.nan
 
 
 @dataclass(frozen=True)

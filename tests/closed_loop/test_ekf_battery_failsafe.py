@@ -31,6 +31,12 @@ def test_ekf_then_battery_failsafe_in_flight():
         assert c.set_mode(CopterMode.GUIDED).ok and c.arm(False).ok and c.takeoff(8.0).ok
         assert f.run(25.0, until=lambda: f.p[2] > 7.5)
         _texts(c)
+        tel = c.telemetry()      # RAW_IMU / VIBRATION / POSITION_TARGET_* data in flight
+        assert tel.imu_accel_frd_m_s2[2] == pytest.approx(-9.8, abs=1.5)     # FRD: z down
+        assert all(0.0 <= v < 3.0 for v in tel.vibration_m_s2)
+        assert tel.target_position_ned_m is not None
+        assert tel.target_position_ned_m[2] == pytest.approx(-8.0, abs=1.0)  # the take-off height
+        assert abs(tel.target_alt_amsl_m - c.geo.origin_alt_amsl_m - 8.0) < 1.0
         f.params.set("FS_EKF_ACTION", 2)
         f.params.set("FS_EKF_THRESH", 0.001)      # below any real variance: "bad" at once
         assert f.run(0.8, until=lambda: c.mode != CopterMode.GUIDED) is False   # needs 1 s
