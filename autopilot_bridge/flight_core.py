@@ -128,6 +128,7 @@ class FlightCore(SensorFusionMixin, ArmingMixin, GuidedMixin, AutoMissionMixin,
         self.airframe = Airframe.from_params(params)
         self.geo = GeoFrame(self.cfg.origin_lat_deg, self.cfg.origin_lon_deg,
                             self.cfg.origin_alt_amsl_m)
+        self._source_set = 1            # EK3_SRC<n>_*: SET_EKF_SOURCE_SET (param_binding)
         source = self._source_param()
         self.nav = NavFilter(dataclasses.replace(self._algo.ekf, position_source=source))
         self.fc = FlightController(self._control_config(), self.airframe)

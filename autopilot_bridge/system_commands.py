@@ -1,5 +1,5 @@
 """System commands (COMMAND_LONG / COMMAND_INT) as ArduCopter 4.5 answers them: RUN_PREARM_CHECKS,
-DO_SET_HOME, PREFLIGHT_STORAGE. Registered into ``commands.CommandHandler`` by the server (``CommandHandler.register``).
+DO_SET_HOME, PREFLIGHT_STORAGE, SET_EKF_SOURCE_SET. Registered into ``commands.CommandHandler`` by the server (``CommandHandler.register``).
 
 Shell module (pymavlink constants). Facts from ArduPilot's ``GCS_Common.cpp``:
 
@@ -16,6 +16,8 @@ Shell module (pymavlink constants). Facts from ArduPilot's ``GCS_Common.cpp``:
   ArduPilot's "All parameters reset, reboot board"; param1 0 (read) / 1 (write) are ACCEPTED
   without action (this store writes every change at once); anything else -> DENIED. While armed
   -> TEMPORARILY_REJECTED.
+* SET_EKF_SOURCE_SET: param1 1..3 selects the EK3_SRC<n>_* parameters (``handle_command_set_ekf_source_set``);
+  other values -> DENIED. Of the sources only POSXY changes what this EKF fuses (as with set 1).
 """
 
 from __future__ import annotations
@@ -63,7 +65,14 @@ class SystemCommands:
             m.MAV_CMD_RUN_PREARM_CHECKS: self._run_prearm_checks,
             m.MAV_CMD_DO_SET_HOME: self._do_set_home,
             m.MAV_CMD_PREFLIGHT_STORAGE: self._preflight_storage,
+            m.MAV_CMD_SET_EKF_SOURCE_SET: self._set_ekf_source_set,
         }
+
+    def _set_ekf_source_set(self, req: CommandRequest, link: object) -> CommandResult:
+        number = req.p(1)
+        if number not in (1.0, 2.0, 3.0):
+            return CommandResult(MavResult.DENIED)
+        return self._outcome(self._vehicle.set_ekf_source_set(int(number)))
 
     def _run_prearm_checks(self, req: CommandRequest, link: object) -> CommandResult:
         if self._svc.telemetry().armed:

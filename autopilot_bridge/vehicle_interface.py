@@ -538,6 +538,9 @@ class Vehicle(Protocol):
     def rally_changed(self, items: tuple[MissionItem, ...]) -> Outcome:
         """New rally points (mission_type RALLY, NAV_RALLY_POINT items; empty = cleared)."""
 
+    def set_ekf_source_set(self, number: int) -> Outcome:
+        """SET_EKF_SOURCE_SET: use the EK3_SRC<number>_* sources (1..3)."""
+
     def run_prearm_checks(self) -> list[str]:
         """RUN_PREARM_CHECKS (disarmed): every failing pre-arm check's text, [] when all pass."""
 

@@ -9,6 +9,7 @@ from __future__ import annotations
 import pytest
 from support.sim_flight import CoreFlight
 
+from autopilot_bridge.config import PositionSource
 from autopilot_bridge.modes import CopterMode
 from autopilot_bridge.vehicle_interface import (
     AltFrame,
@@ -72,5 +73,20 @@ def test_do_set_home_on_the_flight_core_is_kept_at_arming():
         assert c.set_mode(CopterMode.GUIDED).ok and c.arm(False).ok
         assert c.home_enu_m == pytest.approx([30.0, -20.0, 2.0], abs=1e-6)   # locked: kept
         assert c.telemetry().home_set
+    finally:
+        f.close()
+
+
+def test_ekf_source_set_switches_the_position_source():
+    f = CoreFlight(8, gps=True, SN_VIS_TIMEOUT=0, EK3_SRC1_POSXY=3, EK3_SRC1_VELXY=3,
+                   EK3_SRC2_POSXY=6)
+    c = f.core
+    try:
+        assert c.position_source == PositionSource.GPS
+        assert c.set_ekf_source_set(2).ok and c.position_source == PositionSource.EXTNAV
+        f.params.set("EK3_SRC2_POSXY", 3)              # the active set's parameter applies at once
+        assert c.position_source == PositionSource.GPS
+        assert c.set_ekf_source_set(1).ok and c.position_source == PositionSource.GPS
+        assert not c.set_ekf_source_set(4).ok
     finally:
         f.close()

@@ -76,3 +76,13 @@ def test_preflight_storage_erase_drops_the_kept_parameters(tmp_path):
         conn.close()
     assert json.loads(store.read_text()) == {}
     assert ParameterStore(PARAM_SPECS, persist_path=store).get("RTL_ALT") == 1500
+
+
+def test_set_ekf_source_set_selects_1_to_3():
+    with running_server() as (server, vehicle):
+        conn = gcs_connection(server.tcp_port)
+        assert _long(conn, M.MAV_CMD_SET_EKF_SOURCE_SET, 2) == MavResult.ACCEPTED
+        assert _long(conn, M.MAV_CMD_SET_EKF_SOURCE_SET, 4) == MavResult.DENIED
+        assert _long(conn, M.MAV_CMD_SET_EKF_SOURCE_SET, 1.5) == MavResult.DENIED
+        assert [a for n, a in vehicle.calls if n == "set_ekf_source_set"] == [(2,)]
+        conn.close()

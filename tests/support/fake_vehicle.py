@@ -116,6 +116,11 @@ class FakeVehicle:
             self._record("rally_changed", items)
             return Outcome(True)
 
+    def set_ekf_source_set(self, number: int) -> Outcome:
+        with self._lock:
+            self._record("set_ekf_source_set", number)
+            return Outcome(True)
+
     def run_prearm_checks(self) -> list[str]:
         with self._lock:
             self._record("run_prearm_checks")
