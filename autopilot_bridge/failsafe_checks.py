@@ -5,7 +5,8 @@ the same way (mode change, STATUSTEXT).
 
 EKF failsafe (``ArduCopter/ekf_check.cpp``, ``events.cpp`` ``failsafe_ekf_event``):
 
-* off when ``FS_EKF_THRESH`` <= 0; evaluated while armed (ArduCopter: also on the ground; no
+* off when ``FS_EKF_THRESH`` <= 0 (the flight core passes 0 with external navigation as the
+  position source: the vision failsafe owns that case); evaluated while armed (ArduCopter: also on the ground; no
   action is taken there, as here);
 * the variances are the EKF_STATUS_REPORT ones (test ratios, 1 = at the innovation gate): the
   estimate is bad when two of compass, velocity and position are at or above the threshold,

@@ -355,8 +355,11 @@ class FlightCore(SensorFusionMixin, ArmingMixin, GuidedMixin, AutoMissionMixin,
             tel = self._build_telemetry()
             return EkfVariances(tel.ekf_velocity_variance, tel.ekf_pos_horiz_variance,
                                 tel.ekf_compass_variance)
+        # differs from ArduCopter: with external navigation as the position source the vision
+        # failsafe (SN_VIS_*) owns position loss; dead reckoning between fixes is by design there
+        thresh = 0.0 if inputs.vision_required else p.get("FS_EKF_THRESH")
         events = self.ekf_check.update(self._now_s, self._armed, inputs.position_mode, variances,
-                                       p.get("FS_EKF_THRESH"), p.get_int("FS_EKF_ACTION"))
+                                       thresh, p.get_int("FS_EKF_ACTION"))
         if p.get_int("BATT_MONITOR") == 0:
             return events
         battery = self.battery.state(p.get("BATT_CAPACITY"))

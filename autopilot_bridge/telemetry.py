@@ -528,7 +528,7 @@ def encode_position_target_local_ned(tel: VehicleTelemetry, ctx: EncodeContext
 def encode_position_target_global_int(tel: VehicleTelemetry, ctx: EncodeContext
                                       ) -> mavlink2.MAVLink_message | None:
     """The target position as ArduCopter sends it (position only, GLOBAL_INT, AMSL)."""
-    if tel.target_position_ned_m is None or not math.isfinite(tel.target_lat_deg):
+    if tel.target_position_ned_m is None:
         return None
     return mavlink2.MAVLink_position_target_global_int_message(
         _time_ms(tel), mavlink2.MAV_FRAME_GLOBAL_INT, _TM_VEL | _TM_ACC | _TM_YAW | _TM_YAW_RATE,

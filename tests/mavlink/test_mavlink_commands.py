@@ -324,7 +324,10 @@ def test_encoders_survive_absurd_telemetry():
         heading_deg=math.nan, groundspeed_m_s=math.inf, throttle_pct=500, gps_satellites=-3,
         gps_hdop=math.inf, battery_voltage_v=1e9, battery_current_a=math.nan,
         battery_remaining_pct=400, home_set=True, home_lat_deg=100.0, mission_current_seq=-1,
-        ekf_flags=1 << 40, sensors_present=-1, cpu_load_pct=math.nan)
+        ekf_flags=1 << 40, sensors_present=-1, cpu_load_pct=math.nan,
+        imu_accel_frd_m_s2=(math.inf, -1e9, math.nan), vibration_m_s2=(math.nan, -1.0, 1e40),
+        accel_clipping=(-5, 2 ** 40, 0), target_position_ned_m=(math.nan, math.inf, 1e40),
+        target_lat_deg=math.nan, target_lon_deg=1e9, target_alt_amsl_m=math.inf)
     mav = M.MAVLink(None, 1, 1)
     ctx = telemetry.EncodeContext(mission_item_count=3, battery_monitor=4)
     for msg_id in telemetry.STREAMABLE_MSG_IDS:

@@ -23,10 +23,12 @@ STATE_CHANGING_COMMANDS = frozenset({
     M.MAV_CMD_COMPONENT_ARM_DISARM, M.MAV_CMD_NAV_TAKEOFF, M.MAV_CMD_NAV_LAND,
     M.MAV_CMD_NAV_RETURN_TO_LAUNCH, M.MAV_CMD_NAV_LOITER_UNLIM, M.MAV_CMD_DO_SET_MODE,
     M.MAV_CMD_MISSION_START, M.MAV_CMD_DO_SET_MISSION_CURRENT, M.MAV_CMD_DO_REPOSITION,
-    M.MAV_CMD_DO_CHANGE_SPEED,
+    M.MAV_CMD_DO_CHANGE_SPEED, M.MAV_CMD_DO_SET_HOME, M.MAV_CMD_SET_EKF_SOURCE_SET,
+    M.MAV_CMD_PREFLIGHT_STORAGE,
 })
 # what the server-only fuzz leaves out (the fake vehicle records mission changes separately)
-EXCLUDED_TYPES = frozenset({"SET_MODE", "MISSION_SET_CURRENT"})
+# SETUP_SIGNING installs its (random) key: a deliberate change of the link, like a mode change
+EXCLUDED_TYPES = frozenset({"SET_MODE", "MISSION_SET_CURRENT", "SETUP_SIGNING"})
 # in flight, mission uploads and clears are deliberate ground-station actions too
 FLIGHT_EXCLUDED_TYPES = EXCLUDED_TYPES | frozenset({
     "MISSION_COUNT", "MISSION_CLEAR_ALL", "MISSION_WRITE_PARTIAL_LIST"})
