@@ -1,4 +1,4 @@
-"""Arming, disarming, pre-arm checks and auto-disarm (part of ``FlightCore``), as ArduCopter:
+"""Arming, disarming, pre-arm checks (also on RUN_PREARM_CHECKS), DO_SET_HOME and auto-disarm (part of ``FlightCore``), as ArduCopter:
 GCS arming only in the armable modes, ARMING_CHECK 0 skips the checks, LAND disarms at touchdown,
 other modes DISARM_DELAY s after landing.
 
@@ -13,13 +13,16 @@ from autopilot_bridge.config import PositionSource
 from autopilot_bridge.flight_laws import LawKind
 from autopilot_bridge.modes import ARMABLE_MODES, NEEDS_POSITION, POSITION_MODES, CopterMode
 from autopilot_bridge.vehicle_interface import (
+    AltFrame,
     HomeChangedEvent,
+    HomeLocation,
     MavSeverity,
     Outcome,
 )
 from scenenav.core.contracts import GpsFixType
 
 GPS_FRESH_S = 2.0
+HOME_MAX_FROM_ORIGIN_M = 50_000.0   # ArduPilot AP_AHRS EKF_ORIGIN_MAX_DIST_M
 
 
 class ArmingMixin:
@@ -41,9 +44,10 @@ class ArmingMixin:
         self._tel = None
         self.fc.reset(est, landed=True)
         self._landed_since_s = self._now_s
-        self._home = np.array([float(est.position_enu_m[0]), float(est.position_enu_m[1]),
-                               self._home_z()])
-        self._events.append(HomeChangedEvent())
+        if not self._home_locked:   # ArduCopter keeps a home set by DO_SET_HOME (locked)
+            self._home = np.array([float(est.position_enu_m[0]), float(est.position_enu_m[1]),
+                                   self._home_z()])
+            self._events.append(HomeChangedEvent())
         if self._mode in POSITION_MODES:
             self._law = None
             self._start_mode_law(est)
@@ -72,6 +76,34 @@ class ArmingMixin:
             self._ground_xy = np.array(est.position_enu_m[:2], dtype=float)
             self.fc.reset(est, landed=True)
         self._bus_text(MavSeverity.INFO, f"disarmed ({why})")
+
+    def run_prearm_checks(self) -> list[str]:
+        """RUN_PREARM_CHECKS: the texts of every failing check (ArduCopter runs them all)."""
+        return self._prearm_failures()
+
+    def set_home(self, home: HomeLocation | None) -> Outcome:
+        """DO_SET_HOME: at the current position (None) or at ``home``; ArduPilot refuses a home
+        more than 50 km from the EKF origin (``AP_AHRS::set_home``, far_from_EKF_origin)."""
+        if not self.nav.aligned or self._origin is None:
+            return self._refuse("Set home failed: no position estimate")
+        if home is None:
+            est = self.nav.state()
+            new = np.asarray(est.position_enu_m, dtype=float).copy()
+        else:
+            x, y = self.geo.to_enu(home.lat_deg, home.lon_deg)
+            if home.alt_frame == AltFrame.RELATIVE_HOME:
+                z = (float(self._home[2]) if self._home is not None else self._home_z()) + home.alt_m
+            else:
+                z = home.alt_m - self.geo.origin_alt_amsl_m
+            new = np.array([x, y, z])
+        if float(np.linalg.norm(new[:2] - self._origin[:2])) > HOME_MAX_FROM_ORIGIN_M:
+            return self._refuse("Set home failed: too far from EKF origin")
+        self._home = new
+        self._home_locked = True
+        self._tel = None
+        self._events.append(HomeChangedEvent())
+        self._bus_text(MavSeverity.INFO, f"home set at ({new[0]:.1f}, {new[1]:.1f}, {new[2]:.1f}) m")
+        return Outcome(True)
 
     def _prearm_failures(self) -> list[str]:
         if not self.nav.aligned or not self.nav.is_healthy():

@@ -170,6 +170,10 @@ class CommandHandler:
             m.MAV_CMD_GET_HOME_POSITION: self._get_home_position,
         }
 
+    def register(self, handlers: dict[int, Callable[[CommandRequest, object], CommandResult]]) -> None:
+        """Add handlers kept in their own modules (``system_commands``)."""
+        self._handlers.update(handlers)
+
     @property
     def supported_commands(self) -> frozenset[int]:
         return frozenset(self._handlers)

@@ -16,6 +16,7 @@ from enum import IntFlag
 import numpy as np
 
 from autopilot_bridge.config import PositionSource
+from autopilot_bridge.failsafe_checks import BatteryLevel
 from autopilot_bridge.flight_laws import LawKind
 from autopilot_bridge.geo_frame import enu_to_ned
 from autopilot_bridge.vehicle_interface import (
@@ -131,7 +132,8 @@ class TelemetryMixin:
             ekf_compass_variance=float(self.nav.attitude_std_rad()[2] / 0.2) if aligned else 1.0,
             sensors_present=int(sensors[0]), sensors_enabled=int(sensors[1]),
             sensors_health=int(sensors[2]),
-            **self._nav_controller_output(pos, (roll, pitch, heading)))
+            **self._nav_controller_output(pos, (roll, pitch, heading)),
+            **self._imu_and_target(origin))
 
     def _nav_controller_output(self, pos: np.ndarray, attitude: tuple[float, float, float]
                                ) -> dict[str, float]:
@@ -174,10 +176,33 @@ class TelemetryMixin:
             return LandedState.LANDING
         return LandedState.IN_AIR
 
+    def _imu_and_target(self, origin: np.ndarray) -> dict:
+        """RAW_IMU / SCALED_IMU (FLU -> FRD), VIBRATION, POSITION_TARGET_* fields."""
+        a, g = self._accel, self._gyro
+        fields: dict = {
+            "imu_accel_frd_m_s2": (float(a[0]), -float(a[1]), -float(a[2])),
+            "imu_gyro_frd_rad_s": (float(g[0]), -float(g[1]), -float(g[2])),
+            "vibration_m_s2": self.vibration.levels,
+            "accel_clipping": tuple(self.vibration.clip_counts),
+        }
+        target = self._last_target
+        if target is not None and self._armed and not self.fc.landed:
+            fields["target_position_ned_m"] = enu_to_ned(np.asarray(target.position_enu_m) - origin)
+            fields["target_velocity_ned_m_s"] = enu_to_ned(target.velocity_enu_m_s)
+            fields["target_accel_ned_m_s2"] = enu_to_ned(target.accel_enu_m_s2)
+            if target.heading_rad is not None:
+                fields["target_yaw_rad"] = float(target.heading_rad)
+            lat, lon = self.geo.to_geodetic(float(target.position_enu_m[0]),
+                                            float(target.position_enu_m[1]))
+            fields.update(target_lat_deg=lat, target_lon_deg=lon,
+                          target_alt_amsl_m=self.geo.origin_alt_amsl_m + float(target.position_enu_m[2]))
+        return fields
+
     def _system_status(self) -> SystemStatus:
         if not self.nav.aligned:
             return SystemStatus.BOOT
-        if self.failsafe.any_active:
+        if (self.failsafe.any_active or self.ekf_check.active
+                or self.battery_failsafe.level != BatteryLevel.OK):
             return SystemStatus.CRITICAL
         return SystemStatus.ACTIVE if self._armed and not self.fc.landed else SystemStatus.STANDBY
 

@@ -526,6 +526,16 @@ class NavFilter:
             return FusionResult(True, innov, result.test_ratio, reset=True)
         return result
 
+    def reset_horizontal_position(self, xy_enu_m, variance_m2: float) -> None:
+        """Set x, y to a measurement (external nav reset_counter change), counted as a reset."""
+        self._require_aligned("reset_horizontal_position")
+        xy = np.asarray(xy_enu_m, dtype=float)[:2]
+        jump = xy - np.array(self._p[:2])
+        self._reset_axes([0, 1], xy, np.eye(2) * float(variance_m2))
+        self._position_reset_count += 1
+        self._last_position_reset_m = jump.copy()
+        self._pos_last_ok_s = self._time_s
+
     def _reset_axes(self, axes: list[int], values: np.ndarray, R: np.ndarray) -> None:
         """Set position axes to a measurement: decorrelate them and give them the measurement variance."""
         P = self._P

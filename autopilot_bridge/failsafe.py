@@ -50,6 +50,9 @@ class GcsFailsafeAction(IntEnum):
 class FailsafeKind(Enum):
     GCS = "gcs"
     VISION = "vision"
+    EKF = "ekf"            # failsafe_checks.EkfCheck
+    BATTERY = "battery"    # failsafe_checks.BatteryFailsafe
+    FENCE = "fence"        # geofence.FenceMonitor
 
 
 class FailsafeAction(Enum):
@@ -60,6 +63,9 @@ class FailsafeAction(Enum):
     HOLD = "hold"          # stop and hold the current position on dead reckoning
     RESUME = "resume"      # release a HOLD (the position source is back)
     CLEARED = "cleared"    # announcement only (GCS heartbeats are back)
+    REPORT = "report"      # announcement only (the failsafe's action is "report" or not applicable)
+    ALT_HOLD = "alt_hold"  # switch to ALT_HOLD (FS_EKF_ACTION 2)
+    BRAKE = "brake"        # switch to BRAKE, LAND if refused (FENCE_ACTION 4)
 
 
 class VisionFailsafeState(Enum):

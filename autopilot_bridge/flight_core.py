@@ -60,17 +60,18 @@ from autopilot_bridge.battery import BatteryMonitor
 from autopilot_bridge.circle import Circle, CircleSettings, centre_ahead
 from autopilot_bridge.config import AutopilotAlgorithmsConfig, FlightCoreConfig, PositionSource, YawBehaviour
 from autopilot_bridge.control import ControlOutput, FlightController, PositionTarget, stopping_point
+from autopilot_bridge.core_geofence import GeofenceMixin
 from autopilot_bridge.core_telemetry import TelemetryMixin
 from autopilot_bridge.ekf import NavFilter, NavState
 from autopilot_bridge.failsafe import (
     FailsafeAction,
     FailsafeEvent,
     FailsafeInputs,
-    FailsafeKind,
     FailsafeMonitor,
     FailsafeSettings,
     GcsFailsafeAction,
 )
+from autopilot_bridge.failsafe_checks import BatteryFailsafe, BatterySettings, EkfCheck, EkfVariances
 from autopilot_bridge.flight_laws import Hold, Land, LawKind, Rtl, Tracker
 from autopilot_bridge.fusion import ImuReading, SensorFusionMixin
 from autopilot_bridge.geo_frame import GeoFrame
@@ -94,6 +95,7 @@ from autopilot_bridge.vehicle_interface import (
     VehicleEvent,
     VehicleTelemetry,
 )
+from autopilot_bridge.vibration import VibrationMonitor
 
 logger = logging.getLogger(__name__)
 
@@ -117,7 +119,7 @@ class CoreStatus:
 
 
 class FlightCore(SensorFusionMixin, ArmingMixin, GuidedMixin, AutoMissionMixin,
-                 ModeCommandsMixin, PilotMixin, ParamBindingMixin, TelemetryMixin):
+                 ModeCommandsMixin, PilotMixin, ParamBindingMixin, TelemetryMixin, GeofenceMixin):
     """The flight core; see the module docstring. Not thread-safe: call from one thread.
 
     One class, one concept per module: the control tick, modes and failsafes are here (alignment:
@@ -134,17 +136,22 @@ class FlightCore(SensorFusionMixin, ArmingMixin, GuidedMixin, AutoMissionMixin,
         self.airframe = Airframe.from_params(params)
         self.geo = GeoFrame(self.cfg.origin_lat_deg, self.cfg.origin_lon_deg,
                             self.cfg.origin_alt_amsl_m)
+        self._source_set = 1            # EK3_SRC<n>_*: SET_EKF_SOURCE_SET (param_binding)
         source = self._source_param()
         self.nav = NavFilter(dataclasses.replace(self._algo.ekf, position_source=source))
         self.fc = FlightController(self._control_config(), self.airframe)
         self.mixer = QuadXMixer(self.airframe)
         self.failsafe = FailsafeMonitor()
+        self.ekf_check = EkfCheck()
+        self.battery_failsafe = BatteryFailsafe()
+        self._init_geofence()
         self.battery = BatteryMonitor()
         self.stats: Counter[str] = Counter()
         self._now_s = 0.0
         self._armed = False
         self._mode = CopterMode.STABILIZE
         self._home: np.ndarray | None = None
+        self._home_locked = False       # DO_SET_HOME locks home: arming keeps it (ArduCopter)
         self._origin: np.ndarray | None = None
         self._ground_xy = np.array(self.cfg.start_enu_m, dtype=float)
         self._ground_next_s = 0.0
@@ -172,6 +179,8 @@ class FlightCore(SensorFusionMixin, ArmingMixin, GuidedMixin, AutoMissionMixin,
         self._motors = np.zeros(4)
         self._last_out: ControlOutput | None = None
         self._gyro = np.zeros(3)
+        self._accel = np.full(3, math.nan)     # last IMU accelerometer sample (FLU), RAW_IMU
+        self.vibration = VibrationMonitor()
         self._events: list[VehicleEvent] = []
         self._texts: list[tuple[MavSeverity, str]] = []
         self._tel: VehicleTelemetry | None = None
@@ -259,6 +268,8 @@ class FlightCore(SensorFusionMixin, ArmingMixin, GuidedMixin, AutoMissionMixin,
             self.stats["imu_bad"] += 1
             return self._motors.copy()
         self._gyro = gyro
+        self._accel = accel
+        self.vibration.add(accel, dt_s)
         if not self.nav.aligned:
             self.alignment.add_imu(self._now_s, accel, gyro)
             self._try_align()
@@ -344,6 +355,34 @@ class FlightCore(SensorFusionMixin, ArmingMixin, GuidedMixin, AutoMissionMixin,
             last_vision_fix_s=self._last_usable_vision_s)
         for ev in self.failsafe.update(inputs, settings):
             self._apply_failsafe(ev, est)
+        for ev in self._failsafe_checks(inputs):
+            self._apply_failsafe(ev, est)
+        for ev in self._fence_events(inputs.flying, inputs.landing, est.position_enu_m):
+            self._apply_failsafe(ev, est)
+
+    def _failsafe_checks(self, inputs: FailsafeInputs) -> list[FailsafeEvent]:
+        """The EKF and battery failsafes (``failsafe_checks``)."""
+        p = self.params
+
+        def variances() -> EkfVariances:    # EKF_STATUS_REPORT's, built only when a check is due
+            tel = self._build_telemetry()
+            return EkfVariances(tel.ekf_velocity_variance, tel.ekf_pos_horiz_variance,
+                                tel.ekf_compass_variance)
+        # differs from ArduCopter: with external navigation as the position source the vision
+        # failsafe (SN_VIS_*) owns position loss; dead reckoning between fixes is by design there
+        thresh = 0.0 if inputs.vision_required else p.get("FS_EKF_THRESH")
+        events = self.ekf_check.update(self._now_s, self._armed, inputs.position_mode, variances,
+                                       thresh, p.get_int("FS_EKF_ACTION"))
+        if p.get_int("BATT_MONITOR") == 0:
+            return events
+        battery = self.battery.state(p.get("BATT_CAPACITY"))
+        events += self.battery_failsafe.update(self._now_s, inputs.flying, battery.voltage_v,
+                                               battery.consumed_mah, BatterySettings(
+            low_volt_v=p.get("BATT_LOW_VOLT"), low_timer_s=p.get("BATT_LOW_TIMER"),
+            low_mah=p.get("BATT_LOW_MAH"), crt_volt_v=p.get("BATT_CRT_VOLT"),
+            crt_mah=p.get("BATT_CRT_MAH"), capacity_mah=p.get("BATT_CAPACITY"),
+            low_action=p.get_int("BATT_FS_LOW_ACT"), crt_action=p.get_int("BATT_FS_CRT_ACT")))
+        return events
 
     def _apply_failsafe(self, ev: FailsafeEvent, est: NavState) -> None:
         self._announce(ev.severity, ev.text)
@@ -356,16 +395,20 @@ class FlightCore(SensorFusionMixin, ArmingMixin, GuidedMixin, AutoMissionMixin,
         elif ev.action == FailsafeAction.LAND:
             self._vision_hold = None
             self._enter_mode(CopterMode.LAND, from_gcs=False)
+        elif ev.action == FailsafeAction.BRAKE:
+            self._vision_hold = None
+            if not self._enter_mode(CopterMode.BRAKE, from_gcs=False).ok:
+                self._enter_mode(CopterMode.LAND, from_gcs=False)
+        elif ev.action == FailsafeAction.ALT_HOLD:
+            self._vision_hold = None
+            self._enter_mode(CopterMode.ALT_HOLD, from_gcs=False)
         elif ev.action == FailsafeAction.HOLD:
             stop = stopping_point(est.position_enu_m, est.velocity_enu_m_s, self._gcfg.wp_accel_m_s2)
             self._vision_hold = Hold(stop, float(est.heading_rad))
         elif ev.action == FailsafeAction.RESUME and self._vision_hold is not None:
             self._vision_hold = None
             self._restart_mode_law(est)
-        if ev.kind == FailsafeKind.GCS:
-            self.stats[f"failsafe_gcs_{ev.action.value}"] += 1
-        else:
-            self.stats[f"failsafe_vision_{ev.action.value}"] += 1
+        self.stats[f"failsafe_{ev.kind.value}_{ev.action.value}"] += 1
 
     def _smart_rtl_first(self, ev: FailsafeEvent) -> bool:
         """FS_GCS_ENABLE 3 / 4 (SmartRTL or RTL / Land): SMART_RTL when its path is usable, else
@@ -576,7 +619,7 @@ class FlightCore(SensorFusionMixin, ArmingMixin, GuidedMixin, AutoMissionMixin,
             cfg = dataclasses.replace(cfg, wp_speed_m_s=rtl_speed)
         if self.params.get_int("WP_YAW_BEHAVIOR") in (0, 2):
             cfg = dataclasses.replace(cfg, yaw_behaviour=YawBehaviour.NEVER_CHANGE)
-        home = self._home if self._home is not None else est.position_enu_m
+        home = self._rtl_destination(est)      # home or a rally point (core_geofence)
         return Rtl(cfg, home, est, self.params.get("RTL_ALT_FINAL") / 100.0,
                     heading_rad=float(est.heading_rad))
 

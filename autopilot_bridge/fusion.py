@@ -20,6 +20,14 @@ from typing import NamedTuple
 import numpy as np
 
 from autopilot_bridge.config import PositionSource
+from autopilot_bridge.external_vision import (
+    JitterCorrection,
+    ResetCounter,
+    VisoSettings,
+    attitude_matrix,
+    body_origin_ned,
+    position_error_m,
+)
 from autopilot_bridge.geo_frame import ned_to_enu
 from autopilot_bridge.vehicle_interface import (
     MavSeverity,
@@ -27,6 +35,7 @@ from autopilot_bridge.vehicle_interface import (
 )
 from scenenav.core.contracts import GpsFixType
 from scenenav.core.numeric import all_finite
+from scenenav.core.rotations import quat_to_rotation_matrix
 
 logger = logging.getLogger(__name__)
 
@@ -72,6 +81,8 @@ class SensorFusionMixin:
         self._last_gps_fused_s: float | None = None
         self._last_usable_vision_s: float | None = None
         self._last_ext_nav_s: float | None = None
+        self._viso_clock = JitterCorrection()   # MAVLink external nav: sender time -> ours
+        self._viso_reset = ResetCounter()
 
     def on_baro(self, t_s: float, altitude_m: float) -> None:
         if not all_finite(altitude_m):
@@ -194,23 +205,37 @@ class SensorFusionMixin:
                                  z_ned_m: float, roll_rad: float, pitch_rad: float,
                                  yaw_rad: float, covariance: tuple[float, ...],
                                  reset_counter: int) -> None:
-        self._ext_nav((x_ned_m, y_ned_m, z_ned_m), covariance)
+        self._ext_nav((x_ned_m, y_ned_m, z_ned_m), covariance, usec,
+                      attitude_matrix(roll_rad, pitch_rad, yaw_rad), reset_counter)
 
     def odometry(self, odom: Odometry) -> None:
-        self._ext_nav(odom.position_m, odom.pose_covariance)
+        if odom.quality_pct < self.params.get_int("VISO_QUAL_MIN"):
+            self.stats["ext_nav_low_quality"] += 1
+            return
+        self._ext_nav(odom.position_m, odom.pose_covariance, odom.time_usec,
+                      quat_to_rotation_matrix(odom.q_wxyz), odom.reset_counter)
 
-    def _ext_nav(self, pos_ned, cov21) -> None:
-        """MAVLink external navigation: NED metres from the EKF origin, 21-element covariance."""
+    def _viso_settings(self) -> VisoSettings:
+        p = self.params
+        return VisoSettings(delay_s=p.get("VISO_DELAY_MS") / 1000.0,
+                            lever_arm_frd_m=(p.get("VISO_POS_X"), p.get("VISO_POS_Y"), p.get("VISO_POS_Z")),
+                            pos_noise_m=p.get("VISO_POS_M_NSE"), quality_min=p.get_int("VISO_QUAL_MIN"))
+
+    def _ext_nav(self, pos_ned, cov21, usec: int, body_to_ned: np.ndarray, reset_counter: int) -> None:
+        """MAVLink external navigation (``external_vision``): NED metres from the EKF origin, the
+        sender's timestamp, the sensor's attitude, the 21-element pose covariance."""
         if not self.nav.aligned:
             return
-        enu = self._origin_enu() + ned_to_enu(pos_ned)
-        cov = None
-        if len(cov21) >= 7 and all_finite(cov21[0], cov21[1], cov21[6]) and cov21[0] > 0 and cov21[6] > 0:
-            # upper triangle of the 6x6 (x, y, z, roll, pitch, yaw): [0] xx, [1] xy, [6] yy (NED)
-            cov = np.array([[cov21[6], cov21[1]], [cov21[1], cov21[0]]])   # ENU: swap x/y
-        if cov is None:
-            cov = np.eye(2) * self.cfg.ext_nav_std_m ** 2
+        s = self._viso_settings()
+        t_s = self._viso_clock.local_time_s(usec * 1e-6, self._now_s) - s.delay_s
+        origin_ned = body_origin_ned(pos_ned, body_to_ned, s.lever_arm_frd_m)
+        enu = self._origin_enu() + ned_to_enu(origin_ned)
+        err = position_error_m(cov21, s.pos_noise_m)
+        cov = np.eye(2) * err * err
         self._last_ext_nav_s = self._now_s
         self.stats["ext_nav_mavlink"] += 1
-        self._vision.append(VisionReading(self._now_s, (float(enu[0]), float(enu[1])), cov,
-                                           "mavlink"))
+        if self._viso_reset.changed(int(reset_counter)):
+            self.nav.reset_horizontal_position(enu[:2], err * err)
+            self.stats["ext_nav_resets"] += 1
+            return
+        self._vision.append(VisionReading(t_s, (float(enu[0]), float(enu[1])), cov, "mavlink"))

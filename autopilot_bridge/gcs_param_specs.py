@@ -17,8 +17,12 @@ device ids are those of ArduPilot SITL's simulated compasses. The checks QGC mak
 ``APMSensorsComponent``: offsets non-zero for every used compass, INS_ACCOFFS not all zero;
 ``APMAirframeComponent``: FRAME_CLASS > 0) are in tests/mavlink/test_mavlink_gcs.py.
 
-Enabling what does not exist is refused rather than stored (FENCE_ENABLE 1, a battery failsafe
-action): a ground station must not show a protection the vehicle does not have.
+Enabling what does not exist is refused rather than stored (battery failsafe action 5 =
+terminate): a ground station must not show a protection the vehicle does not have.
+BATT_FS_LOW_ACT / BATT_FS_CRT_ACT with the BATT_LOW_* / BATT_CRT_* thresholds drive the battery
+failsafe (``failsafe_checks``); FENCE_ENABLE, FENCE_TYPE, FENCE_ACTION, FENCE_ALT_MAX/MIN,
+FENCE_RADIUS, FENCE_MARGIN, RALLY_LIMIT_KM and RALLY_INCL_HOME the geofence and rally points
+(``geofence``).
 """
 
 from __future__ import annotations
@@ -33,6 +37,11 @@ RC_DEAD_ZONES = {1: 20, 2: 20, 3: 30, 4: 20}   # Copter: roll/pitch/yaw 20, thro
 SITL_FLIGHT_MODES = (7, 9, 6, 3, 5, 0)  # copter.parm FLTMODE1..6: CIRCLE LAND RTL AUTO LOITER STAB
 SITL_COMPASS_OFFSETS = (5.0, 13.0, -18.0)  # copter.parm COMPASS_OFS*_X/Y/Z (mGauss)
 SITL_COMPASS_DEV_IDS = (97539, 131874, 263178)  # ArduPilot SITL's three simulated compasses
+FENCE_ACTIONS = ((0, "Report only"), (1, "RTL or Land"), (2, "Always Land"),
+                 (3, "SmartRTL or RTL or Land"), (4, "Brake or Land"), (5, "SmartRTL or Land"))
+# BATT_FS_LOW_ACT / BATT_FS_CRT_ACT values the battery failsafe implements (5, terminate, is not)
+BATT_FS_ACTIONS = ((0, "None"), (1, "Land"), (2, "RTL"), (3, "SmartRTL or RTL"),
+                   (4, "SmartRTL or Land"), (6, "Auto DO_LAND_START or RTL"), (7, "Brake or Land"))
 
 
 def _p(name: str, ptype: ParamType, default: float, lo: float, hi: float, units: str,
@@ -97,7 +106,6 @@ def _sensor_specs() -> list[ParamSpec]:
 
 
 def _power_specs() -> list[ParamSpec]:
-    none = ((0, "None"),)
     return [
         _p("BATT_VOLT_PIN", _I8, 13, -1, 127, "", "Battery voltage sensing pin (SITL board)"),
         _p("BATT_CURR_PIN", _I8, 12, -1, 127, "", "Battery current sensing pin (SITL board)"),
@@ -106,30 +114,32 @@ def _power_specs() -> list[ParamSpec]:
         _p("BATT_AMP_OFFSET", _F, 0.0, -10.0, 10.0, "V", "Current sensor offset"),
         _p("BATT_ARM_VOLT", _F, 0.0, 0.0, 100.0, "V", "Minimum voltage to arm"),
         _p("BATT_ARM_MAH", _I32, 0, 0, 2 ** 31 - 1, "mAh", "Minimum capacity left to arm"),
-        _p("BATT_LOW_VOLT", _F, 10.5, 0.0, 100.0, "V", "Low battery voltage"),
-        _p("BATT_CRT_VOLT", _F, 0.0, 0.0, 100.0, "V", "Critical battery voltage"),
-        _p("BATT_LOW_MAH", _F, 0.0, 0.0, 1e6, "mAh", "Low battery capacity left"),
-        _p("BATT_CRT_MAH", _F, 0.0, 0.0, 1e6, "mAh", "Critical battery capacity left"),
-        _p("BATT_LOW_TIMER", _I32, 10, 0, 120, "s", "Low battery for this long triggers"),
+        ParamSpec("BATT_LOW_VOLT", _F, 10.5, 0.0, 100.0, "V", "Low battery voltage"),
+        ParamSpec("BATT_CRT_VOLT", _F, 0.0, 0.0, 100.0, "V", "Critical battery voltage"),
+        ParamSpec("BATT_LOW_MAH", _F, 0.0, 0.0, 1e6, "mAh", "Low battery capacity left"),
+        ParamSpec("BATT_CRT_MAH", _F, 0.0, 0.0, 1e6, "mAh", "Critical battery capacity left"),
+        ParamSpec("BATT_LOW_TIMER", _I32, 10, 0, 120, "s", "Low battery for this long triggers"),
         _p("BATT_FS_VOLTSRC", _I8, 0, 0, 1, "", "Failsafe voltage source (0 raw, 1 sag compensated)"),
-        _p("BATT_FS_LOW_ACT", _I8, 0, 0, 0, "",
-           "Low battery failsafe action (no battery failsafe yet: only 0)", none),
-        _p("BATT_FS_CRT_ACT", _I8, 0, 0, 0, "",
-           "Critical battery failsafe action (no battery failsafe yet: only 0)", none),
+        # these two do change something: the battery failsafe (failsafe_checks.BatteryFailsafe)
+        ParamSpec("BATT_FS_LOW_ACT", _I8, 0, 0, 7, "", "Low battery failsafe action",
+                  BATT_FS_ACTIONS),
+        ParamSpec("BATT_FS_CRT_ACT", _I8, 0, 0, 7, "", "Critical battery failsafe action",
+                  BATT_FS_ACTIONS),
     ]
 
 
 def _safety_specs() -> list[ParamSpec]:
     return [
-        _p("FENCE_ENABLE", _I8, 0, 0, 0, "", "Geofence enable (no geofence yet: only 0)",
-           ((0, "Disabled"),)),
-        _p("FENCE_TYPE", _I8, 7, 0, 15, "", "Fence types bitmask: 1 max altitude, 2 circle, "
-           "4 polygon, 8 min altitude"),
-        _p("FENCE_ACTION", _I8, 1, 0, 127, "", "Action on a fence breach"),
-        _p("FENCE_ALT_MAX", _F, 100.0, 10.0, 1000.0, "m", "Fence maximum altitude"),
-        _p("FENCE_ALT_MIN", _F, -10.0, -100.0, 100.0, "m", "Fence minimum altitude"),
-        _p("FENCE_RADIUS", _F, 150.0, 30.0, 10000.0, "m", "Circular fence radius"),
-        _p("FENCE_MARGIN", _F, 2.0, 1.0, 10.0, "m", "Fence margin"),
+        # the fence and rally parameters change something: geofence.py
+        ParamSpec("FENCE_ENABLE", _I8, 0, 0, 1, "", "Geofence enable", ((0, "Disabled"), (1, "Enabled"))),
+        ParamSpec("FENCE_TYPE", _I8, 7, 0, 15, "", "Fence types bitmask: 1 max altitude, 2 circle, "
+                  "4 polygon, 8 min altitude"),
+        ParamSpec("FENCE_ACTION", _I8, 1, 0, 5, "", "Action on a fence breach", FENCE_ACTIONS),
+        ParamSpec("FENCE_ALT_MAX", _F, 100.0, 10.0, 1000.0, "m", "Fence maximum altitude"),
+        ParamSpec("FENCE_ALT_MIN", _F, -10.0, -100.0, 100.0, "m", "Fence minimum altitude"),
+        ParamSpec("FENCE_RADIUS", _F, 150.0, 30.0, 10000.0, "m", "Circular fence radius"),
+        ParamSpec("FENCE_MARGIN", _F, 2.0, 1.0, 10.0, "m",
+                  "Fence margin: guidance plans this far inside the fence"),
         _p("FENCE_TOTAL", _I8, 0, 0, 127, "", "Number of polygon fence points"),
         _p("FENCE_AUTOENABLE", _I8, 0, 0, 3, "", "Fence auto-enable"),
         ParamSpec("FS_THR_ENABLE", _I8, 1, 0, 7, "",
@@ -138,6 +148,11 @@ def _safety_specs() -> list[ParamSpec]:
         _p("FS_THR_VALUE", _I16, 975, 910, 1100, "PWM", "Throttle failsafe PWM"),
         _p("FS_OPTIONS", _I32, 0, 0, 2 ** 31 - 1, "", "Failsafe options bitmask"),
         _p("FS_CRASH_CHECK", _I8, 1, 0, 1, "", "Crash check"),
+        ParamSpec("RALLY_LIMIT_KM", _F, 0.3, 0.0, 10.0, "km",
+                  "Rally points further than this are not used when home is closer (0 = no limit)"),
+        ParamSpec("RALLY_INCL_HOME", _I8, 1, 0, 1, "", "RTL to home when it is nearer than the "
+                  "nearest rally point", ((0, "Disabled"), (1, "Enabled"))),
+        _p("RALLY_TOTAL", _I8, 0, 0, 127, "", "Rally point count (the RALLY upload sets the points)"),
     ]
 
 
@@ -150,3 +165,11 @@ PILOT_INPUT_PARAM_NAMES = frozenset(
     + [f"RC{n}_{field}" for n in range(1, RC_CHANNELS + 1)
        for field in ("MIN", "TRIM", "MAX", "REVERSED", "DZ")]
     + ["FS_THR_ENABLE"])
+
+# The ones among them that do change something (the battery failsafe, the geofence, rally points).
+ACTIVE_GCS_PARAM_NAMES = frozenset({
+    "BATT_FS_LOW_ACT", "BATT_FS_CRT_ACT", "BATT_LOW_VOLT", "BATT_CRT_VOLT", "BATT_LOW_MAH",
+    "BATT_CRT_MAH", "BATT_LOW_TIMER", "FENCE_ENABLE", "FENCE_TYPE", "FENCE_ACTION",
+    "FENCE_ALT_MAX", "FENCE_ALT_MIN", "FENCE_RADIUS", "FENCE_MARGIN", "RALLY_LIMIT_KM",
+    "RALLY_INCL_HOME",
+})

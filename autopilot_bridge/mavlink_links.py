@@ -160,6 +160,7 @@ class LinkTransportMixin:
         if link.addr is not None and self._udp_peers.get(link.addr) is link:
             del self._udp_peers[link.addr]
         self.missions.link_closed(link)
+        self.fence_rally.link_closed(link)
         self.ftp.forget(lambda key: key[0] is link)
 
     def _read_tcp(self, link: Link) -> None:

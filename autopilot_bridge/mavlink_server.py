@@ -41,6 +41,7 @@ from typing import Callable, Iterable
 from pymavlink.dialects.v20 import ardupilotmega as mavlink2
 
 from autopilot_bridge.commands import CommandHandler, CommandRequest, MavResult
+from autopilot_bridge.fence_rally_protocol import FenceRallyProtocols
 from autopilot_bridge.mavlink_framing import frame_is_signed, frame_msg_id
 from autopilot_bridge.mavlink_ftp import PAYLOAD_LEN, FtpServer
 from autopilot_bridge.mavlink_links import Link, LinkKind, LinkTransportMixin, close_socket
@@ -51,6 +52,7 @@ from autopilot_bridge.param_pack import PackedParam, pack_params, parse_query
 from autopilot_bridge.params import ParameterStore
 from autopilot_bridge.setpoints import global_position_target, local_position_target, odometry_from_message
 from autopilot_bridge.signing import Signer, SigningConfig
+from autopilot_bridge.system_commands import SystemCommands
 from autopilot_bridge.telemetry import (
     STREAMABLE_MSG_IDS,
     EncodeContext,
@@ -81,7 +83,7 @@ STAT_KEYS = (
     "parse_errors", "unknown", "truncated", "dropped_unsigned", "bad_signature", "not_for_us",
     "own_echo", "ignored", "handler_errors", "setpoints_ignored", "setpoints_rejected",
     "rc_not_my_gcs",
-    "vision_ignored", "vision_rejected", "param_set_refused", "param_set_clamped", "tcp_clients", "tcp_refused",
+    "vision_ignored", "vision_rejected", "param_set_refused", "param_set_clamped", "signing_setups", "tcp_clients", "tcp_refused",
     "udp_peers", "udp_refused", "socket_errors", "encode_errors",
 )
 
@@ -105,6 +107,7 @@ class MavlinkServerConfig:
     component_id: int = MAV_COMP_ID_AUTOPILOT1
     signing: SigningConfig = field(default_factory=SigningConfig)
     tlog_path: str = ""
+    signing_key_path: str = ""      # SETUP_SIGNING's key is kept there ("" = not kept)
     params_per_poll: int = 25
     partial_frame_timeout_s: float = 1.0
     mission_upload_timeout_s: float = 8.0
@@ -130,6 +133,13 @@ class MavlinkServerConfig:
               self.tcp_send_buffer_max_bytes, ">= 4096")
 
 
+def command_handler(vehicle: Vehicle, services: MavlinkServer) -> CommandHandler:
+    """Every command the server answers: ``commands`` plus the modules registered into it."""
+    handler = CommandHandler(vehicle, services)
+    handler.register(SystemCommands(vehicle, services).handlers())
+    return handler
+
+
 class MavlinkServer(LinkTransportMixin, ParamProtocolMixin):
     """ArduCopter-compatible MAVLink endpoint for a Vehicle. See the module docstring."""
 
@@ -147,7 +157,7 @@ class MavlinkServer(LinkTransportMixin, ParamProtocolMixin):
         self.last_any_gcs_heartbeat_s: float | None = None
         self._wallclock_s = wallclock_s
         self._monotonic_s = monotonic_s
-        self._signer = Signer(self.cfg.signing, wallclock_s)
+        self._signer = Signer(self.cfg.signing, wallclock_s, self.cfg.signing_key_path)
         self._links: list[Link] = []
         self._udp_peers: dict[tuple[str, int], Link] = {}
         self._next_link_id = 0
@@ -163,7 +173,10 @@ class MavlinkServer(LinkTransportMixin, ParamProtocolMixin):
         self.missions = MissionManager(vehicle, self,
                                        upload_timeout_s=self.cfg.mission_upload_timeout_s,
                                        request_retry_s=self.cfg.mission_request_retry_s)
-        self.commands = CommandHandler(vehicle, self)
+        self.commands = command_handler(vehicle, self)
+        self.fence_rally = FenceRallyProtocols(vehicle, self,
+                                               upload_timeout_s=self.cfg.mission_upload_timeout_s,
+                                               request_retry_s=self.cfg.mission_request_retry_s)
         self.ftp = FtpServer(self._ftp_file)
         self._open_sockets()
         params.add_observer(self._on_param_changed)
@@ -228,6 +241,7 @@ class MavlinkServer(LinkTransportMixin, ParamProtocolMixin):
         self._guarded(self._drain_vehicle_events)
         self._guarded(self._flush_statustexts)
         self._guarded(self.missions.update, now_s)
+        self._guarded(self.fence_rally.update, now_s)
         self._send_param_batches()
         self._guarded(self._send_streams, now_s)
         self._expire_udp_peers(now_s)
@@ -337,6 +351,9 @@ class MavlinkServer(LinkTransportMixin, ParamProtocolMixin):
     def set_mission_current(self, seq: int) -> bool:
         return self.missions.set_current(seq, None)
 
+    def erase_stored_params(self) -> None:
+        self.params.erase_persisted()
+
     # ----------------------------------------------------------------- input
     def _handle_frame(self, link: Link, frame: bytes, now_s: float) -> None:
         msg_id = frame_msg_id(frame)
@@ -379,6 +396,8 @@ class MavlinkServer(LinkTransportMixin, ParamProtocolMixin):
         if handler is not None:
             handler(self, msg, link, now_s)
         elif kind.startswith("MISSION_"):
+            if self.fence_rally.handle(msg, link, now_s):
+                return
             if not self.missions.handle(msg, link, now_s):
                 self.stats["ignored"] += 1
         else:
@@ -395,9 +414,17 @@ class MavlinkServer(LinkTransportMixin, ParamProtocolMixin):
             self.send(link, mavlink2.MAVLink_timesync_message(int(now_s * 1e9), msg.ts1))
 
     def _on_setup_signing(self, msg: mavlink2.MAVLink_message, link: Link, now_s: float) -> None:
-        logger.warning("SETUP_SIGNING from %d refused: the key comes from the configuration",
-                       msg.get_srcSystem())
-        self.statustext(MavSeverity.WARNING, "SETUP_SIGNING refused: key is set in config")
+        """Install the key on every link (``signing``: ArduPilot's handle_setup_signing)."""
+        if self.vehicle.telemetry().armed:
+            self.statustext(MavSeverity.WARNING, "ERROR: Won't setup signing when armed")
+            return
+        key = bytes(msg.secret_key)
+        self._signer.install(key, int(msg.initial_timestamp))
+        for other in self._links:
+            self._signer.configure(other.mav, other.mav.signing.link_id)
+        logger.info("SETUP_SIGNING from %d: signing %s", msg.get_srcSystem(),
+                    "on" if self._signer.enabled else "off")
+        self.stats["signing_setups"] += 1
 
     def _on_file_transfer_protocol(self, msg: mavlink2.MAVLink_message, link: Link,
                                    now_s: float) -> None:

@@ -20,9 +20,8 @@ Shell module (uses pymavlink). Behaviour follows ArduPilot's ``MissionItemProtoc
 * MISSION_WRITE_PARTIAL_LIST (items start..end replaced, or appended when end is one past the
   last item), MISSION_CLEAR_ALL, MISSION_SET_CURRENT; MAV_CMD_DO_SET_MISSION_CURRENT lives in
   commands.py.
-* Fence and rally (mission_type 1, 2) are not implemented: downloads report 0 items, empty
-  uploads and clears are accepted, non-empty uploads get MAV_MISSION_UNSUPPORTED. We do not
-  claim MISSION_FENCE / MISSION_RALLY in AUTOPILOT_VERSION.
+* Fence and rally (mission_type 1, 2) are ``fence_rally_protocol``'s: the server routes them
+  there before this manager sees them (what this one still answers for them is a fallback).
 * "Guided waypoint" (MISSION_ITEM(_INT) with current == 2, sent by older MAVProxy and QGC): in GUIDED mode it becomes ``Vehicle.reposition``; MISSION_ACK ACCEPTED/ERROR.
 * "Change altitude" (current == 3, MAVProxy's ``changealt``): ACCEPTED without effect, as
   ArduCopter (its ``handle_change_alt_request`` only converts the altitude; moving the target is a
@@ -105,6 +104,13 @@ class GuidedItemFlag(IntEnum):
 # Every command AP_Mission stores is accepted (what the flight core executes and what it stores
 # and skips: ``autopilot_bridge.auto_mission``); any other id is UNSUPPORTED, as AP_Mission.
 ACCEPTED_COMMANDS: frozenset[int] = frozenset(int(c) for c in MissionCommand)
+
+# The messages MissionManager.handle processes (docs/mavlink.md's compatibility table lists them).
+HANDLED_MESSAGES: frozenset[str] = frozenset({
+    "MISSION_COUNT", "MISSION_ITEM_INT", "MISSION_ITEM", "MISSION_REQUEST_LIST",
+    "MISSION_REQUEST_INT", "MISSION_REQUEST", "MISSION_CLEAR_ALL", "MISSION_WRITE_PARTIAL_LIST",
+    "MISSION_SET_CURRENT", "MISSION_ACK",
+})
 
 # Commands whose x/y/z are a location (AP_Mission::stored_in_location).
 LOCATION_COMMANDS: frozenset[int] = frozenset({

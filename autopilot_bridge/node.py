@@ -64,6 +64,7 @@ from autopilot_bridge.modes import CopterMode
 from autopilot_bridge.param_specs import PARAM_SPECS
 from autopilot_bridge.params import ParameterStore, load_param_file
 from autopilot_bridge.route_mission import build_route_mission
+from autopilot_bridge.signing import key_path_beside
 from autopilot_bridge.vehicle_interface import MissionState
 from scenenav.core.bus import Bus, BusConfig
 from scenenav.core.contracts import (
@@ -98,6 +99,7 @@ STATUS_PERIOD_US = 1_000_000
 AUTO_START_RETRY_US = 1_000_000
 STATS_FILE = "autopilot_stats.json"
 MAVLINK_FILE = "mavlink.json"
+SIGNING_KEY_FILE = "signing_key.json"   # a SETUP_SIGNING key when there is no parameter store
 TLOG_FILE = "autopilot.tlog"
 PARAMS_FILE = "params.json"
 
@@ -218,10 +220,13 @@ class AutopilotNode:
         a = self.acfg
         udp = a.udp_target
         tlog = str(self.run_dir / TLOG_FILE) if self.run_dir else ""
+        # the SETUP_SIGNING key: beside the kept parameters (scenenav sitl), else in the run folder
+        key_path = (str(key_path_beside(a.params_store)) if a.params_store
+                    else str(self.run_dir / SIGNING_KEY_FILE) if self.run_dir else "")
         cfg = MavlinkServerConfig(
             tcp_enabled=a.mavlink_tcp_port != 0, tcp_port=a.mavlink_tcp_port or 5760,
             udp_enabled=udp is not None, udp_target_host=udp[0] if udp else "127.0.0.1",
-            udp_target_port=udp[1] if udp else 14550, tlog_path=tlog)
+            udp_target_port=udp[1] if udp else 14550, tlog_path=tlog, signing_key_path=key_path)
         try:
             server = MavlinkServer(self.core, self.params, cfg)
         except UserError as exc:

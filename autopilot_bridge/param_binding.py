@@ -17,6 +17,7 @@ from autopilot_bridge.flight_laws import Tracker
 from autopilot_bridge.mixer import QuadXMixer
 from autopilot_bridge.vehicle_interface import (
     MavSeverity,
+    Outcome,
     SpeedType,
 )
 
@@ -39,7 +40,7 @@ class ParamBindingMixin:
 
     def _apply_param(self, name: str, value: float) -> None:
         self._tel = None
-        if name == "EK3_SRC1_POSXY":
+        if name == f"EK3_SRC{self._source_set}_POSXY":
             self.nav.set_position_source(self._source_param())
             self._announce(MavSeverity.INFO, f"EKF3 IMU0 is using {self._source_name()}")
         if name in ("ANGLE_MAX", "PILOT_SPEED_UP", "PILOT_SPEED_DN", "WPNAV_SPEED_UP",
@@ -65,9 +66,21 @@ class ParamBindingMixin:
 
     def _source_param(self) -> PositionSource:
         try:
-            return PositionSource(self.params.get_int("EK3_SRC1_POSXY"))
+            return PositionSource(self.params.get_int(f"EK3_SRC{self._source_set}_POSXY"))
         except ValueError:
             return PositionSource.NONE
+
+    def set_ekf_source_set(self, number: int) -> Outcome:
+        """SET_EKF_SOURCE_SET: use EK3_SRC<number>_* (1..3) from now on (ArduPilot
+        ``AP_NavEKF_Source::setPosVelYawSourceSet``)."""
+        name = f"EK3_SRC{number}_POSXY"
+        if name not in self.params:
+            return self._refuse(f"EKF source set {number}: no {name}")
+        self._source_set = number
+        self._tel = None
+        self.nav.set_position_source(self._source_param())
+        self._announce(MavSeverity.INFO, f"EKF3 IMU0 is using {self._source_name()}")
+        return Outcome(True)
 
     def _source_name(self) -> str:
         return {PositionSource.GPS: "GPS", PositionSource.EXTNAV: "external nav data"}.get(

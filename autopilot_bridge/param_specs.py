@@ -20,6 +20,32 @@ SN_PARAM_SPECS: tuple[ParamSpec, ...] = (
     ParamSpec("SN_VIS_MIN_ALT", ParamType.REAL32, 35.0, 0.0, 1000.0, "m",
               "Vision fixes are used (and expected) only this high above home", safe_min=0.0),
 )
+# EKF source sets 2 and 3 (SET_EKF_SOURCE_SET, system_commands.py): ArduPilot's defaults are 0 (None).
+_SRC_VALUES = {
+    "POSXY": ((0, "None"), (3, "GPS"), (6, "ExternalNav")),
+    "POSZ": ((0, "None"), (1, "Baro"), (3, "GPS"), (6, "ExternalNav")),
+    "VELXY": ((0, "None"), (3, "GPS"), (6, "ExternalNav")),
+    "VELZ": ((0, "None"), (3, "GPS"), (6, "ExternalNav")),
+    "YAW": ((0, "None"), (1, "Compass"), (6, "ExternalNav")),
+}
+EKF_SOURCE_SET_SPECS: tuple[ParamSpec, ...] = tuple(
+    ParamSpec(f"EK3_SRC{n}_{kind}", ParamType.INT8, 0, 0, 6, "",
+              f"EKF source set {n}: {kind} source (used after SET_EKF_SOURCE_SET {n}; as set 1, "
+              "only POSXY changes what this EKF fuses)", values)
+    for n in (2, 3) for kind, values in _SRC_VALUES.items())
+# External vision over MAVLink (external_vision.py); names, units and defaults ArduPilot 4.5's.
+VISO_PARAM_SPECS: tuple[ParamSpec, ...] = (
+    ParamSpec("VISO_DELAY_MS", ParamType.INT16, 10, 0, 250, "ms",
+              "Visual odometry sensor delay: fixes are fused this much before their arrival", safe_min=0),
+    ParamSpec("VISO_POS_X", ParamType.REAL32, 0.0, -5.0, 5.0, "m", "Visual odometry sensor position, forward"),
+    ParamSpec("VISO_POS_Y", ParamType.REAL32, 0.0, -5.0, 5.0, "m", "Visual odometry sensor position, right"),
+    ParamSpec("VISO_POS_Z", ParamType.REAL32, 0.0, -5.0, 5.0, "m", "Visual odometry sensor position, down"),
+    ParamSpec("VISO_POS_M_NSE", ParamType.REAL32, 0.2, 0.0, 5.0, "m",
+              "Visual odometry position noise: floor of the covariance-derived error", safe_min=0.0),
+    ParamSpec("VISO_QUAL_MIN", ParamType.INT8, 0, -1, 100, "%",
+              "Visual odometry minimum quality: ODOMETRY below it is ignored"),
+)
 PARAM_SPECS: tuple[ParamSpec, ...] = (DEFAULT_PARAM_SPECS + SN_PARAM_SPECS + AIRFRAME_PARAM_SPECS
-                                      + GCS_PARAM_SPECS + MODE_PARAM_SPECS)
+                                      + GCS_PARAM_SPECS + MODE_PARAM_SPECS + EKF_SOURCE_SET_SPECS
+                                      + VISO_PARAM_SPECS)
 PARAM_NAMES = frozenset(spec.name for spec in PARAM_SPECS)

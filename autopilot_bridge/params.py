@@ -369,6 +369,13 @@ class ParameterStore:
         self._save()
         self._save_persisted()
 
+    def erase_persisted(self) -> None:
+        """PREFLIGHT_STORAGE erase (ArduPilot ``AP_Param::erase_all``): the kept values are dropped
+        from the ``persist_path`` file, so the next start uses the defaults; the running values stay
+        until then, as on ArduPilot before its reboot."""
+        self._persisted.clear()
+        self._save_persisted()
+
     @property
     def persisted_names(self) -> frozenset[str]:
         """The parameters that are in (or go to) the ``persist_path`` file."""

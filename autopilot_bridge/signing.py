@@ -10,7 +10,14 @@ MAVProxy's ``signing setup PASSPHRASE``). When signing is enabled:
   RADIO_STATUS and RADIO, the two ids ArduPilot accepts unsigned
   (``libraries/GCS_MAVLink/GCS_Signing.cpp``, ``accept_unsigned_callback``); ArduPilot also
   accepts everything on its USB channel 0, which has no equivalent here;
-* SETUP_SIGNING from the network is refused: the key comes from the configuration only.
+* SETUP_SIGNING (what MAVProxy's ``signing setup`` and QGC send) installs a new key on every link
+  at once, as ArduPilot's ``GCS_MAVLINK::handle_setup_signing``: refused while armed (WARNING
+  "ERROR: Won't setup signing when armed"); an all-zero key disables signing; the outgoing
+  timestamp becomes at least the message's ``initial_timestamp``. With a key file
+  (``MavlinkServerConfig.signing_key_path``; the node keeps it next to the parameter store, as
+  ArduPilot keeps the key in its storage) the key is written there and loaded at the next start,
+  over the configuration's. While signing is on, SETUP_SIGNING itself must be signed (it is not
+  on the unsigned list), so only a holder of the current key can change it.
 
 The signature check itself (SHA-256 of key + frame, 6 bytes, per-stream timestamps that may
 not go backwards and new streams at most one minute behind) is pymavlink's
@@ -20,13 +27,17 @@ not go backwards and new streams at most one minute behind) is pymavlink's
 from __future__ import annotations
 
 import hashlib
+import json
+import os
 import time
 from dataclasses import dataclass
+from pathlib import Path
 from typing import Callable
 
 from pymavlink.dialects.v20 import ardupilotmega as mavlink2
 
 from scenenav.core.config import check
+from scenenav.core.errors import UserError
 
 SIGNING_KEY_LEN = 32
 # 2015-01-01T00:00:00Z as a Unix time: the MAVLink signing epoch.
@@ -75,22 +86,45 @@ def signing_timestamp(unix_time_s: float) -> int:
 
 
 class Signer:
-    """Applies one signing configuration to the per-link pymavlink ``MAVLink`` objects."""
+    """Applies one signing key to the per-link pymavlink ``MAVLink`` objects."""
 
-    def __init__(self, cfg: SigningConfig, wallclock_s: Callable[[], float] = time.time) -> None:
-        self.enabled = cfg.enabled
+    def __init__(self, cfg: SigningConfig, wallclock_s: Callable[[], float] = time.time,
+                 key_path: str = "") -> None:
         self._key = signing_key(cfg) if cfg.enabled else None
+        self._key_path = Path(key_path) if key_path else None
+        self._min_timestamp = 0
         self._wallclock_s = wallclock_s
+        if self._key_path is not None and self._key_path.exists():
+            stored, self._min_timestamp = load_key_file(self._key_path)
+            self._key = None if stored == bytes(SIGNING_KEY_LEN) else stored
+
+    @property
+    def enabled(self) -> bool:
+        return self._key is not None
 
     def configure(self, mav: mavlink2.MAVLink, link_id: int) -> None:
-        """Enable signing (outgoing and incoming checks) on a link's MAVLink object."""
-        if not self.enabled:
+        """Apply the current key (or no signing) to a link's MAVLink object."""
+        mav.signing.link_id = link_id & 0xFF
+        if self._key is None:
+            mav.signing.secret_key = None
+            mav.signing.sign_outgoing = False
+            mav.signing.allow_unsigned_callback = None
             return
         mav.signing.secret_key = self._key
         mav.signing.sign_outgoing = True
-        mav.signing.link_id = link_id & 0xFF
-        mav.signing.timestamp = signing_timestamp(self._wallclock_s())
+        mav.signing.timestamp = max(mav.signing.timestamp, self._min_timestamp,
+                                    signing_timestamp(self._wallclock_s()))
         mav.signing.allow_unsigned_callback = _accept_unsigned
+
+    def install(self, key: bytes, initial_timestamp: int) -> None:
+        """SETUP_SIGNING: the new key (all zeros = signing off), persisted when there is a key
+        file; call ``configure`` on every link afterwards."""
+        if len(key) != SIGNING_KEY_LEN:
+            raise ValueError(f"signing key must be {SIGNING_KEY_LEN} bytes")
+        self._key = None if key == bytes(SIGNING_KEY_LEN) else bytes(key)
+        self._min_timestamp = max(self._min_timestamp, int(initial_timestamp))
+        if self._key_path is not None:
+            save_key_file(self._key_path, bytes(key), self._min_timestamp)
 
     def refresh_timestamp(self, mav: mavlink2.MAVLink) -> None:
         """Keep the outgoing timestamp at least at wall-clock time (it only moves forward)."""
@@ -101,6 +135,36 @@ class Signer:
     @staticmethod
     def accepts_unsigned(msg_id: int) -> bool:
         return msg_id in UNSIGNED_ACCEPTED_MSG_IDS
+
+
+def key_path_beside(params_store: str | Path) -> Path:
+    """Where the node keeps the SETUP_SIGNING key for a parameter store (its sibling, like
+    ArduPilot's key in the same storage as its parameters): ``<store>.signing.json``."""
+    p = Path(params_store)
+    return p.with_name(p.name + ".signing.json")
+
+
+def load_key_file(path: Path) -> tuple[bytes, int]:
+    """A key file -> (key, timestamp); a malformed one is a UserError naming it."""
+    try:
+        data = json.loads(path.read_text())
+        key = bytes.fromhex(str(data["secret_key_hex"]))
+        stamp = int(data.get("timestamp", 0))
+    except (OSError, ValueError, KeyError, TypeError) as exc:
+        raise UserError(f"signing key file {path}: unreadable ({exc}); expected JSON "
+                        f'{{"secret_key_hex": "<64 hex>", "timestamp": N}}') from None
+    if len(key) != SIGNING_KEY_LEN:
+        raise UserError(f"signing key file {path}: the key must be 64 hex characters")
+    return key, stamp
+
+
+def save_key_file(path: Path, key: bytes, timestamp: int) -> None:
+    """Write the key file atomically, readable by its owner only."""
+    path.parent.mkdir(parents=True, exist_ok=True)
+    tmp = path.with_suffix(path.suffix + ".tmp")
+    tmp.write_text(json.dumps({"secret_key_hex": key.hex(), "timestamp": int(timestamp)}))
+    os.chmod(tmp, 0o600)
+    os.replace(tmp, path)
 
 
 def _accept_unsigned(_mav: mavlink2.MAVLink, msg_id: int) -> bool:

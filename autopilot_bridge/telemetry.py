@@ -49,8 +49,8 @@ FIRMWARE_VERSION_TYPE = mavlink2.FIRMWARE_VERSION_TYPE_OFFICIAL
 FLIGHT_CUSTOM_VERSION = b"scenenav"  # 8 bytes where ArduPilot puts its git hash
 
 # AUTOPILOT_VERSION.capabilities: what this emulator implements (FTP: the packed parameter file,
-# autopilot_bridge.mavlink_ftp). Not claimed: MISSION_FENCE / MISSION_RALLY (fence and rally are
-# answered as empty lists), SET_ATTITUDE_TARGET, FLIGHT_TERMINATION, COMPASS_CALIBRATION, TERRAIN.
+# autopilot_bridge.mavlink_ftp; MISSION_FENCE / MISSION_RALLY: geofence.py). Not claimed:
+# SET_ATTITUDE_TARGET, FLIGHT_TERMINATION, COMPASS_CALIBRATION, TERRAIN.
 CAPABILITIES = (mavlink2.MAV_PROTOCOL_CAPABILITY_MISSION_FLOAT
                 | mavlink2.MAV_PROTOCOL_CAPABILITY_FTP
                 | mavlink2.MAV_PROTOCOL_CAPABILITY_PARAM_FLOAT
@@ -58,7 +58,9 @@ CAPABILITIES = (mavlink2.MAV_PROTOCOL_CAPABILITY_MISSION_FLOAT
                 | mavlink2.MAV_PROTOCOL_CAPABILITY_COMMAND_INT
                 | mavlink2.MAV_PROTOCOL_CAPABILITY_SET_POSITION_TARGET_LOCAL_NED
                 | mavlink2.MAV_PROTOCOL_CAPABILITY_SET_POSITION_TARGET_GLOBAL_INT
-                | mavlink2.MAV_PROTOCOL_CAPABILITY_MAVLINK2)
+                | mavlink2.MAV_PROTOCOL_CAPABILITY_MAVLINK2
+                | mavlink2.MAV_PROTOCOL_CAPABILITY_MISSION_FENCE    # fence_rally_protocol
+                | mavlink2.MAV_PROTOCOL_CAPABILITY_MISSION_RALLY)
 
 
 class DataStream(IntEnum):
@@ -85,12 +87,13 @@ class MissionMode(IntEnum):
 
 _M = mavlink2
 STREAM_GROUPS: Mapping[DataStream, tuple[int, ...]] = {
-    DataStream.RAW_SENSORS: (),
+    DataStream.RAW_SENSORS: (_M.MAVLINK_MSG_ID_RAW_IMU, _M.MAVLINK_MSG_ID_SCALED_IMU),
     DataStream.EXTENDED_STATUS: (_M.MAVLINK_MSG_ID_SYS_STATUS, _M.MAVLINK_MSG_ID_POWER_STATUS,
                                  _M.MAVLINK_MSG_ID_MISSION_CURRENT,
                                  _M.MAVLINK_MSG_ID_NAV_CONTROLLER_OUTPUT,
                                  _M.MAVLINK_MSG_ID_GPS_RAW_INT,
-                                 _M.MAVLINK_MSG_ID_EXTENDED_SYS_STATE),
+                                 _M.MAVLINK_MSG_ID_EXTENDED_SYS_STATE,
+                                 _M.MAVLINK_MSG_ID_POSITION_TARGET_GLOBAL_INT),
     DataStream.RC_CHANNELS: (_M.MAVLINK_MSG_ID_SERVO_OUTPUT_RAW, _M.MAVLINK_MSG_ID_RC_CHANNELS),
     DataStream.RAW_CONTROLLER: (),
     DataStream.POSITION: (_M.MAVLINK_MSG_ID_GLOBAL_POSITION_INT,
@@ -98,7 +101,7 @@ STREAM_GROUPS: Mapping[DataStream, tuple[int, ...]] = {
     DataStream.EXTRA1: (_M.MAVLINK_MSG_ID_ATTITUDE,),
     DataStream.EXTRA2: (_M.MAVLINK_MSG_ID_VFR_HUD,),
     DataStream.EXTRA3: (_M.MAVLINK_MSG_ID_SYSTEM_TIME, _M.MAVLINK_MSG_ID_BATTERY_STATUS,
-                        _M.MAVLINK_MSG_ID_EKF_STATUS_REPORT),
+                        _M.MAVLINK_MSG_ID_EKF_STATUS_REPORT, _M.MAVLINK_MSG_ID_VIBRATION),
 }
 
 # Default rates of a new link (Hz). HEARTBEAT and HOME_POSITION belong to no stream group.
@@ -117,6 +120,8 @@ DEFAULT_RATES_HZ: Mapping[int, float] = {
     _M.MAVLINK_MSG_ID_VFR_HUD: 4.0,
     _M.MAVLINK_MSG_ID_BATTERY_STATUS: 1.0,
     _M.MAVLINK_MSG_ID_EKF_STATUS_REPORT: 1.0,
+    _M.MAVLINK_MSG_ID_VIBRATION: 1.0,
+    _M.MAVLINK_MSG_ID_POSITION_TARGET_GLOBAL_INT: 2.0,
     _M.MAVLINK_MSG_ID_HOME_POSITION: 0.2,
 }
 
@@ -498,6 +503,62 @@ def encode_autopilot_version(tel: VehicleTelemetry, ctx: EncodeContext
         [0] * 8, [0] * 8, 0, 0, 0, [0] * 18)
 
 
+MG_PER_M_S2 = 1000.0 / 9.80665      # RAW_IMU / SCALED_IMU accelerations in milli-g
+INT16_MIN, INT16_MAX = -(2 ** 15), 2 ** 15 - 1
+# POSITION_TARGET_* type_mask bits (POSITION_TARGET_TYPEMASK, a set bit = field not used)
+_TM_VEL = 0b111 << 3
+_TM_ACC = 0b111 << 6
+_TM_YAW, _TM_YAW_RATE = 1 << 10, 1 << 11
+
+
+def _imu_ints(tel: VehicleTelemetry) -> list[int]:
+    acc = [clamp_int(round(v * MG_PER_M_S2), INT16_MIN, INT16_MAX, 0) if math.isfinite(v) else 0
+           for v in tel.imu_accel_frd_m_s2]
+    gyro = [clamp_int(round(v * 1000.0), INT16_MIN, INT16_MAX, 0) if math.isfinite(v) else 0
+            for v in tel.imu_gyro_frd_rad_s]
+    return acc + gyro + [0, 0, 0]     # no magnetometer vector here (the compass gives a heading)
+
+
+def encode_raw_imu(tel: VehicleTelemetry, ctx: EncodeContext) -> mavlink2.MAVLink_message:
+    """ArduPilot's RAW_IMU: the first IMU in milli-g and mrad/s (it is not raw there either)."""
+    return mavlink2.MAVLink_raw_imu_message(_time_ms(tel) * 1000, *_imu_ints(tel), 0, 0)
+
+
+def encode_scaled_imu(tel: VehicleTelemetry, ctx: EncodeContext) -> mavlink2.MAVLink_message:
+    return mavlink2.MAVLink_scaled_imu_message(_time_ms(tel), *_imu_ints(tel), 0)
+
+
+def encode_vibration(tel: VehicleTelemetry, ctx: EncodeContext) -> mavlink2.MAVLink_message:
+    vx, vy, vz = _triple(tel.vibration_m_s2)
+    c = [clamp_int(int(v), 0, 2 ** 32 - 1, 0) for v in tuple(tel.accel_clipping)[:3]]
+    return mavlink2.MAVLink_vibration_message(_time_ms(tel) * 1000, vx, vy, vz, *c)
+
+
+def encode_position_target_local_ned(tel: VehicleTelemetry, ctx: EncodeContext
+                                     ) -> mavlink2.MAVLink_message | None:
+    """The position controller's target (position, velocity and acceleration feed-forward, yaw);
+    nothing without one (disarmed, landed)."""
+    if tel.target_position_ned_m is None:
+        return None
+    yaw = tel.target_yaw_rad
+    mask = _TM_YAW_RATE | (0 if math.isfinite(yaw) else _TM_YAW)
+    return mavlink2.MAVLink_position_target_local_ned_message(
+        _time_ms(tel), mavlink2.MAV_FRAME_LOCAL_NED, mask, *_triple(tel.target_position_ned_m),
+        *_triple(tel.target_velocity_ned_m_s), *_triple(tel.target_accel_ned_m_s2),
+        finite_float(yaw), 0.0)
+
+
+def encode_position_target_global_int(tel: VehicleTelemetry, ctx: EncodeContext
+                                      ) -> mavlink2.MAVLink_message | None:
+    """The target position as ArduCopter sends it (position only, GLOBAL_INT, AMSL)."""
+    if tel.target_position_ned_m is None:
+        return None
+    return mavlink2.MAVLink_position_target_global_int_message(
+        _time_ms(tel), mavlink2.MAV_FRAME_GLOBAL_INT, _TM_VEL | _TM_ACC | _TM_YAW | _TM_YAW_RATE,
+        deg_e7(tel.target_lat_deg), deg_e7(tel.target_lon_deg),
+        finite_float(tel.target_alt_amsl_m), 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0)
+
+
 ENCODERS: Mapping[int, Encoder] = {
     _M.MAVLINK_MSG_ID_HEARTBEAT: encode_heartbeat,
     _M.MAVLINK_MSG_ID_SYS_STATUS: encode_sys_status,
@@ -519,6 +580,11 @@ ENCODERS: Mapping[int, Encoder] = {
     _M.MAVLINK_MSG_ID_NAV_CONTROLLER_OUTPUT: encode_nav_controller_output,
     _M.MAVLINK_MSG_ID_RC_CHANNELS: encode_rc_channels,
     _M.MAVLINK_MSG_ID_SERVO_OUTPUT_RAW: encode_servo_output_raw,
+    _M.MAVLINK_MSG_ID_RAW_IMU: encode_raw_imu,
+    _M.MAVLINK_MSG_ID_SCALED_IMU: encode_scaled_imu,
+    _M.MAVLINK_MSG_ID_VIBRATION: encode_vibration,
+    _M.MAVLINK_MSG_ID_POSITION_TARGET_LOCAL_NED: encode_position_target_local_ned,
+    _M.MAVLINK_MSG_ID_POSITION_TARGET_GLOBAL_INT: encode_position_target_global_int,
 }
 
 STREAMABLE_MSG_IDS: frozenset[int] = frozenset(ENCODERS)

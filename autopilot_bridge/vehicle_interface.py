@@ -320,6 +320,16 @@ class MissionItem:
 
 
 @dataclass(frozen=True)
+class HomeLocation:
+    """A DO_SET_HOME location: degrees, metres in ``alt_frame`` (AMSL or above the current home)."""
+
+    lat_deg: float
+    lon_deg: float
+    alt_m: float
+    alt_frame: AltFrame
+
+
+@dataclass(frozen=True)
 class LocalPositionTarget:
     """SET_POSITION_TARGET_LOCAL_NED, already validated by the server.
 
@@ -461,6 +471,20 @@ class VehicleTelemetry:
     # 1..4 in PWM (ArduPilot's motor order)
     rc_channels_pwm: tuple[int, ...] = ()
     servo_pwm: tuple[int, ...] = ()
+    # RAW_IMU / SCALED_IMU (body FRD, the IMU sample the flight core last used; NaN = none yet)
+    imu_accel_frd_m_s2: tuple[float, float, float] = (math.nan, math.nan, math.nan)
+    imu_gyro_frd_rad_s: tuple[float, float, float] = (math.nan, math.nan, math.nan)
+    # VIBRATION (autopilot_bridge.vibration): levels m/s/s and accelerometer clipping counts
+    vibration_m_s2: tuple[float, float, float] = (0.0, 0.0, 0.0)
+    accel_clipping: tuple[int, int, int] = (0, 0, 0)
+    # POSITION_TARGET_*: the position controller's target (NED from the EKF origin); None = none
+    target_position_ned_m: tuple[float, float, float] | None = None
+    target_velocity_ned_m_s: tuple[float, float, float] = (0.0, 0.0, 0.0)
+    target_accel_ned_m_s2: tuple[float, float, float] = (0.0, 0.0, 0.0)
+    target_yaw_rad: float = math.nan
+    target_lat_deg: float = math.nan
+    target_lon_deg: float = math.nan
+    target_alt_amsl_m: float = math.nan
 
 
 @dataclass(frozen=True)
@@ -582,3 +606,18 @@ class Vehicle(Protocol):
 
     def mission_changed(self, items: tuple[MissionItem, ...]) -> Outcome:
         """A complete new mission (items seq 1..n; empty = cleared). Refuse to keep the old one."""
+
+    def fence_changed(self, items: tuple[MissionItem, ...]) -> Outcome:
+        """A complete new fence (mission_type FENCE items, seq 0..n-1; empty = cleared)."""
+
+    def rally_changed(self, items: tuple[MissionItem, ...]) -> Outcome:
+        """New rally points (mission_type RALLY, NAV_RALLY_POINT items; empty = cleared)."""
+
+    def set_ekf_source_set(self, number: int) -> Outcome:
+        """SET_EKF_SOURCE_SET: use the EK3_SRC<number>_* sources (1..3)."""
+
+    def run_prearm_checks(self) -> list[str]:
+        """RUN_PREARM_CHECKS (disarmed): every failing pre-arm check's text, [] when all pass."""
+
+    def set_home(self, home: HomeLocation | None) -> Outcome:
+        """DO_SET_HOME: at ``home``, or at the current position for None; emits HomeChangedEvent."""

@@ -122,12 +122,21 @@ def _check_params_store(path: Path, wipe: bool) -> None:
     """Delete the kept parameters for ``--wipe``; a file that cannot be read is a user error now,
     before any process starts (the autopilot would fail on it)."""
     if wipe:
+        from autopilot_bridge.signing import key_path_beside
         try:
             path.unlink(missing_ok=True)
+            key_path_beside(path).unlink(missing_ok=True)     # SETUP_SIGNING's key, as -w in SITL
         except OSError as exc:
             raise UserError(f"--wipe: cannot delete {path}: {exc.strerror}") from None
         log.info("parameters wiped: %s", path)
         return
+    from autopilot_bridge.signing import key_path_beside, load_key_file
+    key_path = key_path_beside(path)
+    if key_path.exists():
+        try:
+            load_key_file(key_path)
+        except UserError as exc:
+            raise UserError(f"{exc} (--wipe resets it)") from None
     if path.exists():
         from autopilot_bridge.param_specs import PARAM_SPECS
         from autopilot_bridge.params import ParameterStore

@@ -201,7 +201,8 @@ def test_reposition_change_speed_and_messages():
             for cap in ("MISSION_INT", "COMMAND_INT", "MAVLINK2", "PARAM_FLOAT", "FTP",
                         "SET_POSITION_TARGET_LOCAL_NED", "SET_POSITION_TARGET_GLOBAL_INT"):
                 assert ver.capabilities & getattr(M, "MAV_PROTOCOL_CAPABILITY_" + cap), cap
-            assert not ver.capabilities & M.MAV_PROTOCOL_CAPABILITY_MISSION_FENCE  # no fence yet
+            assert ver.capabilities & M.MAV_PROTOCOL_CAPABILITY_MISSION_FENCE
+            assert ver.capabilities & M.MAV_PROTOCOL_CAPABILITY_MISSION_RALLY
             assert ver.flight_sw_version >> 24 == 4
             assert long_cmd(conn, M.MAV_CMD_REQUEST_MESSAGE, 60000) == MavResult.DENIED
             assert long_cmd(conn, M.MAV_CMD_GET_HOME_POSITION) == MavResult.ACCEPTED
@@ -324,7 +325,10 @@ def test_encoders_survive_absurd_telemetry():
         heading_deg=math.nan, groundspeed_m_s=math.inf, throttle_pct=500, gps_satellites=-3,
         gps_hdop=math.inf, battery_voltage_v=1e9, battery_current_a=math.nan,
         battery_remaining_pct=400, home_set=True, home_lat_deg=100.0, mission_current_seq=-1,
-        ekf_flags=1 << 40, sensors_present=-1, cpu_load_pct=math.nan)
+        ekf_flags=1 << 40, sensors_present=-1, cpu_load_pct=math.nan,
+        imu_accel_frd_m_s2=(math.inf, -1e9, math.nan), vibration_m_s2=(math.nan, -1.0, 1e40),
+        accel_clipping=(-5, 2 ** 40, 0), target_position_ned_m=(math.nan, math.inf, 1e40),
+        target_lat_deg=math.nan, target_lon_deg=1e9, target_alt_amsl_m=math.inf)
     mav = M.MAVLink(None, 1, 1)
     ctx = telemetry.EncodeContext(mission_item_count=3, battery_monitor=4)
     for msg_id in telemetry.STREAMABLE_MSG_IDS:

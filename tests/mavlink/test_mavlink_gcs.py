@@ -465,10 +465,10 @@ def test_qgc_finds_every_setup_parameter_and_setup_complete():
             assert got["INS_ACCOFFS_X"] == pytest.approx(0.001) and got["RC3_MIN"] == 1000
             assert [got[f"FLTMODE{i}"] for i in range(1, 7)] == [7, 9, 6, 3, 5, 0]
             # a protection that does not exist cannot be switched on
-            conn.mav.param_set_send(1, 1, b"FENCE_ENABLE", 1.0, M.MAV_PARAM_TYPE_INT8)
-            text = wait_for(conn, "STATUSTEXT", condition=lambda m: "FENCE_ENABLE" in m.text)
-            assert text is not None and "not supported" in text.text
-            assert params.get("FENCE_ENABLE") == 0
+            conn.mav.param_set_send(1, 1, b"BATT_FS_LOW_ACT", 5.0, M.MAV_PARAM_TYPE_INT8)
+            text = wait_for(conn, "STATUSTEXT", condition=lambda m: "BATT_FS_LOW_ACT" in m.text)
+            assert text is not None and "not supported" in text.text   # 5 = terminate
+            assert params.get("BATT_FS_LOW_ACT") == 0
             # one that changes nothing is stored as sent
             conn.mav.param_set_send(1, 1, b"RC3_MIN", 1100.0, M.MAV_PARAM_TYPE_INT16)
             assert wait_for(conn, "PARAM_VALUE", condition=lambda m: m.param_id == "RC3_MIN"
@@ -490,7 +490,7 @@ def test_gcs_parameters_are_documented_as_changing_nothing():
 
     from support import REPO_ROOT
 
-    from autopilot_bridge.gcs_param_specs import GCS_PARAM_SPECS, PILOT_INPUT_PARAM_NAMES
+    from autopilot_bridge.gcs_param_specs import ACTIVE_GCS_PARAM_NAMES, GCS_PARAM_SPECS, PILOT_INPUT_PARAM_NAMES
     doc = (REPO_ROOT / "docs" / "mavlink.md").read_text()
     section = doc[doc.index("### Parameters QGC's setup pages read"):doc.index("## Failsafes")]
     names: set[str] = set()
@@ -504,8 +504,8 @@ def test_gcs_parameters_are_documented_as_changing_nothing():
             else:
                 names.add(t)
     for spec in GCS_PARAM_SPECS:
-        assert ("changes nothing" in spec.description) != (spec.name in PILOT_INPUT_PARAM_NAMES), \
-            spec.name
+        active = spec.name in ACTIVE_GCS_PARAM_NAMES or spec.name in PILOT_INPUT_PARAM_NAMES
+        assert ("changes nothing" in spec.description) != active, spec.name
         assert spec.name in names, spec.name
 
 

@@ -172,7 +172,8 @@ def test_bad_uploads_get_mission_ack_errors():
             conn.close()
 
 
-def test_fence_and_rally_are_empty_lists():
+def test_fence_and_rally_start_empty_and_are_uploaded_by_type():
+    """Their full round trip is in test_fence_rally_protocol.py."""
     with running_server() as (server, vehicle):
         conn = gcs_connection(server.tcp_port)
         try:
@@ -181,8 +182,11 @@ def test_fence_and_rally_are_empty_lists():
                 count = wait_for(conn, "MISSION_COUNT")
                 assert count is not None and count.count == 0 and count.mission_type == mtype
                 conn.mav.mission_count_send(1, 1, 3, mtype)
+                req = wait_for(conn, "MISSION_REQUEST_INT")
+                assert req is not None and (req.seq, req.mission_type) == (0, mtype)
+                conn.mav.mission_count_send(1, 1, 0, mtype)     # restart empty: ends the upload
                 ack = wait_for(conn, "MISSION_ACK")
-                assert ack is not None and ack.type == MissionResult.UNSUPPORTED
+                assert ack is not None and ack.type == MissionResult.ACCEPTED
                 conn.mav.mission_clear_all_send(1, 1, mtype)
                 ack = wait_for(conn, "MISSION_ACK")
                 assert ack is not None and ack.type == MissionResult.ACCEPTED

@@ -28,6 +28,8 @@ from autopilot_bridge.params import ParameterStore
 from autopilot_bridge.vehicle_interface import (
     AltFrame,
     GlobalPositionTarget,
+    HomeChangedEvent,
+    HomeLocation,
     LandedState,
     LocalPositionTarget,
     MavSeverity,
@@ -104,6 +106,32 @@ class FakeVehicle:
         with self._lock:
             events, self._events = self._events, []
         return events
+
+    def fence_changed(self, items: tuple[MissionItem, ...]) -> Outcome:
+        with self._lock:
+            self._record("fence_changed", items)
+            return Outcome(True)
+
+    def rally_changed(self, items: tuple[MissionItem, ...]) -> Outcome:
+        with self._lock:
+            self._record("rally_changed", items)
+            return Outcome(True)
+
+    def set_ekf_source_set(self, number: int) -> Outcome:
+        with self._lock:
+            self._record("set_ekf_source_set", number)
+            return Outcome(True)
+
+    def run_prearm_checks(self) -> list[str]:
+        with self._lock:
+            self._record("run_prearm_checks")
+            return [self.prearm_failure] if self.prearm_failure else []
+
+    def set_home(self, home: HomeLocation | None) -> Outcome:
+        with self._lock:
+            self._record("set_home", home)
+            self._events.append(HomeChangedEvent())
+            return Outcome(True)
 
     def arm(self, force: bool) -> Outcome:
         with self._lock:

@@ -25,11 +25,13 @@ STATE_CHANGING_COMMANDS = frozenset({
     M.MAV_CMD_MISSION_START, M.MAV_CMD_DO_SET_MISSION_CURRENT, M.MAV_CMD_DO_REPOSITION,
     M.MAV_CMD_DO_CHANGE_SPEED, M.MAV_CMD_CONDITION_YAW, M.MAV_CMD_DO_SET_ROI_LOCATION,
     M.MAV_CMD_DO_SET_ROI, M.MAV_CMD_DO_SET_ROI_NONE, M.MAV_CMD_DO_PAUSE_CONTINUE,
+    M.MAV_CMD_DO_SET_HOME, M.MAV_CMD_SET_EKF_SOURCE_SET, M.MAV_CMD_PREFLIGHT_STORAGE,
 })
 # what the server-only fuzz leaves out (the fake vehicle records mission changes separately);
-# RC overrides and MANUAL_CONTROL are the pilot's sticks: deliberate input that flies the vehicle
+# RC overrides and MANUAL_CONTROL are the pilot's sticks: deliberate input that flies the vehicle;
+# SETUP_SIGNING installs its (random) key: a deliberate change of the link, like a mode change
 EXCLUDED_TYPES = frozenset({"SET_MODE", "MISSION_SET_CURRENT", "RC_CHANNELS_OVERRIDE",
-                            "MANUAL_CONTROL"})
+                            "MANUAL_CONTROL", "SETUP_SIGNING"})
 # in flight, mission uploads and clears are deliberate ground-station actions too
 FLIGHT_EXCLUDED_TYPES = EXCLUDED_TYPES | frozenset({
     "MISSION_COUNT", "MISSION_CLEAR_ALL", "MISSION_WRITE_PARTIAL_LIST"})

@@ -71,7 +71,8 @@ def test_fixes_are_spheres_coloured_by_the_verdict_and_invalid_ones_are_not_draw
 def test_camera_frames_every_nth_as_raw_image():
     viz = VizState(camera_every_n=2)
     px = np.arange(4 * 3 * 3, dtype=np.uint8).reshape(4, 3, 3)
-    frames = [CameraFrame(i * 100_000, i, 3, 4, "rgb8", 60.0, "gimbal", px) for i in range(4)]
+    frames = [CameraFrame(i * 100_000, i, 3, 4, "rgb8", 60.0, "gimbal", (2.6, 2.6, 1.5, 2.0), (0.0, 0.0, 0.0, 0.0), px)
+              for i in range(4)]
     out = [m for f in frames for m in viz.on_message(f)]
     assert [m.topic for m in out] == [T_CAMERA, T_CAMERA]
     img = _json(out[1])

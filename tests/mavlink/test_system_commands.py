@@ -1,0 +1,88 @@
+"""System commands over real MAVLink bytes (pymavlink client, FakeVehicle): RUN_PREARM_CHECKS,
+DO_SET_HOME, PREFLIGHT_STORAGE, answered as ArduCopter (autopilot_bridge.system_commands)."""
+
+from __future__ import annotations
+
+import json
+
+import pytest
+from pymavlink.dialects.v20 import ardupilotmega as mavlink2
+from support.fake_vehicle import FakeVehicle, command_ack, gcs_connection, running_server, wait_for
+
+from autopilot_bridge.commands import MavResult
+from autopilot_bridge.param_specs import PARAM_SPECS
+from autopilot_bridge.params import ParameterStore
+from autopilot_bridge.vehicle_interface import AltFrame, HomeLocation
+
+M = mavlink2
+
+
+def _long(conn, command, *params):
+    p = list(params) + [0.0] * (7 - len(params))
+    conn.mav.command_long_send(1, 1, command, 0, *p)
+    ack = command_ack(conn, command)
+    assert ack is not None, command
+    return ack.result
+
+
+def _statustext(conn, prefix):
+    return wait_for(conn, "STATUSTEXT", 5.0, lambda m: m.text.startswith(prefix))
+
+
+def test_run_prearm_checks_reports_failures_and_is_rejected_when_armed():
+    with running_server(FakeVehicle(prearm_failure="PreArm: Need 3D Fix")) as (server, vehicle):
+        conn = gcs_connection(server.tcp_port)
+        assert _long(conn, M.MAV_CMD_RUN_PREARM_CHECKS) == MavResult.ACCEPTED
+        msg = _statustext(conn, "PreArm: Need 3D Fix")
+        assert msg is not None and msg.severity == M.MAV_SEVERITY_CRITICAL
+        vehicle.prearm_failure = None
+        assert _long(conn, M.MAV_CMD_COMPONENT_ARM_DISARM, 1) == MavResult.ACCEPTED
+        assert _long(conn, M.MAV_CMD_RUN_PREARM_CHECKS) == MavResult.TEMPORARILY_REJECTED
+        conn.close()
+
+
+def test_do_set_home_current_location_and_given_location():
+    with running_server() as (server, vehicle):
+        conn = gcs_connection(server.tcp_port)
+        assert _long(conn, M.MAV_CMD_DO_SET_HOME, 1) == MavResult.ACCEPTED
+        assert wait_for(conn, "HOME_POSITION", 5.0) is not None
+        assert _long(conn, M.MAV_CMD_DO_SET_HOME, 0, 0, 0, 0, 47.1, 8.2, 420.0) == MavResult.ACCEPTED
+        conn.mav.command_int_send(1, 1, M.MAV_FRAME_GLOBAL_RELATIVE_ALT_INT,
+                                  M.MAV_CMD_DO_SET_HOME, 0, 0, 0, 0, 0, 0,
+                                  471_000_000, 82_000_000, 5.0)
+        assert command_ack(conn, M.MAV_CMD_DO_SET_HOME).result == MavResult.ACCEPTED
+        assert _long(conn, M.MAV_CMD_DO_SET_HOME, 0, 0, 0, 0, 95.0, 8.2, 420.0) == MavResult.DENIED
+        assert _long(conn, M.MAV_CMD_DO_SET_HOME, 0, 0, 0, 0, 47.1, 8.2, float("nan")) == MavResult.DENIED
+        homes = [args[0] for name, args in vehicle.calls if name == "set_home"]
+        assert homes[0] is None and len(homes) == 3, homes   # float32 params: compare approximately
+        for home, (alt, frame) in zip(homes[1:], [(420.0, AltFrame.AMSL), (5.0, AltFrame.RELATIVE_HOME)], strict=True):
+            assert isinstance(home, HomeLocation) and home.alt_frame == frame
+            assert (home.lat_deg, home.lon_deg, home.alt_m) == pytest.approx((47.1, 8.2, alt), abs=1e-5)
+        conn.close()
+
+
+def test_preflight_storage_erase_drops_the_kept_parameters(tmp_path):
+    store = tmp_path / "params.json"
+    params = ParameterStore(PARAM_SPECS, persist_path=store)
+    params.set("RTL_ALT", 3000)
+    assert json.loads(store.read_text()) == {"RTL_ALT": 3000}
+    with running_server(params=params) as (server, _):
+        conn = gcs_connection(server.tcp_port)
+        assert _long(conn, M.MAV_CMD_PREFLIGHT_STORAGE, 1) == MavResult.ACCEPTED
+        assert json.loads(store.read_text()) == {"RTL_ALT": 3000}
+        assert _long(conn, M.MAV_CMD_PREFLIGHT_STORAGE, 7) == MavResult.DENIED
+        assert _long(conn, M.MAV_CMD_PREFLIGHT_STORAGE, 2) == MavResult.ACCEPTED
+        assert _statustext(conn, "All parameters reset, reboot board") is not None
+        conn.close()
+    assert json.loads(store.read_text()) == {}
+    assert ParameterStore(PARAM_SPECS, persist_path=store).get("RTL_ALT") == 1500
+
+
+def test_set_ekf_source_set_selects_1_to_3():
+    with running_server() as (server, vehicle):
+        conn = gcs_connection(server.tcp_port)
+        assert _long(conn, M.MAV_CMD_SET_EKF_SOURCE_SET, 2) == MavResult.ACCEPTED
+        assert _long(conn, M.MAV_CMD_SET_EKF_SOURCE_SET, 4) == MavResult.DENIED
+        assert _long(conn, M.MAV_CMD_SET_EKF_SOURCE_SET, 1.5) == MavResult.DENIED
+        assert [a for n, a in vehicle.calls if n == "set_ekf_source_set"] == [(2,)]
+        conn.close()
