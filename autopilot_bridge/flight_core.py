@@ -67,6 +67,7 @@ from autopilot_bridge.failsafe import (
     FailsafeAction,
     FailsafeEvent,
     FailsafeInputs,
+    FailsafeKind,
     FailsafeMonitor,
     FailsafeSettings,
     GcsFailsafeAction,
