@@ -40,7 +40,7 @@ lint: install
 TEST_WORKERS ?= 2
 
 test: install lint
-	$(PY) -m pytest -q -ra -n $(TEST_WORKERS) --dist loadscope
+	$(PY) -m pytest -q -ra -n $(TEST_WORKERS) --dist loadscope --durations=40
 
 bench: install
 	$(VENV)/bin/scenenav bench sim

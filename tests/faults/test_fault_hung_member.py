@@ -38,10 +38,16 @@ def test_a_stopped_member_is_reported_skipped_and_rejoins(tmp_path):
         r.kill()
     assert code == 0, r.stderr[-2000:]
     events = _events(r.run_dir)
-    timed_out = [e for e in events if "no lockstep answer from perception" in e]
-    rejoined = [e for e in events if "perception answers again" in e]
-    assert len(timed_out) == 1, timed_out[:5]        # one report for the whole stop
-    assert len(rejoined) == 1, events[-10:]
+    def sim_t(event: str) -> float:
+        return float(event.split(" ", 1)[0])
+    # one report for the whole stop (a loaded machine may make a later frame miss its 2 s as well:
+    # that is another stall, reported on its own, so only the reports inside the stop are counted)
+    window = (t_stop - 0.5, t_during + 0.5)
+    timed_out = [e for e in events if "no lockstep answer from perception" in e
+                 and window[0] <= sim_t(e) <= window[1]]
+    rejoined = [e for e in events if "perception answers again" in e and sim_t(e) >= window[0]]
+    assert len(timed_out) == 1, timed_out[:5]
+    assert rejoined, events[-10:]
     # the clock went on while perception was frozen: after the one 2 s timeout it ran freely (waiting
     # 2 s for every 10 Hz frame instead would have advanced it by about 0.4 s in those 6 s)
     assert t_during - t_stop >= 1.0, (t_stop, t_during)
