@@ -5,7 +5,7 @@ rule; a node that never comes ends the run with a one-line message.
 
 The example node (examples/perception_node_python/node.py) imports only zenoh, numpy and OpenCV.
 Four runs, two at a time: ``node check`` of the example node in a GPS-denied lockstep flight
-of 16 simulated seconds, two 4 s check runs of variants of it that break chosen rules
+of 16 simulated seconds, 4 s and 8 s check runs of two variants of it that break chosen rules
 (tests/support/broken_perception_node.py), and one run that waits 2 s for a node that never comes.
 """
 
@@ -59,7 +59,7 @@ def flights(tmp_path_factory):
         "example": _cli("node", "check", "perception", "--json", "--node-id", NODE_ID, "--scenario",
                         str(scenario), "--duration-s", str(SCENARIO["duration_s"]), "--out",
                         str(tmp / "example"), "--", sys.executable, str(EXAMPLE), "{run_dir}"),
-        "bent": _cli("node", "check", "perception", "--json", "--duration-s", "4", "--ack-timeout-s", "2",
+        "bent": _cli("node", "check", "perception", "--json", "--duration-s", "8", "--ack-timeout-s", "2",
                      *CHECK_SETS, "--out", str(tmp / "bent"), "--", sys.executable, str(BROKEN),
                      "--break", "ack,timestamp,covariance", "{run_dir}"),
         "fragile": _cli("node", "check", "perception", "--json", "--duration-s", "4", *CHECK_SETS,

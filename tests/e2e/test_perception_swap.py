@@ -9,6 +9,11 @@ import sys
 import time
 from pathlib import Path
 
+import pytest
+
+#: real-time SITL flights: `make test` runs them alone, after the parallel part
+pytestmark = pytest.mark.realtime
+
 
 def _wait_for(pred, timeout_s, what):
     t0 = time.monotonic()

@@ -24,10 +24,14 @@ import threading
 import time
 
 import numpy as np
+import pytest
 from support.mavlink_fuzzgen import FLIGHT_EXCLUDED_TYPES, M, build_inputs
 from support.sitl_session import Gcs, SitlSession, enu_to_latlon, final_position, wait_until, world_origin, write_params
 
 from scenenav.core.geometry import distance_to_polyline_m
+
+#: real-time SITL flights: `make test` runs them alone, after the parallel part
+pytestmark = pytest.mark.realtime
 
 SEED = 20240917
 N_PER_KIND = 2600                       # four kinds -> 10,400 inputs

@@ -15,6 +15,7 @@ import json
 import math
 
 import numpy as np
+import pytest
 from pymavlink import mavutil
 from support import REPO_ROOT
 from support.lineproc import MavproxyProcess, wait_until
@@ -33,6 +34,9 @@ from support.sitl_session import (  # noqa: F401
     world_origin,
     wpl_file,
 )
+
+#: real-time SITL flights: `make test` runs them alone, after the parallel part
+pytestmark = pytest.mark.realtime
 
 
 def test_mavproxy_guided_takeoff_mission_and_rtl(tmp_path):

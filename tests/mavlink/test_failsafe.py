@@ -11,6 +11,7 @@ import math
 import os
 import signal
 
+import pytest
 from support.sitl_session import SitlSession, final_position
 
 from autopilot_bridge.failsafe import (
@@ -106,6 +107,9 @@ from support.sitl_session import (  # noqa: F401
     statustext,
     write_params,
 )
+
+#: real-time SITL flights: `make test` runs them alone, after the parallel part
+pytestmark = pytest.mark.realtime
 
 
 def test_gcs_heartbeat_loss_triggers_rtl(tmp_path):

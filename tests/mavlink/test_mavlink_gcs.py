@@ -38,6 +38,9 @@ from autopilot_bridge.param_specs import PARAM_SPECS
 from autopilot_bridge.params import ParameterStore, ParamType
 from scenenav.core.errors import UserError
 
+#: real-time SITL flights: `make test` runs them alone, after the parallel part
+pytestmark = pytest.mark.realtime
+
 M = mavlink2
 # QGC declares the link lost after ~3.5 s without a heartbeat, MAVSDK after 3 s; ArduPilot sends
 # one per second. 1.5 s leaves room for a loaded machine and still fails a starved link.
