@@ -17,7 +17,7 @@ SN_PARAM_SPECS: tuple[ParamSpec, ...] = (
               "GPS-denied flight (EK3_SRC1_POSXY 6); 0 disables", safe_min=0.0),
     ParamSpec("SN_VIS_FS_LAND", ParamType.REAL32, 10.0, 0.0, 600.0, "s",
               "Vision failsafe: land after holding this long without a fix", safe_min=0.0),
-    ParamSpec("SN_VIS_MIN_ALT", ParamType.REAL32, 35.0, 0.0, 1000.0, "m",
+    ParamSpec("SN_VIS_MIN_ALT", ParamType.REAL32, 50.0, 0.0, 1000.0, "m",
               "Vision fixes are used (and expected) only this high above home", safe_min=0.0),
 )
 # EKF source sets 2 and 3 (SET_EKF_SOURCE_SET, system_commands.py): ArduPilot's defaults are 0 (None).

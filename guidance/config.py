@@ -175,6 +175,10 @@ class GuidanceNodeConfig:
     goals_enu_m: tuple[tuple[float, float], ...] = ()   # via-points and goal, [x east, y north] m
     assistant_map: str = ""            # .npz; empty: the world's map built with the CNN (cached)
     assistant_map_stride_px: int = 10  # stride of that built map
+    # What that built map classifies: "reference" (the paper's way, 5.3, and all a real user has:
+    # the CNN over footprint crops of the reference map) or "captures" (nadir captures rendered with
+    # the world's DSM over each cell: simulator knowledge a real flight does not have).
+    assistant_map_source: str = "reference"
     start_after_s: float = 1.0         # simulated seconds before the mission is uploaded and started
     check_period_s: float = 1.0        # simulated seconds between drift / map-change checks
     replan_drift_m: float = 40.0       # replan when the estimate is this far from the route
@@ -188,6 +192,8 @@ class GuidanceNodeConfig:
               "at least one [x, y] goal in metres when guidance is enabled")
         check(self.assistant_map_stride_px >= 1, "assistant_map_stride_px",
               self.assistant_map_stride_px, "a positive number of pixels")
+        check(self.assistant_map_source in ("reference", "captures"), "assistant_map_source",
+              self.assistant_map_source, "reference or captures")
         check(self.start_after_s >= 0, "start_after_s", self.start_after_s, ">= 0 s")
         check(self.check_period_s > 0, "check_period_s", self.check_period_s, "> 0 s")
         check(self.replan_drift_m > 0, "replan_drift_m", self.replan_drift_m, "> 0 m")

@@ -87,7 +87,10 @@ def make_pipeline(world, method: str, assistant_map_path: str | None, weights: s
     amap = None
     if m in (FalseMatchMethod.CNN, FalseMatchMethod.ASSISTANT_MAP):
         from perception.cnn import MatchClassifier
-        clf = MatchClassifier.from_file(weights) if weights else MatchClassifier.default()
+        # One torch thread: one 48 px image per frame gains nothing from a second thread, and idle
+        # OpenMP workers spin for CPU the simulator and the autopilot are waiting for in lockstep.
+        clf = (MatchClassifier.from_file(weights, num_threads=1) if weights
+               else MatchClassifier.default(num_threads=1))
         classify = clf.predict_proba
     if m == FalseMatchMethod.ASSISTANT_MAP or m == FalseMatchMethod.CNN:
         from perception.assistant_map import AssistantMap

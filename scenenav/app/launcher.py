@@ -259,7 +259,8 @@ def _resolve_guidance_map(cfg: ScenarioConfig, progress: bool) -> ScenarioConfig
                                 cfg.flight.altitude_m, cfg.sim.camera.fov_deg,
                                 cfg.perception.weights if cfg.perception.weights.endswith(".pt") else None,
                                 progress=progress and sys.stderr.isatty(),
-                                relief=cfg.sim.camera.relief, reference=cfg.perception.reference)
+                                relief=cfg.sim.camera.relief and g.assistant_map_source == "captures",
+                                reference=cfg.perception.reference)
     return dataclasses.replace(cfg, guidance=dataclasses.replace(g, assistant_map=str(path)))
 
 

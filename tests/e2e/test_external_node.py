@@ -27,7 +27,8 @@ BROKEN = REPO_ROOT / "tests" / "support" / "broken_perception_node.py"
 NODE_ID = "my_matcher"
 RUN_TIMEOUT_S = 400
 #: Over the houses east of the centre, world seen flat (as tests/e2e/test_autopilot_node.py's
-#: GPS-denied flight): 50 m is reached after about 10 s, fixes are used from 35 m (SN_VIS_MIN_ALT).
+#: GPS-denied flight): 50 m is reached after about 10 s, fixes are used from 35 m (SN_VIS_MIN_ALT,
+#: the flat worlds' value; the 3-D default is 50 m).
 SCENARIO = {
     "name": "external_node", "seed": 5, "duration_s": 16,
     "flight": {"mode": "autopilot", "altitude_m": 50, "start_enu_m": [60, -60],
@@ -36,7 +37,7 @@ SCENARIO = {
     "perception": {"reference": "orthophoto"},
     "recorder": {"camera_every_n": 0},
     "autopilot": {"mavlink_tcp_port": 0, "mavlink_udp_out": "none",
-                  "params": {"WPNAV_SPEED_UP": 500, "WPNAV_SPEED_DN": 300, "LAND_SPEED": 200}},
+                  "params": {"SN_VIS_MIN_ALT": 35, "WPNAV_SPEED_UP": 500, "WPNAV_SPEED_DN": 300, "LAND_SPEED": 200}},
 }
 
 

@@ -50,6 +50,7 @@ from scenenav.core.errors import UserError
 
 log = logging.getLogger(__name__)
 
+GPS_DENIED = Path(__file__).resolve().parents[3] / "scenarios" / "gps_denied.yaml"
 #: The mission: ``scenarios/gps_denied.yaml`` with its four goals cut to the first one and home.
 GOALS_ENU_M = ((-150.0, 185.0), (0.0, 0.0))
 BENCH_SEED = 2                      # the seed of scenarios/gps_denied.yaml
@@ -77,20 +78,15 @@ class E2eBenchConfig:
 
 
 def scenario(cfg: E2eBenchConfig, mavlink_tcp_port: int) -> dict:
-    """The bench scenario (the short form of scenarios/gps_denied.yaml), as scenario YAML data."""
+    """The bench scenario: scenarios/gps_denied.yaml itself (its world, camera, reference, CNN and
+    guidance settings) with the goals cut to the first one and home, as scenario YAML data."""
     return {
+        "base": str(GPS_DENIED),
         "name": "bench_e2e",
         "seed": cfg.seed,
-        "world": "default",
         "duration_s": cfg.duration_s,
-        "flight": {"mode": "autopilot", "altitude_m": 100, "speed_m_s": 10, "route_enu_m": [],
-                   "start_enu_m": [0, 0]},
-        "sim": {"gps": {"enabled": False}},
-        "perception": {"method": "cnn"},
-        "autopilot": {"mission_end": "land", "params": {"LAND_SPEED_HIGH": 300, "LAND_SPEED": 100},
-                      "mavlink_tcp_port": mavlink_tcp_port, "mavlink_udp_out": "none"},
-        "guidance": {"enabled": True, "goals_enu_m": [list(g) for g in GOALS_ENU_M],
-                     "footprint_m": 0, "clearance_m": 20},
+        "autopilot": {"mavlink_tcp_port": mavlink_tcp_port, "mavlink_udp_out": "none"},
+        "guidance": {"goals_enu_m": [list(g) for g in GOALS_ENU_M]},
     }
 
 

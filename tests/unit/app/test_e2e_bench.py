@@ -8,7 +8,7 @@ import time
 
 import pytest
 
-from scenenav.app.bench.e2e import GOALS_ENU_M, CpuSampler, E2eBenchConfig, _at, _finish_wall_time, scenario
+from scenenav.app.bench.e2e import GOALS_ENU_M, GPS_DENIED, CpuSampler, E2eBenchConfig, _at, _finish_wall_time, scenario
 from scenenav.app.scenario import FlightMode, load_scenario
 from scenenav.core.errors import UserError
 
@@ -79,6 +79,10 @@ def test_the_bench_scenario_is_a_gps_denied_guided_mission(tmp_path):
     assert cfg.perception.method == "cnn" and cfg.guidance.enabled
     assert [tuple(g) for g in cfg.guidance.goals_enu_m] == list(GOALS_ENU_M)
     assert cfg.autopilot.mavlink_tcp_port == 5999 and cfg.autopilot.mavlink_udp_out == "none"
+    # everything else is scenarios/gps_denied.yaml's (camera, reference, decision rule, clearance)
+    full = load_scenario(GPS_DENIED)
+    assert cfg.sim.camera == full.sim.camera and cfg.perception == full.perception
+    assert cfg.guidance.clearance_m == full.guidance.clearance_m
 
 
 def test_bad_settings_are_user_errors():
