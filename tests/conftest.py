@@ -29,3 +29,25 @@ def small_world():
     """A 600x600 px generated city (seed 3), shared by the tests of one session."""
     from worlds.generator import CityConfig, generate_world
     return generate_world(CityConfig(seed=3, width_px=600, height_px=600))
+
+
+#: Modules whose flights take minutes, first in the run: pytest-xdist (--dist loadscope) hands out
+#: modules in collection order, and a long module started last leaves the other worker idle at the
+#: end. Listed by measured duration, longest first (make test's --durations report).
+LONG_MODULES = (
+    "tests/e2e/test_guidance_flight.py",
+    "tests/campaign/test_campaign_flights.py",
+    "tests/e2e/test_json_commands.py",
+    "tests/e2e/test_autopilot_node.py",
+    "tests/e2e/test_external_node.py",
+    "tests/e2e/test_run_e2e.py",
+    "tests/faults/test_fault_two_runs.py",
+)
+
+
+def pytest_collection_modifyitems(config, items):
+    """Run the LONG_MODULES first (stable order otherwise)."""
+    def rank(item) -> int:
+        path = item.nodeid.split("::", 1)[0]
+        return LONG_MODULES.index(path) if path in LONG_MODULES else len(LONG_MODULES)
+    items.sort(key=rank)

@@ -467,9 +467,8 @@ def plot_run(run_dir: Path, world, fx: dict, split: HeightSplit | None = None,
     """trajectory.png: the trajectory over the orthophoto (and the DSM's hillshade and height
     contours when the world has one and ``plot_dsm``), the errors over time, and the errors by
     mean footprint height (``split``) as a small bar plot."""
-    import matplotlib
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
+    # matplotlib's object API without pyplot (whose import alone costs ~0.7 s of every run's end)
+    from matplotlib.figure import Figure
 
     truth = read_csv(run_dir / "truth.csv")
     est = read_csv(run_dir / "estimates.csv")
@@ -477,10 +476,11 @@ def plot_run(run_dir: Path, world, fx: dict, split: HeightSplit | None = None,
     half_w, half_h = m.width_px * m.m_per_px / 2, m.height_px * m.m_per_px / 2
     with_split = split is not None and split.overall.n > 0
     ratios = [1.1, 1, 0.55] if with_split else [1.1, 1]
-    fig, axes = plt.subplots(1, len(ratios), figsize=(15 + (5 if with_split else 0), 7),
-                             gridspec_kw={"width_ratios": ratios})
+    fig = Figure(figsize=(15 + (5 if with_split else 0), 7))
+    axes = fig.subplots(1, len(ratios), gridspec_kw={"width_ratios": ratios})
     ax = axes[0]
-    step = max(1, max(m.width_px, m.height_px) // 1500)
+    # the map panel is about 600 px wide at dpi 90: a finer image costs drawing time, shows nothing
+    step = max(1, -(-max(m.width_px, m.height_px) // 700))
     extent = (-half_w, half_w, -half_h, half_h)
     ax.imshow(world.orthophoto[::step, ::step], extent=extent, origin="upper", alpha=0.8)
     if plot_dsm and world.dsm_m is not None:
@@ -537,8 +537,8 @@ def plot_run(run_dir: Path, world, fx: dict, split: HeightSplit | None = None,
     if with_split:
         _plot_height_bars(axes[2], split)
     fig.tight_layout()
-    fig.savefig(run_dir / "trajectory.png", dpi=90)
-    plt.close(fig)
+    # zlib level 1: a third of the default's encoding time for a PNG about 15 % larger
+    fig.savefig(run_dir / "trajectory.png", dpi=90, pil_kwargs={"compress_level": 1})
 
 
 def _plot_height_bars(ax, split: HeightSplit) -> None:

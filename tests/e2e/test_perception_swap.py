@@ -36,9 +36,10 @@ def test_swap_perception_node_in_flight(tmp_path):
     run = tmp_path / "swap"
     # paced at 2x: the second node is a process started by hand while the vehicle flies; a lockstep
     # flight's wall time is whatever the machine allows (30 s in a few seconds on a quiet machine), and
-    # a node starting on a loaded machine came up after the flight had ended
+    # a node starting on a loaded machine came up after the flight had ended; 60 simulated s leave a
+    # loaded machine time to start the second node and stop the first
     launcher = subprocess.Popen(
-        [sys.executable, "-m", "scenenav.app.cli", "run", "--out", str(run), "--set", "duration_s=30",
+        [sys.executable, "-m", "scenenav.app.cli", "run", "--out", str(run), "--set", "duration_s=60",
          "--set", "perception.method=none", "--set", "clock.mode=realtime", "--set", "clock.speed_factor=2",
          "--quiet"],
         stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
