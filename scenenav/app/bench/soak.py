@@ -2,7 +2,10 @@
 
 Kept out of ``make test`` (it flies 30 simulated minutes by default). The flight is
 ``scenarios/gps_denied.yaml`` without the guidance node: GPS off, the autopilot navigates on the
-perception node's fixes, flying laps of the bowtie route until the duration is reached. Meanwhile
+perception node's fixes, flying laps of gps_denied's loop as the guidance planner plans it (around
+the bad matching areas of the world's assistant map: straight bowtie laps would cross the lake,
+where the vision failsafe rightly lands the vehicle) until the duration is reached. The laps are
+the autopilot's own route mission: a guidance upload would exceed the 700 mission items. Meanwhile
 
 * the perception node is swapped every ``swap_every_s`` simulated seconds (make-before-break,
   ``perception.swap_every_s``: each swap is a new process running the CNN, alternately named
@@ -296,7 +299,7 @@ class Fuzzer(threading.Thread):
 
 # ------------------------------------------------------------------------------------------ run
 def soak_scenario(cfg: SoakConfig) -> dict:
-    """scenarios/gps_denied.yaml without guidance, flying bowtie laps for ``duration_s``."""
+    """scenarios/gps_denied.yaml without guidance (its goals define the lap), for ``duration_s``."""
     data = yaml.safe_load(SCENARIO.read_text())
     data["name"] = "soak"
     data["seed"] = cfg.seed
@@ -311,14 +314,22 @@ def soak_scenario(cfg: SoakConfig) -> dict:
 
 
 def _lap_route(cfg: SoakConfig) -> list[list[float]]:
-    from scenenav.app.nodes import load_world_for
-    from scenenav.app.scenario import bowtie_route, load_scenario
-    scen = load_scenario(None, ("world=default",))
+    """gps_denied.yaml's guided loop (home through its goals), planned once as the guidance node
+    plans it, repeated for ``duration_s`` at its cruise speed."""
+    from guidance.planner import join_legs, plan_through
+    from scenenav.app.launcher import _resolve_guidance_map
+    from scenenav.app.nodes import guidance_config_from_scenario, load_world_for
+    from scenenav.app.scenario import load_scenario
+    from scenenav.core.formats.assistant_map_file import read_probability_map
+    scen = _resolve_guidance_map(load_scenario(SCENARIO), progress=False)
+    run_cfg, planner_cfg = guidance_config_from_scenario(scen, 0, lockstep=True)
     world = load_world_for(scen)
-    lap = bowtie_route(world)
+    probability = read_probability_map(scen.guidance.assistant_map).probability
+    lap = join_legs(plan_through(probability, world.m_per_px,
+                                 (tuple(run_cfg.start_enu_m), *run_cfg.goals_enu_m), planner_cfg))
     length = sum(math.dist(a, b) for a, b in zip(lap, lap[1:], strict=False))
-    laps = int(math.ceil(cfg.duration_s * 10.0 / max(length, 1.0))) + 1    # 10 m/s
-    return [list(p) for p in lap[:-1]] * laps + [list(lap[-1])]
+    laps = int(math.ceil(cfg.duration_s * scen.flight.speed_m_s / max(length, 1.0))) + 1
+    return [[float(x), float(y)] for x, y in lap[1:]] * laps
 
 
 def run_soak(cfg: SoakConfig, out_dir: Path | None = None, progress: bool = True) -> SoakResult:
