@@ -53,10 +53,12 @@ def test_a_stopped_member_is_reported_skipped_and_rejoins(tmp_path):
     assert t_during - t_stop >= 1.0, (t_stop, t_during)
     s = r.summary()
     assert s["end_reason"] == "duration reached"
-    # fixes came again after the rejoin
+    # fixes came again after the rejoin (a loaded machine may stall the node again later: another
+    # stall with its own report, so the fixes are counted right after this rejoin, not to the end)
+    t_rejoin = min(sim_t(e) for e in rejoined)
     with (r.run_dir / "fixes.csv").open(newline="") as f:
-        rows = list(csv.DictReader(f))
-    assert rows and float(rows[-1]["t_s"]) > 30.0
+        after = [row for row in csv.DictReader(f) if float(row["t_s"]) > t_rejoin]
+    assert len(after) >= 5, (t_rejoin, len(after))
 
 
 def test_a_member_timeout_not_longer_than_the_vision_wait_is_refused(tmp_path):
