@@ -87,8 +87,9 @@ def make_pipeline(world, method: str, assistant_map_path: str | None, weights: s
     amap = None
     if m in (FalseMatchMethod.CNN, FalseMatchMethod.ASSISTANT_MAP):
         from perception.cnn import MatchClassifier
-        # One torch thread: one 48 px image per frame gains nothing from a second thread, and idle
-        # OpenMP workers spin for CPU the simulator and the autopilot are waiting for in lockstep.
+        # One torch thread: one 48 px image per frame gains little from a second one, which would
+        # compete for the CPU the simulator and the autopilot need in lockstep (docs/cnn.md: 0.65-0.75
+        # vs 0.7-1.3 ms per image with 2 vs 1 threads on a quiet machine).
         clf = (MatchClassifier.from_file(weights, num_threads=1) if weights
                else MatchClassifier.default(num_threads=1))
         classify = clf.predict_proba
