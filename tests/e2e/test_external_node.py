@@ -60,7 +60,7 @@ def flights(tmp_path_factory):
         "example": _cli("node", "check", "perception", "--json", "--node-id", NODE_ID, "--scenario",
                         str(scenario), "--duration-s", str(SCENARIO["duration_s"]), "--out",
                         str(tmp / "example"), "--", sys.executable, str(EXAMPLE), "{run_dir}"),
-        "bent": _cli("node", "check", "perception", "--json", "--duration-s", "8", "--ack-timeout-s", "2",
+        "bent": _cli("node", "check", "perception", "--json", "--duration-s", "16", "--ack-timeout-s", "2",
                      *CHECK_SETS, "--out", str(tmp / "bent"), "--", sys.executable, str(BROKEN),
                      "--break", "ack,timestamp,covariance", "{run_dir}"),
         "fragile": _cli("node", "check", "perception", "--json", "--duration-s", "4", *CHECK_SETS,
