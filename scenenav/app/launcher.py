@@ -241,7 +241,7 @@ def restart_on_new_hub_port(launch: Launch) -> None:
                 "the run again on port %d", old, launch.hub_port)
 
 
-def _resolve_guidance_map(cfg: ScenarioConfig, progress: bool) -> ScenarioConfig:
+def resolve_guidance_map(cfg: ScenarioConfig, progress: bool) -> ScenarioConfig:
     """Guidance without a named assistant map plans over the world's map built with the CNN
     (cached); the run's scenario.yaml records which file was used."""
     import dataclasses
@@ -449,7 +449,7 @@ def _prepare_and_fly(scenario_path: str | None, out_dir: str, overrides: tuple[s
                      announce: Callable[[str], None] = print) -> dict:
     cfg = load_scenario(scenario_path, overrides, external)
     world = resolve_world(cfg)          # fail early, with a one-line error, on a bad world
-    cfg = _resolve_guidance_map(cfg, progress)
+    cfg = resolve_guidance_map(cfg, progress)
     validate_inputs(cfg, world)          # every file a node will read, before any node starts
     cfg, claim = _claim_sysid(cfg, Path(out_dir))
     try:

@@ -317,11 +317,11 @@ def _lap_route(cfg: SoakConfig) -> list[list[float]]:
     """gps_denied.yaml's guided loop (home through its goals), planned once as the guidance node
     plans it, repeated for ``duration_s`` at its cruise speed."""
     from guidance.planner import join_legs, plan_through
-    from scenenav.app.launcher import _resolve_guidance_map
+    from scenenav.app.launcher import resolve_guidance_map
     from scenenav.app.nodes import guidance_config_from_scenario, load_world_for
     from scenenav.app.scenario import load_scenario
     from scenenav.core.formats.assistant_map_file import read_probability_map
-    scen = _resolve_guidance_map(load_scenario(SCENARIO), progress=False)
+    scen = resolve_guidance_map(load_scenario(SCENARIO), progress=False)
     run_cfg, planner_cfg = guidance_config_from_scenario(scen, 0, lockstep=True)
     world = load_world_for(scen)
     probability = read_probability_map(scen.guidance.assistant_map).probability
