@@ -196,7 +196,8 @@ class SimulatorNode:
         lockstep = clock.mode == ClockMode.LOCKSTEP
         self.bus.publish(self.keys.node_info(NODE_ID), NodeInfo(0, NODE_ID, "sim", clock.mode.value))
         expected = self._expected_members()
-        if expected and not self.barrier.wait_members(expected, clock.startup_timeout_s):
+        if expected and not self.barrier.wait_members(expected, clock.startup_timeout_s,
+                                                       cancelled=self._stop.is_set):
             self.event(Severity.WARNING, f"not every expected node joined within "
                                          f"{clock.startup_timeout_s:.0f} s: {self.barrier.members()}")
         answer_timeout = clock.member_timeout_s if lockstep else 1.0 / clock.tick_rate_hz

@@ -40,7 +40,7 @@ from scenenav.app.nodes import EXIT_EXTERNAL_MISSING, HUB_FILE
 LIVE_FILE = "live.json"           # written by the live node (scenenav.app.live): its port and URL
 from scenenav.app.preflight import check_free_space, free_bytes, mount_point, validate_inputs
 from scenenav.app.scenario import FlightMode, ScenarioConfig, load_scenario, scenario_to_dict
-from scenenav.app.signals import interrupt_on_stop_signals
+from scenenav.app.signals import interrupt_on_stop_signals, stop_signals_deferred, unblock_stop_signals
 from scenenav.core.bus import EXIT_HUB_PORT_TAKEN, free_port
 from scenenav.core.contracts import ClockMode, LockstepRole
 from scenenav.core.errors import UserError
@@ -58,7 +58,9 @@ _PR_SET_PDEATHSIG = 1   # linux/prctl.h
 
 
 def die_with_parent() -> None:
-    """In the child, before exec: get SIGTERM if the parent (its thread) dies, even by SIGKILL (Linux)."""
+    """In the child, before exec: get SIGTERM if the parent (its thread) dies, even by SIGKILL (Linux);
+    the stop signals the launcher blocked while spawning are unblocked."""
+    unblock_stop_signals()
     try:
         import ctypes
         ctypes.CDLL("libc.so.6", use_errno=True).prctl(_PR_SET_PDEATHSIG, signal.SIGTERM)
@@ -76,6 +78,11 @@ class Child:
 
 
 RUN_FILE = "run.json"
+#: The node id of the second perception node a swap starts.
+SWAP_NODE_ID = "perception-2"
+#: The order ``Launch.stop_all`` stops a run in: the simulator (the clock) first, then the nodes
+#: together, the recorder last.
+STOP_STAGES = [["sim"], ["guidance", "autopilot", "perception", SWAP_NODE_ID, "live"], ["recorder"]]
 
 
 @dataclass
@@ -106,23 +113,24 @@ class Launch:
         f = (logs / f"{name}.log").open("ab")
         cmd = [sys.executable, "-m", "scenenav.app.cli", "--log-level", "INFO", "node", *args,
                "--namespace", self.namespace, "--hub-port", str(self.hub_port)]
-        proc = subprocess.Popen(cmd, stdout=f, stderr=subprocess.STDOUT, stdin=subprocess.DEVNULL,
-                                start_new_session=True, preexec_fn=die_with_parent)
-        child = Child(name, proc, f, logs / f"{name}.log")
-        self.children.append(child)
+        with stop_signals_deferred():     # a Ctrl-C now would leave a started child unrecorded
+            proc = subprocess.Popen(cmd, stdout=f, stderr=subprocess.STDOUT, stdin=subprocess.DEVNULL,
+                                    start_new_session=True, preexec_fn=die_with_parent)
+            child = Child(name, proc, f, logs / f"{name}.log")
+            self.children.append(child)
         pids = {c.name: c.proc.pid for c in self.children}
         (self.run_dir / "logs" / "pids.json").write_text(json.dumps(pids))
         log.info("started %s (pid %d)", name, proc.pid)
         return child
 
-    def stop_all(self, order: list[str] | None = None) -> None:
-        names = order or [c.name for c in self.children]
-        for name in names:
-            for c in self.children:
-                if c.name == name:
-                    _stop(c)
+    def stop_all(self, stages: list[list[str]] | None = None) -> None:
+        """Stop the children stage by stage (``STOP_STAGES``: the simulator first, so nobody waits
+        for a tick, the recorder last, so it records the others' last words), each stage's
+        children together; then any child no stage named; then whatever their groups left."""
+        for stage in stages or []:
+            _stop_together([c for c in self.children if c.name in stage])
+        _stop_together(self.children)
         for c in self.children:
-            _stop(c)
             c.log_file.close()
         self.kill_groups()
 
@@ -140,20 +148,28 @@ class Launch:
                 pass
 
 
-def _stop(c: Child) -> None:
-    c.stopping = True
-    if c.proc.poll() is not None:
-        return
-    for sig, wait in ((signal.SIGINT, GRACE_S), (signal.SIGTERM, 5.0), (signal.SIGKILL, 5.0)):
-        try:
-            c.proc.send_signal(sig)
-        except ProcessLookupError:
+def _stop_together(children: list[Child]) -> None:
+    """SIGINT to all of ``children`` at once, then SIGTERM and SIGKILL to those still running after
+    each grace time: stopping N nodes costs one grace time, not N."""
+    for c in children:
+        c.stopping = True
+    for sig, wait_s in ((signal.SIGINT, GRACE_S), (signal.SIGTERM, 5.0), (signal.SIGKILL, 5.0)):
+        running = [c for c in children if c.proc.poll() is None]
+        if not running:
             return
-        try:
-            c.proc.wait(wait)
-            return
-        except subprocess.TimeoutExpired:
-            log.warning("%s did not stop on %s", c.name, sig.name)
+        if sig != signal.SIGINT:
+            log.warning("%s did not stop: %s", ", ".join(c.name for c in running), sig.name)
+        for c in running:
+            try:
+                c.proc.send_signal(sig)
+            except ProcessLookupError:
+                pass
+        deadline = time.monotonic() + wait_s
+        for c in running:
+            try:
+                c.proc.wait(max(0.0, deadline - time.monotonic()))
+            except subprocess.TimeoutExpired:
+                pass
 
 
 def _claim_sysid(cfg: ScenarioConfig, out_dir: Path) -> tuple[ScenarioConfig, SysidClaim | None]:
@@ -493,17 +509,21 @@ def _fly(cfg: ScenarioConfig, world, scenario_path: str | None, out_dir: str, pr
     disk = DiskWatch(run_dir)
     try:
         for attempt in range(HUB_ATTEMPTS):
+            # every node starts at once (their imports overlap on the two cores); the simulator
+            # waits on the bus for the members it expects
             expect = ["recorder"] + spawn_recorder_and_perception(launch, cfg, live_port)
+            autopilot = None
             if cfg.flight.mode == FlightMode.AUTOPILOT:
                 expect.append("tick")
                 if not cfg.external.of_role("autopilot"):
                     autopilot = launch.spawn("autopilot", ["autopilot", "--run-dir", str(run_dir)])
-                    await_mavlink(launch, autopilot)     # run.json names the ports it bound
             if cfg.guidance.enabled and not cfg.external.of_role("guidance"):
                 launch.spawn("guidance", ["guidance", "--run-dir", str(run_dir)])
                 if cfg.clock.mode == ClockMode.LOCKSTEP:
                     expect.append("tick")
             sim = launch.spawn("sim", ["sim", "--run-dir", str(run_dir), "--expect", ",".join(expect)])
+            if autopilot is not None:
+                await_mavlink(launch, autopilot)     # run.json names the ports it bound
             if await_hub(launch, sim) or attempt == HUB_ATTEMPTS - 1:
                 break
             restart_on_new_hub_port(launch)
@@ -526,8 +546,7 @@ def _fly(cfg: ScenarioConfig, world, scenario_path: str | None, out_dir: str, pr
     finally:
         disk.release()
         watch.poll()     # a death seen only now is still a death, not a stop
-        launch.stop_all(order=["sim", "guidance", "autopilot", "perception", SWAP_NODE_ID,
-                               "live", "recorder"])
+        launch.stop_all(STOP_STAGES)
     wall = time.time() - wall0
     return _finish(launch, cfg, world, wall, interrupted, watch, abort)
 
@@ -607,7 +626,6 @@ def last_error_line(path: Path, n_bytes: int = 64_000) -> str:
     return ""
 
 
-SWAP_NODE_ID = "perception-2"
 #: Wall seconds the first perception node is kept after the swap started when the second one has
 #: not produced a fix yet (it is stopped anyway then, with a warning).
 SWAP_HANDOVER_TIMEOUT_S = 60.0
@@ -653,9 +671,8 @@ class PerceptionSwap:
             if late and not answered:
                 log.warning("%s produced no fix within %.0f s; stopping %s anyway", self._incoming,
                             SWAP_HANDOVER_TIMEOUT_S, self._active)
-            for c in self.launch.children:
-                if c.name == self._active and c.proc.poll() is None:
-                    _stop(c)
+            _stop_together([c for c in self.launch.children
+                            if c.name == self._active and c.proc.poll() is None])
             self._active, self._incoming = self._incoming, self._active
             self.started_wall = None
             if p.swap_every_s > 0:

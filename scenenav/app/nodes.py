@@ -127,7 +127,10 @@ def run_sim(run_dir: Path, bus_cfg: BusConfig, expect: tuple[str, ...]) -> int:
         node_ready = threading.Event()
         node.bus.watch_liveliness(node.keys.node_alive("recorder", "recorder"),
                                   lambda _k, alive: node_ready.set() if alive else None)
-        if not node_ready.wait(cfg.clock.startup_timeout_s):
+        deadline = time.monotonic() + cfg.clock.startup_timeout_s
+        while not node_ready.wait(0.2) and not stop.is_set() and time.monotonic() < deadline:
+            pass
+        if not node_ready.is_set() and not stop.is_set():
             log.warning("recorder did not come up; running without it")
     # the hub listens (and the recorder records): say so. The launcher waits for this file before
     # it writes run.json, so an outside node that joins from run.json never talks before the

@@ -48,16 +48,41 @@ def stop_event() -> threading.Event:
     return ev
 
 
-def _raise_interrupt(signum, _frame) -> None:
-    raise KeyboardInterrupt(f"signal {signum}")
-
-
 @contextlib.contextmanager
 def interrupt_on_stop_signals() -> Iterator[None]:
-    """Within the block SIGINT and SIGTERM raise KeyboardInterrupt; the old handlers return after."""
-    previous = {sig: signal.signal(sig, _raise_interrupt) for sig in STOP_SIGNALS}
+    """Within the block the first SIGINT or SIGTERM raises KeyboardInterrupt; later ones are only
+    logged (a second Ctrl-C must not break the code in ``finally`` that is stopping the children).
+    The old handlers return after the block."""
+    raised = False
+
+    def handler(signum, _frame) -> None:
+        nonlocal raised
+        if raised:
+            log.warning("signal %d: already stopping", signum)
+            return
+        raised = True
+        raise KeyboardInterrupt(f"signal {signum}")
+    previous = {sig: signal.signal(sig, handler) for sig in STOP_SIGNALS}
     try:
         yield
     finally:
-        for sig, handler in previous.items():
-            signal.signal(sig, handler)
+        for sig, old in previous.items():
+            signal.signal(sig, old)
+
+
+@contextlib.contextmanager
+def stop_signals_deferred() -> Iterator[None]:
+    """Within the block SIGINT and SIGTERM wait (blocked in this thread) and are delivered at its
+    end: a child started here is recorded before a Ctrl-C can interrupt, so it is always stopped.
+    A child inherits the blocked mask through fork and exec: its ``preexec_fn`` calls
+    ``unblock_stop_signals``."""
+    signal.pthread_sigmask(signal.SIG_BLOCK, STOP_SIGNALS)
+    try:
+        yield
+    finally:
+        signal.pthread_sigmask(signal.SIG_UNBLOCK, STOP_SIGNALS)
+
+
+def unblock_stop_signals() -> None:
+    """In a child before exec: undo ``stop_signals_deferred``'s mask, so the child can be stopped."""
+    signal.pthread_sigmask(signal.SIG_UNBLOCK, STOP_SIGNALS)

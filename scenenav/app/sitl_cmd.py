@@ -26,6 +26,7 @@ from typing import Callable
 
 from scenenav.app.launcher import (
     HUB_ATTEMPTS,
+    STOP_STAGES,
     Launch,
     announce_live,
     await_hub,
@@ -46,7 +47,6 @@ PERCEPTION_OFF = "off"
 PERCEPTION_CHOICES = ("cnn", "assistant-map", "statistical", "none", PERCEPTION_OFF)
 SITL_DURATION_S = 7 * 24 * 3600.0     # "until Ctrl-C"
 READY_TIMEOUT_S = 120.0
-STOP_ORDER = ["sim", "autopilot", "perception", "live", "recorder"]
 PARAMS_STORE_DIR = Path("runs") / "sitl-params"
 MAX_INSTANCE = 255
 
@@ -212,7 +212,7 @@ def _run_sitl(opts: SitlOptions, announce: Callable[[str], None]) -> dict:
         interrupted = True
         log.info("interrupted: stopping every node")
     finally:
-        launch.stop_all(order=STOP_ORDER)
+        launch.stop_all(STOP_STAGES)
     from scenenav.app.evaluation import evaluate_run
     summary = evaluate_run(run_dir, cfg, world, wall_time_s=time.time() - wall0,
                            interrupted=interrupted)

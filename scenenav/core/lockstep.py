@@ -20,6 +20,7 @@ from __future__ import annotations
 import logging
 import threading
 import time
+from collections.abc import Callable
 from dataclasses import dataclass
 
 from scenenav.core.contracts import LockstepRole
@@ -101,8 +102,10 @@ class LockstepBarrier:
         with self._cond:
             return sorted(n for n, m in self._members.items() if role is None or m.role == role)
 
-    def wait_members(self, count: dict[LockstepRole, int], timeout_s: float) -> bool:
-        """Wait until at least ``count[role]`` members of each role are present."""
+    def wait_members(self, count: dict[LockstepRole, int], timeout_s: float,
+                     cancelled: Callable[[], bool] = lambda: False) -> bool:
+        """Wait until at least ``count[role]`` members of each role are present; False after
+        ``timeout_s`` or (checked twice a second) once ``cancelled()`` is true."""
         deadline = time.monotonic() + timeout_s
         with self._cond:
             while True:
@@ -111,7 +114,7 @@ class LockstepBarrier:
                 if ok:
                     return True
                 left = deadline - time.monotonic()
-                if left <= 0:
+                if left <= 0 or cancelled():
                     return False
                 self._cond.wait(min(left, 0.5))
 
