@@ -36,6 +36,7 @@ import numpy as np
 import torch
 from torch import nn
 
+from perception.shipped import DEFAULT_WEIGHTS_PATH, WEIGHTS_DIR  # noqa: F401  (re-exported)
 from scenenav.core.errors import UserError
 
 log = logging.getLogger(__name__)
@@ -58,8 +59,6 @@ DEFAULT_BATCH_SIZE = 16
 RESIZE_BLOCK = 512
 """Crops resized per block in ``predict_proba`` (P x P float32 each, ~4.6 MB at 48 px)."""
 WEIGHTS_FORMAT_VERSION = 1
-WEIGHTS_DIR = Path(__file__).resolve().parent / "weights"
-DEFAULT_WEIGHTS_PATH = WEIGHTS_DIR / "default.pt"
 BAD_THRESHOLD = 0.5
 """Section 5.4: a capture with P(class 1 = bad) > 0.5 is rejected."""
 

@@ -139,7 +139,7 @@ def cached_assistant_map(world_dir: str | Path, stride_px: int = 10, altitude_m:
                          progress: bool = False, relief: bool = True, reference: str = "default") -> Path:
     """Path of the world's assistant map built with the CNN ``weights`` (default: the shipped ones);
     built (with a progress bar if asked) and cached on first use."""
-    from perception.cnn import DEFAULT_WEIGHTS_PATH
+    from perception.shipped import DEFAULT_WEIGHTS_PATH
     from worlds.default import cache_root
     world_dir = Path(world_dir)
     weights_path = Path(weights) if weights else DEFAULT_WEIGHTS_PATH

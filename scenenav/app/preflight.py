@@ -9,9 +9,12 @@ in flight. The world itself is loaded by the launcher before these checks.
 
 from __future__ import annotations
 
+import hashlib
+import importlib.util
 import logging
 import os
 import shutil
+from collections.abc import Callable
 from pathlib import Path
 
 from scenenav.app.scenario import FlightMode, ScenarioConfig, route_for
@@ -53,10 +56,10 @@ def _check_perception(cfg: ScenarioConfig, world) -> None:
         cnn = model.cnn_weights_path()
         weights = str(cnn) if cnn is not None else None
     if methods & set(_CNN_METHODS):
-        from perception.cnn import DEFAULT_WEIGHTS_PATH, load_weights
+        from perception.shipped import DEFAULT_WEIGHTS_PATH
         path = weights or str(DEFAULT_WEIGHTS_PATH)
         try:
-            load_weights(path)
+            checked_once("perception.cnn", path, _load_cnn_weights)
         except UserError as exc:
             raise UserError(f"perception.weights: {exc}") from None
         if p.assistant_map:
@@ -68,6 +71,37 @@ def _check_perception(cfg: ScenarioConfig, world) -> None:
                                         world.m_per_px)
             except UserError as exc:
                 raise UserError(f"{key}: {exc}") from None
+
+
+def _load_cnn_weights(path: str) -> None:
+    from perception.cnn import load_weights  # torch: imported only when a file must be read
+    load_weights(path)
+
+
+def checked_once(reader_module: str, path: str, check: Callable[[str], None]) -> None:
+    """``check(path)``, unless this very file (its sha256) passed the same reader (the sha256 of
+    ``reader_module``'s source) before: a marker in ``$SCENENAV_CACHE_DIR/checked`` remembers a
+    pass. Reading the CNN weights costs ~1.5 s of CPU (torch's import); a run folder's launcher
+    checks the same shipped file every time. A file that fails is checked again every time."""
+    from worlds.default import cache_root
+    try:
+        digest = hashlib.sha256(Path(path).read_bytes())
+        spec = importlib.util.find_spec(reader_module)
+        if spec is None or spec.origin is None:
+            raise OSError(reader_module)
+        digest.update(Path(spec.origin).read_bytes())
+    except (OSError, ImportError):
+        check(path)      # unreadable: the reader says why, in its own words
+        return
+    marker = cache_root() / "checked" / f"{reader_module}-{digest.hexdigest()[:32]}"
+    if marker.is_file():
+        return
+    check(path)
+    try:
+        marker.parent.mkdir(parents=True, exist_ok=True)
+        marker.write_text(f"{path}\n")
+    except OSError:
+        pass     # a read-only cache only costs the check next time
 
 
 def _check_guidance(cfg: ScenarioConfig, world) -> None:
