@@ -151,8 +151,18 @@ def _live_args(p: argparse.ArgumentParser) -> None:
                         "0: any free port; the run folder's live.json names it)")
 
 
-def build_parser(domain_commands: bool = True) -> argparse.ArgumentParser:
-    """The ``scenenav`` parser; without ``domain_commands`` only the commands of this module."""
+#: The module under ``scenenav.app.commands`` that registers each domain command: ``scenenav world
+#: ...`` imports only the world module (not torch), ``scenenav bench ...`` only the benchmarks.
+_DOMAIN_COMMAND_MODULES = {"world": "world", "plan": "plan", "dataset": "perception",
+                           "train": "perception", "cnn": "perception",
+                           "assistant-map": "assistant_map", "campaign": "campaign"}
+_ALL_COMMAND_MODULES = ("world", "plan", "perception", "assistant_map", "campaign")
+
+
+def build_parser(domain_commands: bool | str = True) -> argparse.ArgumentParser:
+    """The ``scenenav`` parser; without ``domain_commands`` only the commands of this module; with a
+    command's name, this module's commands and that one (its parser is the same as in the whole
+    parser; ``bench`` names the benchmarks)."""
     p = argparse.ArgumentParser(
         prog="scenenav",
         description="Software-in-the-loop stack for GPS-denied drone navigation by scene matching: "
@@ -359,22 +369,32 @@ def build_parser(domain_commands: bool = True) -> argparse.ArgumentParser:
     bp.add_argument("--map-sizes", type=_side_list, default=(1000, 4000, 8000), metavar="N,N,...",
                     help="square map sides for the per-fix time vs map size, px (default 1000,4000,8000)")
     bp.set_defaults(func=_bench)
-    if domain_commands:
-        _register_domain_commands(sub, bsub)
+    if domain_commands is True:
+        _register_domain_commands(sub, _ALL_COMMAND_MODULES)
+        _register_benches(bsub)
+    elif domain_commands == "bench":
+        _register_benches(bsub)
+    elif domain_commands in _DOMAIN_COMMAND_MODULES:
+        _register_domain_commands(sub, (_DOMAIN_COMMAND_MODULES[str(domain_commands)],))
     return p
 
 
-def _register_domain_commands(sub, bsub) -> None:
-    """Subcommands and benchmarks of the domain packages (their own modules under app/)."""
+def _register_domain_commands(sub, modules: tuple[str, ...]) -> None:
+    """Subcommands of the domain packages (their own modules under app/commands), in the order of
+    ``_ALL_COMMAND_MODULES``."""
+    import importlib
+    for name in modules:
+        importlib.import_module(f"scenenav.app.commands.{name}").register(sub)
+
+
+def _register_benches(bsub) -> None:
+    """The benchmarks of the domain packages (their own modules under app/bench)."""
     from scenenav.app.bench.autopilot import register_bench as register_autopilot_bench
     from scenenav.app.bench.campaign import register_bench as register_campaign_bench
     from scenenav.app.bench.e2e import register_bench as register_e2e_bench
     from scenenav.app.bench.plan import register_bench as register_plan_bench
     from scenenav.app.bench.render import register_bench as register_render_bench
     from scenenav.app.bench.soak import register_bench as register_soak_bench
-    from scenenav.app.commands import assistant_map, campaign, perception, plan, world
-    for module in (world, plan, perception, assistant_map, campaign):
-        module.register(sub)
     register_plan_bench(bsub)
     register_autopilot_bench(bsub)
     register_e2e_bench(bsub)
@@ -443,7 +463,13 @@ def split_node_command(argv: list[str]) -> tuple[list[str], tuple[str, ...] | No
 def main(argv: list[str] | None = None) -> int:
     argv, node_command = split_node_command(list(sys.argv[1:] if argv is None else argv))
     argv = glue_negative_values(argv)
-    parser = build_parser(domain_commands=_command_of(argv) not in _OWN_COMMANDS)
+    command = _command_of(argv)
+    if command in _OWN_COMMANDS:
+        parser = build_parser(domain_commands=False)
+    elif command == "bench" or command in _DOMAIN_COMMAND_MODULES:
+        parser = build_parser(domain_commands=command)
+    else:
+        parser = build_parser()     # --help, no command, a misspelt one: the whole list
     args = parser.parse_args(argv)
     if node_command is not None:
         args.command = node_command

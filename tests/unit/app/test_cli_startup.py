@@ -8,7 +8,7 @@ import sys
 
 import pytest
 
-from scenenav.app.cli import _OWN_COMMANDS, _command_of, build_parser
+from scenenav.app.cli import _DOMAIN_COMMAND_MODULES, _OWN_COMMANDS, _command_of, build_parser
 
 
 def _subparser(parser: argparse.ArgumentParser, name: str) -> argparse.ArgumentParser:
@@ -21,6 +21,18 @@ def test_own_command_parsers_are_the_same_without_the_domain_commands(command):
     full, light = build_parser(), build_parser(domain_commands=False)
     assert _subparser(light, command).format_help() == _subparser(full, command).format_help()
     assert set(_subparser(full, "bench")._actions[-1].choices) > set(_subparser(light, "bench")._actions[-1].choices)
+
+
+@pytest.mark.parametrize("command", sorted(_DOMAIN_COMMAND_MODULES) + ["bench"])
+def test_a_domain_command_alone_has_the_same_parser_as_in_the_whole_one(command):
+    full, light = build_parser(), build_parser(domain_commands=command)
+    assert _subparser(light, command).format_help() == _subparser(full, command).format_help()
+    others = set(_DOMAIN_COMMAND_MODULES) - {command}
+    if command != "bench":
+        same_module = {c for c, m in _DOMAIN_COMMAND_MODULES.items() if m == _DOMAIN_COMMAND_MODULES[command]}
+        others -= same_module
+    (sub,) = [a for a in light._actions if isinstance(a, argparse._SubParsersAction)]
+    assert not others & set(sub.choices)          # the other domain modules were not registered
 
 
 def test_the_command_is_found_after_the_global_option():
