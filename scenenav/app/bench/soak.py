@@ -61,7 +61,7 @@ SETTLE_WALL_S = 20.0
 class SoakConfig:
     duration_s: float = 1800.0          # simulated seconds
     swap_every_s: float = 120.0         # simulated seconds between perception swaps
-    fuzz_frames_per_min: int = 10000    # garbage MAVLink frames a (wall) minute
+    fuzz_frames_per_min: int = 10000    # garbage MAVLink frames a minute (simulated or wall, whichever is more)
     sample_period_s: float = 5.0        # wall seconds between /proc samples
     seed: int = 2
     baseline_s: float = BASELINE_SIM_S  # simulated time of the baseline sample (issue 14: minute 5)
@@ -256,7 +256,8 @@ def _garbage_frame(rng: random.Random) -> bytes:
 
 
 class Fuzzer(threading.Thread):
-    """Sends ``fuzz_frames_per_min`` garbage frames a minute to the run's MAVLink TCP port."""
+    """Sends ``fuzz_frames_per_min`` garbage frames a minute (simulated or wall minute, whichever
+    gives more) to the run's MAVLink TCP port."""
 
     def __init__(self, run_dir: Path, cfg: SoakConfig) -> None:
         super().__init__(name="soak-fuzzer", daemon=True)
@@ -264,6 +265,8 @@ class Fuzzer(threading.Thread):
         self.cfg = cfg
         self.stop = threading.Event()
         self.sent = 0
+        self.wall_s = 0.0      # since the MAVLink port appeared
+        self.sim_s = 0.0       # simulated time last seen in truth.csv
 
     def _port(self) -> int | None:
         try:
@@ -271,22 +274,36 @@ class Fuzzer(threading.Thread):
         except (OSError, ValueError, KeyError, TypeError):
             return None
 
+    def due(self, wall_s: float, sim_s: float) -> int:
+        """Frames that should have been sent by now: ``fuzz_frames_per_min`` a minute of simulated
+        time or of wall time, whichever is more (the run may be slower or faster than real time)."""
+        return int(self.cfg.fuzz_frames_per_min * max(wall_s, sim_s) / 60.0)
+
     def run(self) -> None:
         rng = random.Random(self.cfg.seed)
-        burst = max(1, self.cfg.fuzz_frames_per_min // 600)       # 10 bursts a second
+        max_burst = max(1, self.cfg.fuzz_frames_per_min // 60)     # at most a second's worth at once
         sock = None
+        t0 = time.monotonic()
+        sim_s = 0.0
         while not self.stop.wait(0.1):
             if self.cfg.fuzz_frames_per_min == 0:
                 return
             if sock is None:
                 port = self._port()
                 if port is None:
+                    t0 = time.monotonic()       # the count starts when the port is there
                     continue
                 try:
                     sock = socket.create_connection(("127.0.0.1", port), timeout=2.0)
                 except OSError:
                     sock = None
                     continue
+            sim_s = _last_sim_time(self.run_dir) or sim_s
+            self.wall_s = time.monotonic() - t0
+            self.sim_s = sim_s
+            burst = min(max_burst, self.due(self.wall_s, sim_s) - self.sent)
+            if burst <= 0:
+                continue
             try:
                 sock.sendall(b"".join(_garbage_frame(rng) for _ in range(burst)))
                 self.sent += burst
@@ -390,11 +407,16 @@ def _read_json(path: Path) -> dict:
         return {}
 
 
+def _per_min(count: int, seconds: float) -> float:
+    return count * 60.0 / seconds if seconds > 0 else 0.0
+
+
 def format_table(r: SoakResult) -> str:
     c = r.config
     lines = [f"soak: {r.sim_time_s:.0f} simulated s in {r.wall_time_s:.0f} wall s ({r.end_reason}); "
              f"{r.swaps} perception swaps (every {c.swap_every_s:.0f} s); {r.fuzz_frames_sent} fuzz frames "
-             f"({c.fuzz_frames_per_min}/min)",
+             f"(asked {c.fuzz_frames_per_min}/min; sent {_per_min(r.fuzz_frames_sent, r.sim_time_s):.0f} per "
+             f"simulated min, {_per_min(r.fuzz_frames_sent, r.wall_time_s):.0f} per wall min)",
              f"{'process':<20} {'RSS min 5':>10} {'RSS end':>9} {'growth':>8} {'peak':>8} "
              f"{'fds min 5':>9} {'fds end':>8}"]
     for f in r.roles:
