@@ -21,7 +21,7 @@ $(STAMP): pyproject.toml
 	touch $(STAMP)
 
 demo: install
-	$(VENV)/bin/scenenav run scenarios/logging_flight.yaml --out runs/demo-$$(date +%Y%m%d-%H%M%S)
+	$(VENV)/bin/scenenav run scenarios/demo.yaml --out runs/demo-$$(date +%Y%m%d-%H%M%S)
 
 # ruff: pyflakes, import order, bugbear, module docstrings; lint-imports: the layering contracts
 # ([tool.importlinter] in pyproject.toml); mypy: the bottom layer scenenav/core. All three run, so one

@@ -32,38 +32,12 @@ def _finish(proc, timeout_s=900):
     return proc.returncode, stdout, stderr
 
 
-def test_four_runs_complete_then_rerun_flies_nothing(tmp_path):
-    campaign = write_campaign(tmp_path / "four.yaml", name="four", base=str(SCRIPTED),
+def test_six_runs_complete_through_a_worker_kill_then_rerun_flies_nothing(tmp_path):
+    """Six runs on two workers; a Dask worker is SIGKILLed during the first flight: its flight
+    stops its nodes and is flown again, no row is lost, and a second invocation flies nothing."""
+    campaign = write_campaign(tmp_path / "six.yaml", name="six", base=str(SCRIPTED),
                               set={"duration_s": FLIGHT_S},
-                              grid={"perception.method": ["statistical", "none"], "seed": [1, 2]})
-    out = tmp_path / "out"
-    rc, _stdout, stderr = _finish(start_campaign(campaign, out, "--workers", "2"))
-    assert rc == 0, stderr
-    rows = _table(out)
-    assert len(rows) == 4
-    assert sorted((r["override.perception.method"], r["override.seed"]) for r in rows) == sorted(
-        (m, s) for m in ("statistical", "none") for s in (1, 2))
-    assert all(r["run_status"] == "ok" and r["run_exit_status"] == 0 for r in rows)
-    assert all(r["override.duration_s"] == FLIGHT_S and r["sim_time_s"] >= FLIGHT_S - 0.5 for r in rows)
-    assert {r["perception_method"] for r in rows} == {"statistical", "none"}
-    assert len({r["run_mavlink_tcp_port"] for r in rows}) == 4       # every run its own port
-    for r in rows:   # what was flown is the planned scenario
-        assert (out / "runs" / r["run_id"] / "summary.json").is_file()
-    report = (out / "report.md").read_text()
-    assert "perception.method=statistical" in report and "perception.method=none" in report
-    assert (out / "error_cdf.png").stat().st_size > 0 and (out / "success_rate.png").stat().st_size > 0
-    records = {r["run_id"]: (out / "runs" / r["run_id"] / "campaign_run.json").read_text() for r in rows}
-
-    rc, _stdout, stderr = _finish(start_campaign(campaign, out, "--workers", "2"))
-    assert rc == 0, stderr
-    assert "4 already complete, 0 to fly" in stderr
-    assert {r["run_id"]: (out / "runs" / r["run_id"] / "campaign_run.json").read_text() for r in rows} == records
-    assert len(_table(out)) == 4
-
-
-def test_worker_killed_mid_campaign_loses_no_row(tmp_path):
-    campaign = write_campaign(tmp_path / "kill.yaml", name="kill", base=str(SCRIPTED),
-                              set={"duration_s": FLIGHT_S}, grid={"seed": [1, 2, 3, 4]})
+                              grid={"perception.method": ["statistical", "none"], "seed": [1, 2, 3]})
     out = tmp_path / "out"
     proc = start_campaign(campaign, out, "--workers", "2")
     try:
@@ -77,10 +51,27 @@ def test_worker_killed_mid_campaign_loses_no_row(tmp_path):
             os.killpg(proc.pid, signal.SIGKILL)
     assert rc == 0, stderr
     rows = _table(out)
-    assert len(rows) == 4 and all(r["run_status"] == "ok" for r in rows), [r["run_status"] for r in rows]
-    assert sorted(r["override.seed"] for r in rows) == [1, 2, 3, 4]
+    assert len(rows) == 6 and all(r["run_status"] == "ok" and r["run_exit_status"] == 0 for r in rows), \
+        [r["run_status"] for r in rows]
+    assert sorted((r["override.perception.method"], r["override.seed"]) for r in rows) == sorted(
+        (m, s) for m in ("statistical", "none") for s in (1, 2, 3))
+    assert all(r["override.duration_s"] == FLIGHT_S and r["sim_time_s"] >= FLIGHT_S - 0.5 for r in rows)
+    assert {r["perception_method"] for r in rows} == {"statistical", "none"}
+    assert len({r["run_mavlink_tcp_port"] for r in rows}) == 6       # every run its own port
+    for r in rows:   # what was flown is the planned scenario
+        assert (out / "runs" / r["run_id"] / "summary.json").is_file()
+    report = (out / "report.md").read_text()
+    assert "perception.method=statistical" in report and "perception.method=none" in report
+    assert (out / "error_cdf.png").stat().st_size > 0 and (out / "success_rate.png").stat().st_size > 0
     # the killed worker's flight stopped its nodes (PDEATHSIG -> the launcher's clean stop)
     wait_for(lambda: not processes_mentioning(str(out)), 90, "the killed worker's flight to stop")
+    records = {r["run_id"]: (out / "runs" / r["run_id"] / "campaign_run.json").read_text() for r in rows}
+
+    rc, _stdout, stderr = _finish(start_campaign(campaign, out, "--workers", "2"))
+    assert rc == 0, stderr
+    assert "6 already complete, 0 to fly" in stderr
+    assert {r["run_id"]: (out / "runs" / r["run_id"] / "campaign_run.json").read_text() for r in rows} == records
+    assert len(_table(out)) == 6
 
 
 def test_failing_run_is_recorded_and_the_others_complete(tmp_path):
