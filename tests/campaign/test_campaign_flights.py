@@ -32,6 +32,7 @@ def _finish(proc, timeout_s=900):
     return proc.returncode, stdout, stderr
 
 
+@pytest.mark.timeout(900)     # six 20 s flights plus one flown again, two at a time, then a resume
 def test_six_runs_complete_through_a_worker_kill_then_rerun_flies_nothing(tmp_path):
     """Six runs on two workers; a Dask worker is SIGKILLed during the first flight: its flight
     stops its nodes and is flown again, no row is lost, and a second invocation flies nothing."""
