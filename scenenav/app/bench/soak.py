@@ -55,6 +55,8 @@ SCENARIO = Path(__file__).resolve().parents[3] / "scenarios" / "gps_denied.yaml"
 RENDER_WORKER = "sim/render_worker"
 #: Wall seconds a process runs before it is sampled (a new perception node loads its CNN first).
 SETTLE_WALL_S = 20.0
+#: The node ids a perception swap alternates between.
+PERCEPTION_ROLES = ("perception", "perception-2")
 
 
 @dataclass(frozen=True)
@@ -226,7 +228,13 @@ class Sampler(threading.Thread):
             if t is None:
                 continue
             now = time.monotonic()
-            for role, pid in self._pids().items():
+            pids = self._pids()
+            # Every node holds a Zenoh connection to each other node (peers gossip and connect
+            # directly), so each process's fd count follows how many nodes are alive: during a
+            # perception handover two perception processes are. Minute 5 and the end are compared
+            # only at steady moments, one perception node alive, so like is compared with like.
+            steady = sum(1 for role in pids if role in PERCEPTION_ROLES) <= 1
+            for role, pid in pids.items():
                 # a process is compared once it settled (loaded its models, opened its files)
                 if now - first_seen.setdefault(pid, now) < SETTLE_WALL_S:
                     continue
@@ -236,6 +244,8 @@ class Sampler(threading.Thread):
                 fig = self.roles.setdefault(role, RoleFigures(role))
                 fig.peak_rss_mb = max(fig.peak_rss_mb, rss)
                 sample = Sample(t, rss, fds)
+                if not steady:
+                    continue
                 if t >= self.cfg.baseline_s and fig.at_minute_5 is None:
                     fig.at_minute_5 = sample
                 if t <= end_window_s:
