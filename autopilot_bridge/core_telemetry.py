@@ -108,7 +108,7 @@ class TelemetryMixin:
             groundspeed_m_s=float(math.hypot(vel[0], vel[1])),
             airspeed_m_s=float(math.hypot(vel[0], vel[1])), climb_m_s=float(vel[2]),
             throttle_pct=100.0 * thrust / self.airframe.max_thrust_n,
-            rc_channels_pwm=self.rc_channels(), servo_pwm=motor_pwm(self._motors, self._armed),
+            rc_channels_pwm=self.rc_channels(), servo_pwm=motor_pwm(self._motors, self._armed or self.motor_test_state.running),
             gps_fix_type=gps_fix, gps_satellites=g.satellites if g is not None else 0,
             gps_hdop=g.eph_m if g is not None else math.nan,
             gps_vdop=g.epv_m if g is not None else math.nan,

@@ -45,7 +45,7 @@ from autopilot_bridge.fence_rally_protocol import FenceRallyProtocols
 from autopilot_bridge.mavlink_framing import frame_is_signed, frame_msg_id
 from autopilot_bridge.mavlink_ftp import PAYLOAD_LEN, FtpServer
 from autopilot_bridge.mavlink_links import Link, LinkKind, LinkTransportMixin, close_socket
-from autopilot_bridge.mavlink_params import ParamProtocolMixin
+from autopilot_bridge.mavlink_params import BANNER, ParamProtocolMixin
 from autopilot_bridge.mission import MissionManager
 from autopilot_bridge.modes import CopterMode
 from autopilot_bridge.param_pack import PackedParam, pack_params, parse_query
@@ -163,6 +163,7 @@ class MavlinkServer(LinkTransportMixin, ParamProtocolMixin):
         self._next_link_id = 0
         self._statustext_id = 0
         self._closed = False
+        self._reboot_pending = False
         self._param_changes: deque[tuple[str, float]] = deque()
         self._error_counts: dict[str, int] = {}
         self._statustexts: deque[tuple[MavSeverity, str]] = deque()
@@ -237,6 +238,7 @@ class MavlinkServer(LinkTransportMixin, ParamProtocolMixin):
         for link in list(self._links):
             for frame in link.parser.frames(now_s):
                 self._guarded(self._handle_frame, link, frame, now_s)
+        self._guarded(self._reboot)
         self._guarded(self._flush_param_changes)
         self._guarded(self._drain_vehicle_events)
         self._guarded(self._flush_statustexts)
@@ -353,6 +355,24 @@ class MavlinkServer(LinkTransportMixin, ParamProtocolMixin):
 
     def erase_stored_params(self) -> None:
         self.params.erase_persisted()
+
+    def request_reboot(self) -> None:
+        """PREFLIGHT_REBOOT_SHUTDOWN accepted: reboot in this poll, after the ACK went out."""
+        self._reboot_pending = True
+
+    def _reboot(self) -> None:
+        """The vehicle starts again; it gets the stored mission, fence and rally as ArduPilot reads
+        them from its storage at boot, and the ground stations the boot banner."""
+        if not self._reboot_pending:
+            return
+        self._reboot_pending = False
+        logger.info("rebooting the vehicle (PREFLIGHT_REBOOT_SHUTDOWN)")
+        self.vehicle.reboot()
+        self.vehicle.mission_changed(self.missions.items)
+        self.vehicle.fence_changed(self.fence_rally.fence.items)
+        self.vehicle.rally_changed(self.fence_rally.rally.items)
+        for text in BANNER:
+            self.statustext(MavSeverity.INFO, text)
 
     # ----------------------------------------------------------------- input
     def _handle_frame(self, link: Link, frame: bytes, now_s: float) -> None:

@@ -36,6 +36,7 @@ from autopilot_bridge.vehicle_interface import (
     MissionItem,
     MissionState,
     ModeChangedEvent,
+    MotorTestRequest,
     Odometry,
     Outcome,
     SpeedType,
@@ -132,6 +133,16 @@ class FakeVehicle:
             self._record("set_home", home)
             self._events.append(HomeChangedEvent())
             return Outcome(True)
+
+    def motor_test(self, request: MotorTestRequest) -> Outcome:
+        with self._lock:
+            self._record("motor_test", request)
+            return Outcome(not self.armed)
+
+    def reboot(self) -> None:
+        with self._lock:
+            self._record("reboot")
+            self.mission = ()
 
     def arm(self, force: bool) -> Outcome:
         with self._lock:
