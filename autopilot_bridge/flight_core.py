@@ -156,6 +156,7 @@ class FlightCore(SensorFusionMixin, ArmingMixin, GuidedMixin, AutoMissionMixin,
         self._home: np.ndarray | None = None
         self._home_locked = False       # DO_SET_HOME locks home: arming keeps it (ArduCopter)
         self._origin: np.ndarray | None = None
+        self._requested_origin: np.ndarray | None = None   # SET_GPS_GLOBAL_ORIGIN before alignment
         self._ground_xy = np.array(self.cfg.start_enu_m, dtype=float)
         self._ground_next_s = 0.0
         self._landed_since_s: float | None = None
@@ -249,6 +250,17 @@ class FlightCore(SensorFusionMixin, ArmingMixin, GuidedMixin, AutoMissionMixin,
 
     def close(self) -> None:
         self.params.remove_observer(self._on_param)
+
+    def set_gps_global_origin(self, lat_deg: float, lon_deg: float, alt_amsl_m: float) -> Outcome:
+        """SET_GPS_GLOBAL_ORIGIN (Vehicle protocol): taken while the EKF has no origin, as ArduPilot's
+        ``set_ekf_origin``; the EKF then aligns with its NED frame there (the position still from
+        GPS or the known take-off point). Once the origin is set it stays."""
+        if self._origin is not None:
+            return Outcome(False)
+        x, y = self.geo.to_enu(lat_deg, lon_deg)
+        self._requested_origin = np.array([x, y, alt_amsl_m - self.geo.origin_alt_amsl_m])
+        self._bus_text(MavSeverity.INFO, f"EKF origin requested at ({x:.1f}, {y:.1f}) m")
+        return Outcome(True)
 
     def reboot(self) -> None:
         """PREFLIGHT_REBOOT_SHUTDOWN (Vehicle protocol; disarmed): every state as after power-up
@@ -347,7 +359,7 @@ class FlightCore(SensorFusionMixin, ArmingMixin, GuidedMixin, AutoMissionMixin,
             logger.warning("EKF alignment failed (%s); retrying", exc)
             self.alignment.reset()
             return
-        self._origin = np.array(pos)
+        self._origin = np.array(pos) if self._requested_origin is None else self._requested_origin
         self._home = np.array(pos)
         self._ground_xy = np.array(pos[:2])
         self._ground_next_s = self._now_s

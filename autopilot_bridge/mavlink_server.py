@@ -82,7 +82,7 @@ STAT_KEYS = (
     "rx_bytes", "rx_msgs", "tx_msgs", "tx_bytes", "tx_dropped", "garbage_bytes", "bad_crc",
     "parse_errors", "unknown", "truncated", "dropped_unsigned", "bad_signature", "not_for_us",
     "own_echo", "ignored", "handler_errors", "setpoints_ignored", "setpoints_rejected",
-    "rc_not_my_gcs",
+    "rc_not_my_gcs", "origin_rejected",
     "vision_ignored", "vision_rejected", "param_set_refused", "param_set_clamped", "signing_setups", "tcp_clients", "tcp_refused",
     "udp_peers", "udp_refused", "socket_errors", "encode_errors",
 )
@@ -334,6 +334,7 @@ class MavlinkServer(LinkTransportMixin, ParamProtocolMixin):
                 self._send_encoded(self._links, mavlink2.MAVLINK_MSG_ID_HEARTBEAT)
             elif isinstance(event, HomeChangedEvent):
                 self._send_encoded(self._links, mavlink2.MAVLINK_MSG_ID_HOME_POSITION)
+                self._send_encoded(self._links, mavlink2.MAVLINK_MSG_ID_GPS_GLOBAL_ORIGIN)
             else:
                 logger.warning("unknown vehicle event %r", event)
 
@@ -563,6 +564,16 @@ class MavlinkServer(LinkTransportMixin, ParamProtocolMixin):
             return
         self.vehicle.odometry(odom)
 
+    def _on_set_gps_global_origin(self, msg: mavlink2.MAVLink_message, link: Link, now_s: float) -> None:
+        """As ``GCS_MAVLINK::handle_set_gps_global_origin``: a bad lat/lon is dropped silently; the
+        vehicle takes the origin while it has none (altitude mm). Answered with GPS_GLOBAL_ORIGIN
+        once an origin is set (differs: ArduPilot sends it only when the origin changed)."""
+        if not (abs(msg.latitude) <= 900_000_000 and abs(msg.longitude) <= 1_800_000_000):
+            self.stats["origin_rejected"] += 1
+            return
+        self.vehicle.set_gps_global_origin(msg.latitude * 1e-7, msg.longitude * 1e-7, msg.altitude * 1e-3)
+        self._send_encoded([link], mavlink2.MAVLINK_MSG_ID_GPS_GLOBAL_ORIGIN)
+
     _HANDLERS: dict[str, Callable[[MavlinkServer, mavlink2.MAVLink_message, Link, float], None]] = {
         "HEARTBEAT": _on_heartbeat,
         "PARAM_REQUEST_LIST": ParamProtocolMixin._on_param_request_list,
@@ -581,4 +592,5 @@ class MavlinkServer(LinkTransportMixin, ParamProtocolMixin):
         "TIMESYNC": _on_timesync,
         "SETUP_SIGNING": _on_setup_signing,
         "FILE_TRANSFER_PROTOCOL": _on_file_transfer_protocol,
+        "SET_GPS_GLOBAL_ORIGIN": _on_set_gps_global_origin,
     }

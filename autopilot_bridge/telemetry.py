@@ -443,12 +443,12 @@ def encode_system_time(tel: VehicleTelemetry, ctx: EncodeContext) -> mavlink2.MA
 
 def encode_gps_global_origin(tel: VehicleTelemetry, ctx: EncodeContext
                              ) -> mavlink2.MAVLink_message | None:
-    """The EKF origin. Here the EKF works around home, so the origin is home (ArduPilot sets its
-    origin at the first good GPS fix, usually the same place); nothing before home is set."""
-    if not tel.home_set:
+    """The EKF origin: where the EKF aligned (ArduPilot: at the first good GPS fix), or the one
+    SET_GPS_GLOBAL_ORIGIN gave before that; nothing before it is set."""
+    if not tel.origin_set:
         return None
     return mavlink2.MAVLink_gps_global_origin_message(
-        deg_e7(tel.home_lat_deg), deg_e7(tel.home_lon_deg), _mm(tel.home_alt_amsl_m),
+        deg_e7(tel.origin_lat_deg), deg_e7(tel.origin_lon_deg), _mm(tel.origin_alt_amsl_m),
         clamp_int(tel.time_boot_ms * 1000, 0, 2 ** 63 - 1, 0))
 
 

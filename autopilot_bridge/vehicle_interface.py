@@ -462,6 +462,11 @@ class VehicleTelemetry:
     home_lon_deg: float = 0.0
     home_alt_amsl_m: float = 0.0
     home_position_ned_m: tuple[float, float, float] = (0.0, 0.0, 0.0)
+    # EKF origin (GPS_GLOBAL_ORIGIN; SET_GPS_GLOBAL_ORIGIN before alignment)
+    origin_set: bool = False
+    origin_lat_deg: float = 0.0
+    origin_lon_deg: float = 0.0
+    origin_alt_amsl_m: float = 0.0
     # mission execution (seq indexes the stored mission, 0 = home)
     mission_current_seq: int = 0
     mission_state: MissionState = MissionState.NO_MISSION
@@ -640,6 +645,10 @@ class Vehicle(Protocol):
 
     def set_home(self, home: HomeLocation | None) -> Outcome:
         """DO_SET_HOME: at ``home``, or at the current position for None; emits HomeChangedEvent."""
+
+    def set_gps_global_origin(self, lat_deg: float, lon_deg: float, alt_amsl_m: float) -> Outcome:
+        """SET_GPS_GLOBAL_ORIGIN (valid lat/lon): the EKF origin, only while none is set (ArduPilot
+        ``set_ekf_origin``); refused without a text once it is."""
 
     def motor_test(self, request: MotorTestRequest) -> Outcome:
         """DO_MOTOR_TEST (``autopilot_bridge.motor_test``); refusals announce their own text."""

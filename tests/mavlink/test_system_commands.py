@@ -120,3 +120,20 @@ def test_do_motor_test_parameters_as_arducopter_casts_them():
         assert _long(conn, M.MAV_CMD_COMPONENT_ARM_DISARM, 1) == MavResult.ACCEPTED
         assert _long(conn, M.MAV_CMD_DO_MOTOR_TEST, 1, 0, 10, 2.0) == MavResult.FAILED    # vehicle refuses
         conn.close()
+
+
+def test_set_gps_global_origin_is_handed_over_and_answered_with_gps_global_origin():
+    from support.fake_vehicle import HOME
+    with running_server() as (server, vehicle):
+        conn = gcs_connection(server.tcp_port)
+        conn.mav.set_gps_global_origin_send(1, 471_000_000, 82_000_000, 420_500, 0)
+        origin = wait_for(conn, "GPS_GLOBAL_ORIGIN", 5.0)
+        assert origin is not None and (origin.latitude, origin.longitude) == (
+            round(HOME[0] * 1e7), round(HOME[1] * 1e7))                  # the vehicle's origin
+        conn.mav.set_gps_global_origin_send(1, 950_000_000, 82_000_000, 0, 0)   # bad lat: dropped
+        conn.mav.set_gps_global_origin_send(7, 471_000_000, 82_000_000, 0, 0)   # another system
+        assert _long(conn, M.MAV_CMD_RUN_PREARM_CHECKS) == MavResult.ACCEPTED   # the three were read
+        calls = [args for name, args in vehicle.calls if name == "set_gps_global_origin"]
+        assert calls == [pytest.approx((47.1, 8.2, 420.5))]
+        assert server.stats["origin_rejected"] == 1
+        conn.close()
