@@ -13,9 +13,10 @@ import pytest
 from support.qgc_like import QgcLike
 from support.sitl_session import SitlSession, enu_to_latlon, final_position, write_params
 
-ALT_M, CLIMB_M = 25.0, 5.0          # above the city's roofs
+ALT_M, CLIMB_M = 20.0, 5.0          # above the roofs near the start
 GOTO_ENU = (20.0, 20.0)
-PARAMS = {"RTL_ALT": 1500, "RTL_LOIT_TIME": 0, "LAND_SPEED": 150, "DISARM_DELAY": 30}
+PARAMS = {"RTL_ALT": 1500, "RTL_LOIT_TIME": 0, "LAND_SPEED": 200, "WPNAV_SPEED_DN": 300,
+          "DISARM_DELAY": 30}
 
 
 def _fly(tmp_path, *mode: str) -> QgcLike:
