@@ -54,6 +54,7 @@ from autopilot_bridge.setpoints import global_position_target, local_position_ta
 from autopilot_bridge.signing import Signer, SigningConfig
 from autopilot_bridge.system_commands import SystemCommands
 from autopilot_bridge.telemetry import (
+    ARDUPILOT_UNSENT_MSG_IDS,
     STREAMABLE_MSG_IDS,
     EncodeContext,
     encode,
@@ -341,6 +342,9 @@ class MavlinkServer(LinkTransportMixin, ParamProtocolMixin):
     # ----------------------------------------------------------------- services for commands
     def can_send(self, msg_id: int) -> bool:
         return msg_id in STREAMABLE_MSG_IDS
+
+    def ardupilot_has(self, msg_id: int) -> bool:
+        return msg_id in ARDUPILOT_UNSENT_MSG_IDS
 
     def set_message_interval(self, link: object, msg_id: int, interval_us: float) -> bool:
         return isinstance(link, Link) and link.scheduler.set_interval_us(msg_id, interval_us)

@@ -588,6 +588,14 @@ ENCODERS: Mapping[int, Encoder] = {
 }
 
 STREAMABLE_MSG_IDS: frozenset[int] = frozenset(ENCODERS)
+# Messages ArduPilot has an ap_message for but this autopilot does not send (the "not implemented"
+# telemetry rows of docs/mavlink.md): SET_MESSAGE_INTERVAL of one is ACCEPTED and nothing is sent,
+# as ArduPilot answers for a sensor that is not fitted (no rangefinder: no DISTANCE_SENSOR).
+ARDUPILOT_UNSENT_MSG_IDS: frozenset[int] = frozenset(getattr(_M, f"MAVLINK_MSG_ID_{name}") for name in (
+    "MEMINFO", "GPS2_RAW", "GPS_RTK", "SIMSTATE", "AHRS", "AHRS2", "SCALED_IMU2", "SCALED_IMU3",
+    "SCALED_PRESSURE", "SCALED_PRESSURE2", "RC_CHANNELS_RAW", "RANGEFINDER", "DISTANCE_SENSOR",
+    "ESC_TELEMETRY_1_TO_4", "PID_TUNING", "MCU_STATUS", "FENCE_STATUS", "ATTITUDE_TARGET",
+    "HWSTATUS", "OPTICAL_FLOW", "TERRAIN_REQUEST", "TERRAIN_REPORT"))
 
 
 def encode(msg_id: int, tel: VehicleTelemetry, ctx: EncodeContext
