@@ -33,6 +33,8 @@ class ArmingMixin:
             return Outcome(True)
         if not self.nav.aligned:
             return self._refuse("PreArm: EKF not ready")
+        if self.motor_test_state.running:
+            return self._refuse("Arm: Motor test running")
         if not force and self.params.get_int("ARMING_CHECK") != 0:
             failures = self._prearm_failures()
             if failures:

@@ -119,6 +119,8 @@ class CommandServices(Protocol):
 
     def can_send(self, msg_id: int) -> bool: ...
 
+    def ardupilot_has(self, msg_id: int) -> bool: ...
+
     def set_message_interval(self, link: object, msg_id: int, interval_us: float) -> bool: ...
 
     def message_interval_us(self, link: object, msg_id: int) -> int: ...
@@ -356,6 +358,8 @@ class CommandHandler:
         interval = req.p(2)
         if msg_id is None or not math.isfinite(interval):
             return CommandResult(MavResult.DENIED)
+        if not self._svc.can_send(msg_id) and self._svc.ardupilot_has(msg_id):
+            return CommandResult(MavResult.ACCEPTED)   # ArduPilot without the sensor: nothing sent
         if not self._svc.can_send(msg_id):
             # as GCS_MAVLINK::set_mavlink_message_id_interval for an id it has no ap_message for
             self._svc.statustext(MavSeverity.INFO, f"No ap_message for mavlink id ({msg_id})")

@@ -89,6 +89,7 @@ class TelemetryMixin:
         home = self._home if self._home is not None else pos
         home_lat, home_lon = self.geo.to_geodetic(float(home[0]), float(home[1]))
         origin = self._origin_enu() if self._origin is not None else pos
+        origin_lat, origin_lon = self.geo.to_geodetic(float(origin[0]), float(origin[1]))
         thrust = self._last_out.thrust_n if (self._last_out is not None and self._armed) else 0.0
         g = self._last_gps
         gps_fix = GpsFixType(min(max(g.fix_type, 0), GpsFixType.FIX_3D)) if g is not None \
@@ -108,7 +109,7 @@ class TelemetryMixin:
             groundspeed_m_s=float(math.hypot(vel[0], vel[1])),
             airspeed_m_s=float(math.hypot(vel[0], vel[1])), climb_m_s=float(vel[2]),
             throttle_pct=100.0 * thrust / self.airframe.max_thrust_n,
-            rc_channels_pwm=self.rc_channels(), servo_pwm=motor_pwm(self._motors, self._armed),
+            rc_channels_pwm=self.rc_channels(), servo_pwm=motor_pwm(self._motors, self._armed or self.motor_test_state.running),
             gps_fix_type=gps_fix, gps_satellites=g.satellites if g is not None else 0,
             gps_hdop=g.eph_m if g is not None else math.nan,
             gps_vdop=g.epv_m if g is not None else math.nan,
@@ -123,6 +124,8 @@ class TelemetryMixin:
             home_set=self._home is not None, home_lat_deg=home_lat, home_lon_deg=home_lon,
             home_alt_amsl_m=self.geo.origin_alt_amsl_m + float(home[2]),
             home_position_ned_m=enu_to_ned(np.asarray(home) - origin),
+            origin_set=self._origin is not None, origin_lat_deg=origin_lat, origin_lon_deg=origin_lon,
+            origin_alt_amsl_m=self.geo.origin_alt_amsl_m + float(origin[2]),
             mission_current_seq=self._mission_index + 1 if self._mission else 0,
             mission_state=self._mission_state,
             ekf_flags=int(self._ekf_flags(aligned)),

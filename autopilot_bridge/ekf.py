@@ -83,6 +83,7 @@ _TWO_PI = 2.0 * math.pi
 # and vertical accelerometer bias; heading and vertical gyro bias.
 _BARO_STATES = np.array([2, 5, 14])
 _COMPASS_STATES = np.array([8, 11])
+_EXT_HEIGHT_STATES = np.array([2, 5])     # external-navigation height: height, vertical velocity
 
 
 
@@ -404,6 +405,36 @@ class NavFilter:
     def fuse_compass(self, heading_rad: float) -> FusionResult:
         """Compass heading (clockwise from north, rad) -> yaw."""
         self._require_aligned("fuse_compass")
+        return self._fuse_heading(heading_rad, self._cfg.compass_noise_rad, "the compass")
+
+    def fuse_ext_nav_yaw(self, heading_rad: float, std_rad: float) -> FusionResult:
+        """External-navigation heading (EK3_SRCn_YAW = 6: ArduPilot fuses the ExtNav yaw instead of
+        the compass; ``std_rad`` from VISO_YAW_M_NSE and the message) -> yaw."""
+        self._require_aligned("fuse_ext_nav_yaw")
+        return self._fuse_heading(heading_rad, max(float(std_rad), 1e-3), "external navigation")
+
+    def fuse_ext_nav_height(self, z_enu_m: float, std_m: float) -> FusionResult:
+        """External-navigation height (EK3_SRCn_POSZ = 6, ENU z in this filter's frame) -> z and the
+        vertical velocity (not the barometer's bias states); reset after the height timeout as a
+        rejected barometer would be."""
+        self._require_aligned("fuse_ext_nav_height")
+        c = self._cfg
+        innov = np.array([float(z_enu_m) - self._p[2]])
+        H = np.zeros((1, NUM_ERROR_STATES))
+        H[0, 2] = 1.0
+        R = np.array([[max(float(std_m), 0.01) ** 2]])
+        result = self._update(innov, H, R, c.height_gate_sd, states=_EXT_HEIGHT_STATES)
+        if result.accepted:
+            self._hgt_last_ok_s = self._time_s
+        elif self._time_s - self._hgt_last_ok_s > c.height_reject_timeout_s and math.isfinite(float(innov[0])):
+            self._reset_axes([2], np.array([float(z_enu_m)]), R)
+            self._height_reset_count += 1
+            self._hgt_last_ok_s = self._time_s
+            logger.warning("NavFilter: height reset to external navigation (jump %.2f m)", float(innov[0]))
+            return FusionResult(True, innov, result.test_ratio, reset=True)
+        return result
+
+    def _fuse_heading(self, heading_rad: float, std_rad: float, what: str) -> FusionResult:
         c = self._cfg
         innov = np.array([wrap_pi(float(heading_rad) - heading_from_quat(self._q))])
         # Body x axis in the world (a, b, c); d(yaw) = dtheta_z - (a c dtheta_x + b c dtheta_y)/(a^2+b^2);
@@ -414,21 +445,21 @@ class NavFilter:
         H[0, 6] = a * cz / h2
         H[0, 7] = b * cz / h2
         H[0, 8] = -1.0
-        R = np.array([[c.compass_noise_rad ** 2]])
+        R = np.array([[std_rad ** 2]])
         result = self._update(innov, H, R, c.heading_gate_sd, states=_COMPASS_STATES)
         if result.accepted:
             self._hdg_last_ok_s = self._time_s
         elif self._time_s - self._hdg_last_ok_s > c.heading_reject_timeout_s and math.isfinite(float(innov[0])):
-            # Rotate the attitude about world z onto the compass (heading = pi/2 - yaw, so yaw -= innov)
-            # and restart the heading uncertainty from the compass noise.
+            # Rotate the attitude about world z onto the measurement (heading = pi/2 - yaw, so
+            # yaw -= innov) and restart the heading uncertainty from its noise.
             self._q = quat_normalise(quat_multiply(quat_from_rotation_vector(0.0, 0.0, -float(innov[0])), self._q))
             P = self._P
             P[8, :] = 0.0
             P[:, 8] = 0.0
-            P[8, 8] = c.compass_noise_rad ** 2 + c.initial_heading_std_rad ** 2
+            P[8, 8] = std_rad ** 2 + c.initial_heading_std_rad ** 2
             self._heading_reset_count += 1
             self._hdg_last_ok_s = self._time_s
-            logger.warning("NavFilter: heading reset to the compass (jump %.1f deg)", math.degrees(float(innov[0])))
+            logger.warning("NavFilter: heading reset to %s (jump %.1f deg)", what, math.degrees(float(innov[0])))
             return FusionResult(True, innov, result.test_ratio, reset=True)
         return result
 

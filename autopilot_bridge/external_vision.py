@@ -11,6 +11,10 @@ to VISION_POSITION_ESTIMATE and ODOMETRY before the EKF fuses them.
 * **Position error**: cbrt(c_xx^2 + c_yy^2 + c_zz^2) of the pose covariance (the 21-element upper
   triangle: indices 0, 6, 11), as GCS_Common.cpp; NaN (unknown) -> ``VISO_POS_M_NSE``, which is
   also the floor (``AP_VisualOdom``).
+* **Height and yaw** (``EK3_SRCn_POSZ`` / ``EK3_SRCn_YAW`` = 6 in the active source set): the fix's
+  height and the message's yaw (VISION_POSITION_ESTIMATE's yaw, ODOMETRY's quaternion) are fused
+  instead of the barometer / compass; the yaw error is cbrt(c_rr^2 + c_pp^2 + c_yy^2) of the pose
+  covariance (indices 15, 18, 20, as GCS_Common.cpp) with ``VISO_YAW_M_NSE`` as the floor.
 * **reset_counter**: a change (after the first message) resets the EKF horizontal position to the
   fix (ArduPilot records the reset and EK3 resets its position to external nav).
 * **quality** (ODOMETRY): below ``VISO_QUAL_MIN`` the message is ignored.
@@ -37,6 +41,7 @@ class VisoSettings:
     lever_arm_frd_m: tuple[float, float, float] = (0.0, 0.0, 0.0)   # VISO_POS_X/Y/Z
     pos_noise_m: float = 0.2               # VISO_POS_M_NSE
     quality_min: int = 0                   # VISO_QUAL_MIN
+    yaw_noise_rad: float = 0.2             # VISO_YAW_M_NSE
 
 
 class JitterCorrection:
@@ -68,6 +73,20 @@ def position_error_m(cov21, floor_m: float) -> float:
     if len(c) < 12 or not all(math.isfinite(c[i]) for i in (0, 6, 11)):
         return floor_m
     return max(floor_m, float(np.cbrt(c[0] ** 2 + c[6] ** 2 + c[11] ** 2)))
+
+
+def angle_error_rad(cov21, floor_rad: float) -> float:
+    """ArduPilot's angErr from the pose covariance (roll, pitch, yaw variances), at least ``floor_rad``."""
+    c = tuple(cov21)
+    if len(c) < 21 or not all(math.isfinite(c[i]) for i in (15, 18, 20)):
+        return floor_rad
+    return max(floor_rad, float(np.cbrt(c[15] ** 2 + c[18] ** 2 + c[20] ** 2)))
+
+
+def heading_of(body_to_ned: np.ndarray) -> float:
+    """Heading (clockwise from north, rad, 0..2 pi) of the body x axis of an FRD -> NED rotation."""
+    r = np.asarray(body_to_ned, dtype=float)
+    return float(math.atan2(r[1, 0], r[0, 0]) % (2.0 * math.pi))
 
 
 def attitude_matrix(roll_rad: float, pitch_rad: float, yaw_rad: float) -> np.ndarray:

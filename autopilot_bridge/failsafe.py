@@ -53,6 +53,7 @@ class FailsafeKind(Enum):
     EKF = "ekf"            # failsafe_checks.EkfCheck
     BATTERY = "battery"    # failsafe_checks.BatteryFailsafe
     FENCE = "fence"        # geofence.FenceMonitor
+    RADIO = "radio"        # pilot.PilotMixin._radio_failsafe_check (RC overrides stop, FS_THR_ENABLE)
 
 
 class FailsafeAction(Enum):

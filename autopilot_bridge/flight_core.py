@@ -81,6 +81,7 @@ from autopilot_bridge.guided import GuidedMixin
 from autopilot_bridge.mixer import QuadXMixer
 from autopilot_bridge.mode_commands import ModeCommandsMixin
 from autopilot_bridge.modes import NEEDS_POSITION, POSITION_MODES, CopterMode
+from autopilot_bridge.motor_test import MotorTestMixin
 from autopilot_bridge.param_binding import ParamBindingMixin
 from autopilot_bridge.params import ParameterStore
 from autopilot_bridge.pilot import PilotMixin
@@ -120,7 +121,8 @@ class CoreStatus:
 
 
 class FlightCore(SensorFusionMixin, ArmingMixin, GuidedMixin, AutoMissionMixin,
-                 ModeCommandsMixin, PilotMixin, ParamBindingMixin, TelemetryMixin, GeofenceMixin):
+                 ModeCommandsMixin, PilotMixin, ParamBindingMixin, TelemetryMixin, GeofenceMixin,
+                 MotorTestMixin):
     """The flight core; see the module docstring. Not thread-safe: call from one thread.
 
     One class, one concept per module: the control tick, modes and failsafes are here (alignment:
@@ -154,6 +156,7 @@ class FlightCore(SensorFusionMixin, ArmingMixin, GuidedMixin, AutoMissionMixin,
         self._home: np.ndarray | None = None
         self._home_locked = False       # DO_SET_HOME locks home: arming keeps it (ArduCopter)
         self._origin: np.ndarray | None = None
+        self._requested_origin: np.ndarray | None = None   # SET_GPS_GLOBAL_ORIGIN before alignment
         self._ground_xy = np.array(self.cfg.start_enu_m, dtype=float)
         self._ground_next_s = 0.0
         self._landed_since_s: float | None = None
@@ -175,6 +178,7 @@ class FlightCore(SensorFusionMixin, ArmingMixin, GuidedMixin, AutoMissionMixin,
         self._init_auto()
         self._init_mode_commands()
         self._init_pilot()
+        self._init_motor_test()
         self.srtl_path = BreadcrumbPath()
         # outputs
         self._motors = np.zeros(4)
@@ -247,6 +251,37 @@ class FlightCore(SensorFusionMixin, ArmingMixin, GuidedMixin, AutoMissionMixin,
     def close(self) -> None:
         self.params.remove_observer(self._on_param)
 
+    def set_gps_global_origin(self, lat_deg: float, lon_deg: float, alt_amsl_m: float) -> Outcome:
+        """SET_GPS_GLOBAL_ORIGIN (Vehicle protocol): taken while the EKF has no origin, as ArduPilot's
+        ``set_ekf_origin``; the EKF then aligns with its NED frame there (the position still from
+        GPS or the known take-off point). Once the origin is set it stays."""
+        if self._origin is not None:
+            return Outcome(False)
+        x, y = self.geo.to_enu(lat_deg, lon_deg)
+        self._requested_origin = np.array([x, y, alt_amsl_m - self.geo.origin_alt_amsl_m])
+        self._bus_text(MavSeverity.INFO, f"EKF origin requested at ({x:.1f}, {y:.1f}) m")
+        return Outcome(True)
+
+    def reboot(self) -> None:
+        """PREFLIGHT_REBOOT_SHUTDOWN (Vehicle protocol; disarmed): every state as after power-up
+        (modes, EKF, home, failsafes, battery count, SmartRTL path), the parameters as stored. The
+        vehicle is where it is: without GPS the new EKF aligns at the last estimate (the known
+        take-off point of a first start). Inputs the node sets once stay (vision available)."""
+        vision = self._vision_available
+        gcs = self._gcs_heartbeat_s
+        now = self._now_s
+        cfg = self.cfg
+        est = self.estimate()
+        if est is not None:
+            cfg = dataclasses.replace(cfg, start_enu_m=(float(est.position_enu_m[0]),
+                                                        float(est.position_enu_m[1])))
+        self.close()
+        FlightCore.__init__(self, self.params, cfg, self._algo)
+        self._vision_available = vision
+        self._gcs_heartbeat_s = gcs
+        self._now_s = now
+        self._bus_text(MavSeverity.INFO, "rebooted")
+
     # =========================================================================== inputs
     def set_gcs_heartbeat(self, last_heartbeat_s: float | None) -> None:
         """Newest heartbeat time (simulated seconds) of the ground station SYSID_MYGCS."""
@@ -258,7 +293,15 @@ class FlightCore(SensorFusionMixin, ArmingMixin, GuidedMixin, AutoMissionMixin,
 
     # =========================================================================== control tick
     def step(self, dt_s: float, imu: ImuReading, now_s: float) -> np.ndarray:
-        """One control tick; returns the motor commands (4,) in [0, 1] (zeros when disarmed)."""
+        """One control tick; returns the motor commands (4,) in [0, 1] (zeros when disarmed, the
+        test's output while a DO_MOTOR_TEST runs: ``motor_test``)."""
+        motors = self._step(dt_s, imu, now_s)
+        if self.motor_test_state.running and not self._armed:
+            self._motors = self._motor_test_output()
+            return self._motors.copy()
+        return motors
+
+    def _step(self, dt_s: float, imu: ImuReading, now_s: float) -> np.ndarray:
         self._now_s = float(now_s)
         self._tel = None
         accel = np.asarray(imu.accel_flu_m_s2, dtype=float)
@@ -316,7 +359,7 @@ class FlightCore(SensorFusionMixin, ArmingMixin, GuidedMixin, AutoMissionMixin,
             logger.warning("EKF alignment failed (%s); retrying", exc)
             self.alignment.reset()
             return
-        self._origin = np.array(pos)
+        self._origin = np.array(pos) if self._requested_origin is None else self._requested_origin
         self._home = np.array(pos)
         self._ground_xy = np.array(pos[:2])
         self._ground_next_s = self._now_s

@@ -24,8 +24,10 @@ from autopilot_bridge.external_vision import (
     JitterCorrection,
     ResetCounter,
     VisoSettings,
+    angle_error_rad,
     attitude_matrix,
     body_origin_ned,
+    heading_of,
     position_error_m,
 )
 from autopilot_bridge.geo_frame import ned_to_enu
@@ -39,6 +41,7 @@ from scenenav.core.rotations import quat_to_rotation_matrix
 
 logger = logging.getLogger(__name__)
 
+EXTNAV_SOURCE = 6            # EK3_SRCn_* value ExternalNav
 _TWO_PI = 2.0 * math.pi
 
 
@@ -83,6 +86,10 @@ class SensorFusionMixin:
         self._last_ext_nav_s: float | None = None
         self._viso_clock = JitterCorrection()   # MAVLink external nav: sender time -> ours
         self._viso_reset = ResetCounter()
+        self._ext_height: list[tuple[float, float]] = []   # (ENU z m, std m): EK3_SRCn_POSZ 6
+        self._ext_yaw: list[tuple[float, float]] = []      # (heading rad, std rad): EK3_SRCn_YAW 6
+        self._last_ext_height_s: float | None = None
+        self._last_ext_yaw_s: float | None = None
 
     def on_baro(self, t_s: float, altitude_m: float) -> None:
         if not all_finite(altitude_m):
@@ -137,13 +144,35 @@ class SensorFusionMixin:
             cov = np.eye(2) * self.cfg.ext_nav_std_m ** 2
         self._vision.append(VisionReading(float(capture_t_s), (xy[0], xy[1]), cov, source))
 
+    def _ext_nav_source(self, kind: str) -> bool:
+        """EK3_SRC<active set>_<kind> is 6 (ExternalNav)."""
+        return self.params.get_int(f"EK3_SRC{self._source_set}_{kind}") == EXTNAV_SOURCE
+
+    def _fresh(self, t_s: float | None) -> bool:
+        return t_s is not None and self._now_s - t_s <= self.cfg.ext_nav_fresh_s
+
     def _fuse_pending(self) -> None:
         nav = self.nav
+        ext_height = self._ext_nav_source("POSZ")
+        ext_yaw = self._ext_nav_source("YAW")
+        for z, std in self._ext_height:
+            nav.fuse_ext_nav_height(z, std)
+            self.stats["ext_nav_height_fused"] += 1
+        self._ext_height.clear()
+        for hdg, std in self._ext_yaw:
+            nav.fuse_ext_nav_yaw(hdg, std)
+            self.stats["ext_nav_yaw_fused"] += 1
+        self._ext_yaw.clear()
+        # the barometer / compass while external navigation gives no height / yaw (the fallback)
+        baro = not (ext_height and self._fresh(self._last_ext_height_s))
         for alt in self._baro:
-            nav.fuse_baro(alt)
+            if baro:
+                nav.fuse_baro(alt)
         self._baro.clear()
+        compass = not (ext_yaw and self._fresh(self._last_ext_yaw_s))
         for hdg in self._compass:
-            nav.fuse_compass(hdg)
+            if compass:
+                nav.fuse_compass(hdg)
         self._compass.clear()
         for g in self._gps:
             x, y = self.geo.to_enu(g.lat_deg, g.lon_deg)
@@ -219,11 +248,13 @@ class SensorFusionMixin:
         p = self.params
         return VisoSettings(delay_s=p.get("VISO_DELAY_MS") / 1000.0,
                             lever_arm_frd_m=(p.get("VISO_POS_X"), p.get("VISO_POS_Y"), p.get("VISO_POS_Z")),
-                            pos_noise_m=p.get("VISO_POS_M_NSE"), quality_min=p.get_int("VISO_QUAL_MIN"))
+                            pos_noise_m=p.get("VISO_POS_M_NSE"), quality_min=p.get_int("VISO_QUAL_MIN"),
+                            yaw_noise_rad=p.get("VISO_YAW_M_NSE"))
 
     def _ext_nav(self, pos_ned, cov21, usec: int, body_to_ned: np.ndarray, reset_counter: int) -> None:
         """MAVLink external navigation (``external_vision``): NED metres from the EKF origin, the
-        sender's timestamp, the sensor's attitude, the 21-element pose covariance."""
+        sender's timestamp, the sensor's attitude, the 21-element pose covariance. Height and yaw
+        are buffered too when the active source set takes them from external navigation."""
         if not self.nav.aligned:
             return
         s = self._viso_settings()
@@ -234,6 +265,12 @@ class SensorFusionMixin:
         cov = np.eye(2) * err * err
         self._last_ext_nav_s = self._now_s
         self.stats["ext_nav_mavlink"] += 1
+        if self._ext_nav_source("POSZ") and math.isfinite(float(enu[2])):
+            self._ext_height.append((float(enu[2]), err))
+            self._last_ext_height_s = self._now_s
+        if self._ext_nav_source("YAW"):
+            self._ext_yaw.append((heading_of(body_to_ned), angle_error_rad(cov21, s.yaw_noise_rad)))
+            self._last_ext_yaw_s = self._now_s
         if self._viso_reset.changed(int(reset_counter)):
             self.nav.reset_horizontal_position(enu[:2], err * err)
             self.stats["ext_nav_resets"] += 1

@@ -45,7 +45,7 @@ from autopilot_bridge.fence_rally_protocol import FenceRallyProtocols
 from autopilot_bridge.mavlink_framing import frame_is_signed, frame_msg_id
 from autopilot_bridge.mavlink_ftp import PAYLOAD_LEN, FtpServer
 from autopilot_bridge.mavlink_links import Link, LinkKind, LinkTransportMixin, close_socket
-from autopilot_bridge.mavlink_params import ParamProtocolMixin
+from autopilot_bridge.mavlink_params import BANNER, ParamProtocolMixin
 from autopilot_bridge.mission import MissionManager
 from autopilot_bridge.modes import CopterMode
 from autopilot_bridge.param_pack import PackedParam, pack_params, parse_query
@@ -54,6 +54,7 @@ from autopilot_bridge.setpoints import global_position_target, local_position_ta
 from autopilot_bridge.signing import Signer, SigningConfig
 from autopilot_bridge.system_commands import SystemCommands
 from autopilot_bridge.telemetry import (
+    ARDUPILOT_UNSENT_MSG_IDS,
     STREAMABLE_MSG_IDS,
     EncodeContext,
     encode,
@@ -82,7 +83,7 @@ STAT_KEYS = (
     "rx_bytes", "rx_msgs", "tx_msgs", "tx_bytes", "tx_dropped", "garbage_bytes", "bad_crc",
     "parse_errors", "unknown", "truncated", "dropped_unsigned", "bad_signature", "not_for_us",
     "own_echo", "ignored", "handler_errors", "setpoints_ignored", "setpoints_rejected",
-    "rc_not_my_gcs",
+    "rc_not_my_gcs", "origin_rejected",
     "vision_ignored", "vision_rejected", "param_set_refused", "param_set_clamped", "signing_setups", "tcp_clients", "tcp_refused",
     "udp_peers", "udp_refused", "socket_errors", "encode_errors",
 )
@@ -163,6 +164,7 @@ class MavlinkServer(LinkTransportMixin, ParamProtocolMixin):
         self._next_link_id = 0
         self._statustext_id = 0
         self._closed = False
+        self._reboot_pending = False
         self._param_changes: deque[tuple[str, float]] = deque()
         self._error_counts: dict[str, int] = {}
         self._statustexts: deque[tuple[MavSeverity, str]] = deque()
@@ -237,6 +239,7 @@ class MavlinkServer(LinkTransportMixin, ParamProtocolMixin):
         for link in list(self._links):
             for frame in link.parser.frames(now_s):
                 self._guarded(self._handle_frame, link, frame, now_s)
+        self._guarded(self._reboot)
         self._guarded(self._flush_param_changes)
         self._guarded(self._drain_vehicle_events)
         self._guarded(self._flush_statustexts)
@@ -332,12 +335,16 @@ class MavlinkServer(LinkTransportMixin, ParamProtocolMixin):
                 self._send_encoded(self._links, mavlink2.MAVLINK_MSG_ID_HEARTBEAT)
             elif isinstance(event, HomeChangedEvent):
                 self._send_encoded(self._links, mavlink2.MAVLINK_MSG_ID_HOME_POSITION)
+                self._send_encoded(self._links, mavlink2.MAVLINK_MSG_ID_GPS_GLOBAL_ORIGIN)
             else:
                 logger.warning("unknown vehicle event %r", event)
 
     # ----------------------------------------------------------------- services for commands
     def can_send(self, msg_id: int) -> bool:
         return msg_id in STREAMABLE_MSG_IDS
+
+    def ardupilot_has(self, msg_id: int) -> bool:
+        return msg_id in ARDUPILOT_UNSENT_MSG_IDS
 
     def set_message_interval(self, link: object, msg_id: int, interval_us: float) -> bool:
         return isinstance(link, Link) and link.scheduler.set_interval_us(msg_id, interval_us)
@@ -353,6 +360,24 @@ class MavlinkServer(LinkTransportMixin, ParamProtocolMixin):
 
     def erase_stored_params(self) -> None:
         self.params.erase_persisted()
+
+    def request_reboot(self) -> None:
+        """PREFLIGHT_REBOOT_SHUTDOWN accepted: reboot in this poll, after the ACK went out."""
+        self._reboot_pending = True
+
+    def _reboot(self) -> None:
+        """The vehicle starts again; it gets the stored mission, fence and rally as ArduPilot reads
+        them from its storage at boot, and the ground stations the boot banner."""
+        if not self._reboot_pending:
+            return
+        self._reboot_pending = False
+        logger.info("rebooting the vehicle (PREFLIGHT_REBOOT_SHUTDOWN)")
+        self.vehicle.reboot()
+        self.vehicle.mission_changed(self.missions.items)
+        self.vehicle.fence_changed(self.fence_rally.fence.items)
+        self.vehicle.rally_changed(self.fence_rally.rally.items)
+        for text in BANNER:
+            self.statustext(MavSeverity.INFO, text)
 
     # ----------------------------------------------------------------- input
     def _handle_frame(self, link: Link, frame: bytes, now_s: float) -> None:
@@ -543,6 +568,16 @@ class MavlinkServer(LinkTransportMixin, ParamProtocolMixin):
             return
         self.vehicle.odometry(odom)
 
+    def _on_set_gps_global_origin(self, msg: mavlink2.MAVLink_message, link: Link, now_s: float) -> None:
+        """As ``GCS_MAVLINK::handle_set_gps_global_origin``: a bad lat/lon is dropped silently; the
+        vehicle takes the origin while it has none (altitude mm). Answered with GPS_GLOBAL_ORIGIN
+        once an origin is set (differs: ArduPilot sends it only when the origin changed)."""
+        if not (abs(msg.latitude) <= 900_000_000 and abs(msg.longitude) <= 1_800_000_000):
+            self.stats["origin_rejected"] += 1
+            return
+        self.vehicle.set_gps_global_origin(msg.latitude * 1e-7, msg.longitude * 1e-7, msg.altitude * 1e-3)
+        self._send_encoded([link], mavlink2.MAVLINK_MSG_ID_GPS_GLOBAL_ORIGIN)
+
     _HANDLERS: dict[str, Callable[[MavlinkServer, mavlink2.MAVLink_message, Link, float], None]] = {
         "HEARTBEAT": _on_heartbeat,
         "PARAM_REQUEST_LIST": ParamProtocolMixin._on_param_request_list,
@@ -561,4 +596,5 @@ class MavlinkServer(LinkTransportMixin, ParamProtocolMixin):
         "TIMESYNC": _on_timesync,
         "SETUP_SIGNING": _on_setup_signing,
         "FILE_TRANSFER_PROTOCOL": _on_file_transfer_protocol,
+        "SET_GPS_GLOBAL_ORIGIN": _on_set_gps_global_origin,
     }

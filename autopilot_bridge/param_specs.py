@@ -31,7 +31,7 @@ _SRC_VALUES = {
 EKF_SOURCE_SET_SPECS: tuple[ParamSpec, ...] = tuple(
     ParamSpec(f"EK3_SRC{n}_{kind}", ParamType.INT8, 0, 0, 6, "",
               f"EKF source set {n}: {kind} source (used after SET_EKF_SOURCE_SET {n}; as set 1, "
-              "only POSXY changes what this EKF fuses)", values)
+              "POSXY, POSZ and YAW change what this EKF fuses)", values)
     for n in (2, 3) for kind, values in _SRC_VALUES.items())
 # External vision over MAVLink (external_vision.py); names, units and defaults ArduPilot 4.5's.
 VISO_PARAM_SPECS: tuple[ParamSpec, ...] = (
@@ -44,6 +44,9 @@ VISO_PARAM_SPECS: tuple[ParamSpec, ...] = (
               "Visual odometry position noise: floor of the covariance-derived error", safe_min=0.0),
     ParamSpec("VISO_QUAL_MIN", ParamType.INT8, 0, -1, 100, "%",
               "Visual odometry minimum quality: ODOMETRY below it is ignored"),
+    ParamSpec("VISO_YAW_M_NSE", ParamType.REAL32, 0.2, 0.05, 1.0, "rad",
+              "Visual odometry yaw noise: floor of the covariance-derived yaw error (EK3_SRCn_YAW 6)",
+              safe_min=0.0),
 )
 PARAM_SPECS: tuple[ParamSpec, ...] = (DEFAULT_PARAM_SPECS + SN_PARAM_SPECS + AIRFRAME_PARAM_SPECS
                                       + GCS_PARAM_SPECS + MODE_PARAM_SPECS + EKF_SOURCE_SET_SPECS

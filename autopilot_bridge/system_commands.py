@@ -1,5 +1,5 @@
 """System commands (COMMAND_LONG / COMMAND_INT) as ArduCopter 4.5 answers them: RUN_PREARM_CHECKS,
-DO_SET_HOME, PREFLIGHT_STORAGE, SET_EKF_SOURCE_SET. Registered into ``commands.CommandHandler`` by the server (``CommandHandler.register``).
+DO_SET_HOME, PREFLIGHT_STORAGE, SET_EKF_SOURCE_SET, PREFLIGHT_REBOOT_SHUTDOWN, DO_MOTOR_TEST. Registered into ``commands.CommandHandler`` by the server (``CommandHandler.register``).
 
 Shell module (pymavlink constants). Facts from ArduPilot's ``GCS_Common.cpp``:
 
@@ -16,6 +16,14 @@ Shell module (pymavlink constants). Facts from ArduPilot's ``GCS_Common.cpp``:
   ArduPilot's "All parameters reset, reboot board"; param1 0 (read) / 1 (write) are ACCEPTED
   without action (this store writes every change at once); anything else -> DENIED. While armed
   -> TEMPORARILY_REJECTED.
+* PREFLIGHT_REBOOT_SHUTDOWN (``GCS_MAVLINK::handle_preflight_reboot``): armed -> FAILED; param1 other
+  than 1 (reboot) or 3 (reboot to the bootloader: SITL simply restarts) -> UNSUPPORTED; else ACCEPTED,
+  and after the ACK the autopilot starts again (``Vehicle.reboot``, then the server hands over the
+  stored mission, fence and rally again and sends the boot banner). Differs: the links stay open
+  (ArduPilot SITL's process restarts and its TCP clients reconnect); stream rates stay as set.
+* DO_MOTOR_TEST (``Copter::mavlink_motor_test_start``): param1 motor (test order), param2 throttle
+  type, param3 throttle, param4 timeout s, param5 (COMMAND_INT: x) motor count, cast as ArduCopter
+  casts them; NaN or negative -> DENIED; the rules are in ``autopilot_bridge.motor_test``.
 * SET_EKF_SOURCE_SET: param1 1..3 selects the EK3_SRC<n>_* parameters (``handle_command_set_ekf_source_set``);
   other values -> DENIED. Of the sources only POSXY changes what this EKF fuses (as with set 1).
 """
@@ -33,6 +41,7 @@ from autopilot_bridge.vehicle_interface import (
     HomeLocation,
     MavFrame,
     MavSeverity,
+    MotorTestRequest,
     Outcome,
     Vehicle,
     VehicleTelemetry,
@@ -40,6 +49,7 @@ from autopilot_bridge.vehicle_interface import (
 
 STORAGE_READ, STORAGE_WRITE, STORAGE_ERASE = 0, 1, 2   # PREFLIGHT_STORAGE param1 (MAV_CMD docs)
 SET_HOME_USE_CURRENT = 1.0                             # DO_SET_HOME param1
+REBOOT_AUTOPILOT, REBOOT_TO_BOOTLOADER = 1.0, 3.0      # PREFLIGHT_REBOOT_SHUTDOWN param1
 
 
 class SystemServices(Protocol):
@@ -50,6 +60,8 @@ class SystemServices(Protocol):
     def statustext(self, severity: MavSeverity, text: str) -> None: ...
 
     def erase_stored_params(self) -> None: ...
+
+    def request_reboot(self) -> None: ...
 
 
 class SystemCommands:
@@ -66,7 +78,23 @@ class SystemCommands:
             m.MAV_CMD_DO_SET_HOME: self._do_set_home,
             m.MAV_CMD_PREFLIGHT_STORAGE: self._preflight_storage,
             m.MAV_CMD_SET_EKF_SOURCE_SET: self._set_ekf_source_set,
+            m.MAV_CMD_PREFLIGHT_REBOOT_SHUTDOWN: self._preflight_reboot,
+            m.MAV_CMD_DO_MOTOR_TEST: self._do_motor_test,
         }
+
+    def _preflight_reboot(self, req: CommandRequest, link: object) -> CommandResult:
+        if self._svc.telemetry().armed:
+            return CommandResult(MavResult.FAILED)
+        if req.p(1) not in (REBOOT_AUTOPILOT, REBOOT_TO_BOOTLOADER):
+            return CommandResult(MavResult.UNSUPPORTED)
+        self._svc.request_reboot()
+        return CommandResult(MavResult.ACCEPTED)
+
+    def _do_motor_test(self, req: CommandRequest, link: object) -> CommandResult:
+        request = MotorTestRequest.from_params(req.p(1), req.p(2), req.p(3), req.p(4), req.p(5))
+        if request is None:
+            return CommandResult(MavResult.DENIED)
+        return self._outcome(self._vehicle.motor_test(request))
 
     def _set_ekf_source_set(self, req: CommandRequest, link: object) -> CommandResult:
         number = req.p(1)

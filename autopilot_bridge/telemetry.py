@@ -443,12 +443,12 @@ def encode_system_time(tel: VehicleTelemetry, ctx: EncodeContext) -> mavlink2.MA
 
 def encode_gps_global_origin(tel: VehicleTelemetry, ctx: EncodeContext
                              ) -> mavlink2.MAVLink_message | None:
-    """The EKF origin. Here the EKF works around home, so the origin is home (ArduPilot sets its
-    origin at the first good GPS fix, usually the same place); nothing before home is set."""
-    if not tel.home_set:
+    """The EKF origin: where the EKF aligned (ArduPilot: at the first good GPS fix), or the one
+    SET_GPS_GLOBAL_ORIGIN gave before that; nothing before it is set."""
+    if not tel.origin_set:
         return None
     return mavlink2.MAVLink_gps_global_origin_message(
-        deg_e7(tel.home_lat_deg), deg_e7(tel.home_lon_deg), _mm(tel.home_alt_amsl_m),
+        deg_e7(tel.origin_lat_deg), deg_e7(tel.origin_lon_deg), _mm(tel.origin_alt_amsl_m),
         clamp_int(tel.time_boot_ms * 1000, 0, 2 ** 63 - 1, 0))
 
 
@@ -588,6 +588,14 @@ ENCODERS: Mapping[int, Encoder] = {
 }
 
 STREAMABLE_MSG_IDS: frozenset[int] = frozenset(ENCODERS)
+# Messages ArduPilot has an ap_message for but this autopilot does not send (the "not implemented"
+# telemetry rows of docs/mavlink.md): SET_MESSAGE_INTERVAL of one is ACCEPTED and nothing is sent,
+# as ArduPilot answers for a sensor that is not fitted (no rangefinder: no DISTANCE_SENSOR).
+ARDUPILOT_UNSENT_MSG_IDS: frozenset[int] = frozenset(getattr(_M, f"MAVLINK_MSG_ID_{name}") for name in (
+    "MEMINFO", "GPS2_RAW", "GPS_RTK", "SIMSTATE", "AHRS", "AHRS2", "SCALED_IMU2", "SCALED_IMU3",
+    "SCALED_PRESSURE", "SCALED_PRESSURE2", "RC_CHANNELS_RAW", "RANGEFINDER", "DISTANCE_SENSOR",
+    "ESC_TELEMETRY_1_TO_4", "PID_TUNING", "MCU_STATUS", "FENCE_STATUS", "ATTITUDE_TARGET",
+    "HWSTATUS", "OPTICAL_FLOW", "TERRAIN_REQUEST", "TERRAIN_REPORT"))
 
 
 def encode(msg_id: int, tel: VehicleTelemetry, ctx: EncodeContext

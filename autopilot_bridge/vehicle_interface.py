@@ -397,6 +397,25 @@ class Odometry:
 
 
 @dataclass(frozen=True)
+class MotorTestRequest:
+    """DO_MOTOR_TEST's parameters as ArduCopter casts them (uint8 / uint16; ``autopilot_bridge.motor_test``)."""
+
+    motor_seq: int
+    throttle_type: int
+    throttle_value: int
+    timeout_s: float
+    motor_count: int
+
+    @classmethod
+    def from_params(cls, p1: float, p2: float, p3: float, p4: float, p5: float) -> MotorTestRequest | None:
+        """None for non-finite or negative values (the server answers DENIED)."""
+        values = (p1, p2, p3, p4, p5)
+        if not all(math.isfinite(v) and v >= 0.0 for v in values):
+            return None
+        return cls(int(p1) & 0xFF, int(p2) & 0xFF, int(p3) & 0xFFFF, float(p4), int(p5) & 0xFF)
+
+
+@dataclass(frozen=True)
 class VehicleTelemetry:
     """A snapshot of the vehicle state, read once per server poll. Every field has a default
     so an implementer can fill what it knows; NaN marks an unknown float where MAVLink has an
@@ -443,6 +462,11 @@ class VehicleTelemetry:
     home_lon_deg: float = 0.0
     home_alt_amsl_m: float = 0.0
     home_position_ned_m: tuple[float, float, float] = (0.0, 0.0, 0.0)
+    # EKF origin (GPS_GLOBAL_ORIGIN; SET_GPS_GLOBAL_ORIGIN before alignment)
+    origin_set: bool = False
+    origin_lat_deg: float = 0.0
+    origin_lon_deg: float = 0.0
+    origin_alt_amsl_m: float = 0.0
     # mission execution (seq indexes the stored mission, 0 = home)
     mission_current_seq: int = 0
     mission_state: MissionState = MissionState.NO_MISSION
@@ -621,3 +645,15 @@ class Vehicle(Protocol):
 
     def set_home(self, home: HomeLocation | None) -> Outcome:
         """DO_SET_HOME: at ``home``, or at the current position for None; emits HomeChangedEvent."""
+
+    def set_gps_global_origin(self, lat_deg: float, lon_deg: float, alt_amsl_m: float) -> Outcome:
+        """SET_GPS_GLOBAL_ORIGIN (valid lat/lon): the EKF origin, only while none is set (ArduPilot
+        ``set_ekf_origin``); refused without a text once it is."""
+
+    def motor_test(self, request: MotorTestRequest) -> Outcome:
+        """DO_MOTOR_TEST (``autopilot_bridge.motor_test``); refusals announce their own text."""
+
+    def reboot(self) -> None:
+        """PREFLIGHT_REBOOT_SHUTDOWN param1 1 (the server checked: disarmed): start again as after
+        power-up: parameters as stored, the EKF aligned anew, home set again; mission, fence and
+        rally are handed over again by the server (ArduPilot keeps them in its storage)."""

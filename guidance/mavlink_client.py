@@ -16,6 +16,7 @@ os.environ.setdefault("MAVLINK20", "1")
 from pymavlink import mavutil  # noqa: E402
 
 from guidance.config import RouteEnd  # noqa: E402
+from guidance.fence import FenceItem  # noqa: E402
 
 log = logging.getLogger(__name__)
 
@@ -136,6 +137,61 @@ class AutopilotLink:
                                                 int(round(lon * 1e7)), alt, m.MAV_MISSION_TYPE_MISSION)
             sent.add(seq)
         raise MavlinkClientError("mission upload timed out")
+
+    def download_fence(self) -> list[FenceItem]:
+        """The autopilot's fence (MISSION_REQUEST_LIST / MISSION_COUNT / MISSION_REQUEST_INT /
+        MISSION_ITEM_INT / MISSION_ACK with mission_type FENCE), in item order."""
+        m = mavutil.mavlink
+        fence = m.MAV_MISSION_TYPE_FENCE
+        ts, tc = self.conn.target_system, self.conn.target_component
+        count = None
+        for _ in range(3):
+            self.conn.mav.mission_request_list_send(ts, tc, fence)
+            msg = self._recv_fence("MISSION_COUNT", 3.0)
+            if msg is not None:
+                count = int(msg.count)
+                break
+        if count is None:
+            raise MavlinkClientError("no MISSION_COUNT for the fence")
+        items: list[FenceItem] = []
+        for seq in range(count):
+            for _ in range(3):
+                self.conn.mav.mission_request_int_send(ts, tc, seq, fence)
+                msg = self._recv_fence("MISSION_ITEM_INT", 3.0, seq)
+                if msg is not None:
+                    items.append(FenceItem(int(msg.command), float(msg.param1), msg.x * 1e-7, msg.y * 1e-7))
+                    break
+            else:
+                raise MavlinkClientError(f"no fence item {seq}")
+        self.conn.mav.mission_ack_send(ts, tc, m.MAV_MISSION_ACCEPTED, fence)
+        return items
+
+    def _recv_fence(self, kind: str, timeout_s: float, seq: int | None = None):
+        deadline = time.monotonic() + timeout_s
+        while time.monotonic() < deadline:
+            msg = self._recv(kind, deadline - time.monotonic())
+            if msg is not None and getattr(msg, "mission_type", 0) == mavutil.mavlink.MAV_MISSION_TYPE_FENCE \
+                    and (seq is None or msg.seq == seq):
+                return msg
+        return None
+
+    def read_params(self, names: tuple[str, ...], timeout_s: float = 2.0) -> dict[str, float]:
+        """PARAM_REQUEST_READ by name (all at once, one retry for the missing); the values that
+        came back (a name the autopilot does not have gets no answer, as ArduPilot)."""
+        values: dict[str, float] = {}
+        ts, tc = self.conn.target_system, self.conn.target_component
+        for _ in range(2):
+            missing = [n for n in names if n not in values]
+            if not missing:
+                break
+            for name in missing:
+                self.conn.mav.param_request_read_send(ts, tc, name.encode("ascii"), -1)
+            deadline = time.monotonic() + timeout_s / 2
+            while time.monotonic() < deadline and any(n not in values for n in names):
+                msg = self._recv("PARAM_VALUE", deadline - time.monotonic())
+                if msg is not None and msg.param_id in names:
+                    values[msg.param_id] = float(msg.param_value)
+        return values
 
     def start_mission(self) -> None:
         result = self.command(mavutil.mavlink.MAV_CMD_MISSION_START, 0, 0)

@@ -8,7 +8,8 @@ Inputs
   ``autopilot/estimate``   NavEstimate   where the autopilot thinks it is (drift checks, replans)
   ``autopilot/status``     AutopilotStatus  armed / mission progress / landed
   the assistant-map file   .npz; re-read when it changes on disk (e.g. replaced by a later flight)
-  MAVLink from the autopilot (HEARTBEAT, COMMAND_ACK, MISSION_REQUEST_INT, MISSION_ACK)
+  MAVLink from the autopilot (HEARTBEAT, COMMAND_ACK, MISSION_REQUEST_INT, MISSION_ACK; the
+  geofence: MISSION_COUNT / MISSION_ITEM_INT of mission_type FENCE and the FENCE_* PARAM_VALUEs)
 Outputs
   MAVLink to the autopilot, as any companion computer would send: the mission (take-off, route
   waypoints, land or RTL), GUIDED, arm, AUTO, MISSION_START; on a replan a new mission continuing
@@ -18,7 +19,11 @@ Outputs
   ``lockstep/member/tick/guidance`` + ``lockstep/ack/guidance`` (LockstepAck)
   ``<run>/route.json`` and ``route.png`` (``route-<n>.json`` after the n-th replan)
 
-The planning itself is ``guidance.planner.plan_through`` (pure). Determinism: the first plan uses the
+The planning itself is ``guidance.planner.plan_through`` (pure), on the assistant map with the
+autopilot's geofence drawn in as bad areas (``guidance.fence``, pure): before the first plan and
+before every replan the node downloads the fence and reads FENCE_ENABLE / _TYPE / _RADIUS / _MARGIN
+/ _ALT_MAX, so routes stay FENCE_MARGIN inside it and the cruise altitude below FENCE_ALT_MAX; a
+start or goal outside the fence is "no route". Determinism: the first plan uses the
 scenario's take-off point and is uploaded while the simulator waits for this node, so lockstep runs
 without replans are reproducible. Replans happen while the simulation runs on (as on a real companion
 computer), at the first drift check after the trigger.
@@ -36,6 +41,14 @@ from pathlib import Path
 import numpy as np
 
 from guidance.config import GuidanceRunConfig, PlannerConfig
+from guidance.fence import (
+    FENCE_PARAM_NAMES,
+    Fence,
+    apply_fence,
+    check_points_inside,
+    cruise_altitude_m,
+    fence_from_items,
+)
 from guidance.mavlink_client import AutopilotLink, MavlinkClientError, MissionWaypoint
 from guidance.planner import PlannedRoute, join_legs, plan_through
 from guidance.smoothing import polyline_length
@@ -122,6 +135,7 @@ class GuidanceNode:
         self._next_check_us = 0
         self._last_t_us = 0
         self._link: AutopilotLink | None = None
+        self.fence = Fence()
         self._member_token = None
         self.bus.subscribe(self.keys.nav_estimate, NavEstimate, self._on_estimate)
         self.bus.subscribe(self.keys.autopilot_status, AutopilotStatus, self._on_status)
@@ -159,10 +173,34 @@ class GuidanceNode:
         except OSError:
             return False
 
+    def load_fence(self) -> Fence:
+        """The autopilot's geofence over MAVLink (``self.fence``); on failure the last one is kept."""
+        if self._link is None:
+            return self.fence
+        try:
+            params = self._link.read_params(FENCE_PARAM_NAMES)
+            items = self._link.download_fence() if int(params.get("FENCE_ENABLE", 0)) == 1 else []
+            fence = fence_from_items(items, params, self.cfg.start_enu_m, self.world.origin_lat_deg,
+                                     self.world.origin_lon_deg)
+        except (MavlinkClientError, UserError) as exc:
+            self.event(f"geofence not read ({exc}); planning with the last one", Severity.WARNING)
+            return self.fence
+        if fence.horizontal or fence.alt_max_m is not None:
+            self.event(f"geofence: {fence.describe()}")
+        self.fence = fence
+        return fence
+
+    def altitude_m(self) -> float:
+        """The route altitude: the configured one, kept FENCE_MARGIN below FENCE_ALT_MAX."""
+        return cruise_altitude_m(self.cfg.altitude_m, self.fence)
+
     def plan(self, start_xy: tuple[float, float], goals: tuple[tuple[float, float], ...]) -> np.ndarray:
-        """Plan through ``goals`` from ``start_xy``; sets ``self.route_xy`` and writes the route file."""
-        legs = plan_through(self._probability(), self.world.m_per_px, (start_xy, *goals),
-                            self.planner_cfg)
+        """Plan through ``goals`` from ``start_xy`` inside ``self.fence``; sets ``self.route_xy`` and
+        writes the route file."""
+        points = (start_xy, *goals)
+        check_points_inside(self.fence, points, ["start"] + [f"goal {i + 1}" for i in range(len(goals))])
+        probability = apply_fence(self._probability(), self.world.m_per_px, self.fence)
+        legs = plan_through(probability, self.world.m_per_px, points, self.planner_cfg)
         self.legs = legs
         self.route_xy = join_legs(legs)
         length = polyline_length(self.route_xy)
@@ -198,7 +236,8 @@ class GuidanceNode:
         pts = self.route_xy[1:]
         lat, lon = enu_to_geodetic(pts[:, 0], pts[:, 1], self.world.origin_lat_deg,
                                    self.world.origin_lon_deg)
-        return [MissionWaypoint(float(a), float(o), self.cfg.altitude_m) for a, o in zip(lat, lon, strict=False)]
+        alt = self.altitude_m()
+        return [MissionWaypoint(float(a), float(o), alt) for a, o in zip(lat, lon, strict=False)]
 
     # ------------------------------------------------------------------ main loop
     def run(self) -> None:
@@ -251,16 +290,17 @@ class GuidanceNode:
         self._next_try_us = tick.timestamp_us + int(round(self.cfg.retry_period_s * 1e6))
         link = self._link
         if self.route_xy is None:
+            self.load_fence()
             try:
                 self.plan(self.cfg.start_enu_m, self.cfg.goals_enu_m)
             except UserError as exc:
                 self.event(f"no route: {exc}", Severity.ERROR)
                 self.phase = Phase.DONE
                 return
-            link.upload_mission(self._mission(), takeoff_alt_m=self.cfg.altitude_m,
+            link.upload_mission(self._mission(), takeoff_alt_m=self.altitude_m(),
                                 end=self.cfg.end)
             self.event(f"mission uploaded: {len(self.route_xy) - 1} waypoints at "
-                       f"{self.cfg.altitude_m:.0f} m, then {self.cfg.end.value}")
+                       f"{self.altitude_m():.0f} m, then {self.cfg.end.value}")
         try:
             link.set_mode("GUIDED")
             link.arm(retry_s=0.0)
@@ -290,6 +330,7 @@ class GuidanceNode:
         goals = remaining_goals(self.cfg.goals_enu_m, self._goals_reached(here))
         try:
             self.replans += 1
+            self.load_fence()
             self.plan(here, goals)
             self._link.upload_mission(self._mission(), takeoff_alt_m=None, end=self.cfg.end)
             self._link.set_current(1)

@@ -13,6 +13,8 @@ import numpy as np
 import pytest
 from support.fake_vehicle import running_server
 
+from autopilot_bridge.param_specs import PARAM_SPECS
+from autopilot_bridge.params import ParameterStore
 from guidance.config import GuidanceRunConfig, PlannerConfig, RouteEnd
 from guidance.node import GuidanceNode
 from scenenav.core.bus import Bus, BusConfig, free_port
@@ -51,7 +53,7 @@ def setup(tmp_path):
     hub = Bus(BusConfig(ns, free_port(), listen_hub=True))
     world = WorldManifest(1, "lakeworld", SIZE_PX, SIZE_PX, M_PER_PX, 48.0, 11.0, "generated", None,
                           False, False)
-    with running_server() as (server, vehicle):
+    with running_server(params=ParameterStore(PARAM_SPECS)) as (server, vehicle):
         cfg = GuidanceRunConfig(start_enu_m=START, goals_enu_m=(GOAL,), assistant_map=str(map_path),
                                  altitude_m=100.0, end=RouteEnd.LAND, replan_drift_m=40.0,
                                  check_period_s=1.0, start_after_s=1.0,
@@ -127,3 +129,49 @@ def test_start_then_replan_on_drift_and_on_map_change(setup):
     assert third["route_bad_fraction"] == [0.0]
     assert wait_until(lambda: s["node"].stats["replans"] == 2)    # counted once AUTO is re-sent
     assert s["node"].stats["replan_failures"] == 0
+
+
+def test_routes_stay_inside_the_autopilots_geofence(setup):
+    """The node downloads the fence (mission_type FENCE) and FENCE_*: an inclusion polygon that
+    leaves only the way south of the lake, an exclusion circle on that way; the route keeps
+    FENCE_MARGIN inside, the cruise altitude FENCE_MARGIN below FENCE_ALT_MAX."""
+    from support.fake_vehicle import gcs_connection, wait_for
+
+    from guidance.fence import Fence, FenceCommand, distance_to_edges_m
+    from scenenav.core.frames import enu_to_geodetic
+    s = setup
+    server = s["node"].cfg.mavlink_url
+    port = int(server.rsplit(":", 1)[1])
+    rect = [(-290.0, -220.0), (290.0, -220.0), (290.0, 40.0), (-290.0, 40.0)]
+    lat, lon = enu_to_geodetic(np.array([p[0] for p in rect]), np.array([p[1] for p in rect]), 48.0, 11.0)
+    clat, clon = enu_to_geodetic(0.0, -120.0, 48.0, 11.0)
+    items = [(FenceCommand.POLYGON_VERTEX_INCLUSION, 4.0, float(a), float(o)) for a, o in zip(lat, lon, strict=True)]
+    items.append((FenceCommand.CIRCLE_EXCLUSION, 20.0, float(clat), float(clon)))
+    conn = gcs_connection(port)
+    for name, value in (("FENCE_ENABLE", 1), ("FENCE_TYPE", 5), ("FENCE_MARGIN", 5.0), ("FENCE_ALT_MAX", 60.0)):
+        conn.mav.param_set_send(1, 1, name.encode(), value, 9)
+        assert wait_for(conn, "PARAM_VALUE", 5.0, lambda m, n=name: m.param_id == n) is not None
+    conn.mav.mission_count_send(1, 1, len(items), 1)
+    while True:
+        req = wait_for(conn, ["MISSION_REQUEST_INT", "MISSION_ACK"], 5.0)
+        assert req is not None
+        if req.get_type() == "MISSION_ACK":
+            assert req.type == 0
+            break
+        cmd, p1, a, o = items[req.seq]
+        conn.mav.mission_item_int_send(1, 1, req.seq, 0, cmd, 0, 1, p1, 0, 0, 0, int(a * 1e7), int(o * 1e7), 0, 1)
+    conn.close()
+    assert wait_until(lambda: s["hub"].session is not None)
+    time.sleep(1.0)
+    tick(s, 1.0)
+    assert wait_until(lambda: s["node"].phase.value == "flying"), s["vehicle"].calls
+    fence: Fence = s["node"].fence
+    assert len(fence.inclusion_polygons) == 1 and len(fence.exclusion_circles) == 1
+    route = json.loads((s["dir"] / "route.json").read_text())
+    pts = np.array([[w["x_m"], w["y_m"]] for w in route["waypoints"]])
+    dense = np.concatenate([np.linspace(a, b, 30) for a, b in zip(pts[:-1], pts[1:], strict=False)])
+    assert fence.allowed(dense).all()
+    assert dense[:, 1].max() < 40.0 - 5.0 + 1e-6                 # the north way is outside the fence
+    assert distance_to_edges_m(dense, fence.inclusion_polygons[0]).min() >= 5.0 - 1e-6
+    assert np.hypot(dense[:, 0], dense[:, 1] + 120.0).min() >= 25.0 - 1e-6
+    assert s["node"].altitude_m() == pytest.approx(55.0)         # FENCE_ALT_MAX - FENCE_MARGIN

@@ -535,6 +535,9 @@ def test_new_telemetry_and_unknown_message_interval_answered_as_ardupilot():
             text = wait_for(conn, "STATUSTEXT", condition=lambda m: "ap_message" in m.text)
             assert text is not None and text.text == "No ap_message for mavlink id (140)"
             assert text.severity == M.MAV_SEVERITY_INFO
+            # one ArduPilot has but without the sensor sends nothing of: accepted (no rangefinder)
+            assert _command(conn, M.MAV_CMD_SET_MESSAGE_INTERVAL,
+                            M.MAVLINK_MSG_ID_DISTANCE_SENSOR, 100_000) == M.MAV_RESULT_ACCEPTED
             # ATTITUDE_QUATERNION on request, agreeing with ATTITUDE's angles
             assert _command(conn, M.MAV_CMD_SET_MESSAGE_INTERVAL,
                             M.MAVLINK_MSG_ID_ATTITUDE_QUATERNION, 200_000) == M.MAV_RESULT_ACCEPTED

@@ -86,3 +86,54 @@ def test_set_ekf_source_set_selects_1_to_3():
         assert _long(conn, M.MAV_CMD_SET_EKF_SOURCE_SET, 1.5) == MavResult.DENIED
         assert [a for n, a in vehicle.calls if n == "set_ekf_source_set"] == [(2,)]
         conn.close()
+
+
+def test_preflight_reboot_as_arducopter_then_the_vehicle_gets_its_mission_again():
+    with running_server() as (server, vehicle):
+        conn = gcs_connection(server.tcp_port)
+        assert _long(conn, M.MAV_CMD_PREFLIGHT_REBOOT_SHUTDOWN, 2) == MavResult.UNSUPPORTED
+        assert _long(conn, M.MAV_CMD_COMPONENT_ARM_DISARM, 1) == MavResult.ACCEPTED
+        assert _long(conn, M.MAV_CMD_PREFLIGHT_REBOOT_SHUTDOWN, 1) == MavResult.FAILED   # armed
+        assert _long(conn, M.MAV_CMD_COMPONENT_ARM_DISARM, 0) == MavResult.ACCEPTED
+        assert not any(name == "reboot" for name, _ in vehicle.calls)
+        assert _long(conn, M.MAV_CMD_PREFLIGHT_REBOOT_SHUTDOWN, 1) == MavResult.ACCEPTED
+        assert _statustext(conn, "ArduCopter V4.5.7") is not None            # the boot banner
+        names = [name for name, _ in vehicle.calls]
+        reboot = names.index("reboot")
+        assert {"mission_changed", "fence_changed", "rally_changed"} <= set(names[reboot:])
+        assert _long(conn, M.MAV_CMD_PREFLIGHT_REBOOT_SHUTDOWN, 3) == MavResult.ACCEPTED  # bootloader: restart
+        conn.close()
+
+
+def test_do_motor_test_parameters_as_arducopter_casts_them():
+    with running_server() as (server, vehicle):
+        conn = gcs_connection(server.tcp_port)
+        assert _long(conn, M.MAV_CMD_DO_MOTOR_TEST, 2, 0, 15, 2.5, 0) == MavResult.ACCEPTED
+        conn.mav.command_int_send(1, 1, 0, M.MAV_CMD_DO_MOTOR_TEST, 0, 0, 3, 1, 1200, 1.0, 4, 0, 0)
+        assert command_ack(conn, M.MAV_CMD_DO_MOTOR_TEST).result == MavResult.ACCEPTED
+        assert _long(conn, M.MAV_CMD_DO_MOTOR_TEST, 1, 0, float("nan"), 2.0) == MavResult.DENIED
+        assert _long(conn, M.MAV_CMD_DO_MOTOR_TEST, 1, 0, 10, -1.0) == MavResult.DENIED
+        requests = [args[0] for name, args in vehicle.calls if name == "motor_test"]
+        assert [(r.motor_seq, r.throttle_type, r.throttle_value, r.motor_count) for r in requests] == [
+            (2, 0, 15, 0), (3, 1, 1200, 4)]
+        assert requests[0].timeout_s == pytest.approx(2.5)
+        assert _long(conn, M.MAV_CMD_COMPONENT_ARM_DISARM, 1) == MavResult.ACCEPTED
+        assert _long(conn, M.MAV_CMD_DO_MOTOR_TEST, 1, 0, 10, 2.0) == MavResult.FAILED    # vehicle refuses
+        conn.close()
+
+
+def test_set_gps_global_origin_is_handed_over_and_answered_with_gps_global_origin():
+    from support.fake_vehicle import HOME
+    with running_server() as (server, vehicle):
+        conn = gcs_connection(server.tcp_port)
+        conn.mav.set_gps_global_origin_send(1, 471_000_000, 82_000_000, 420_500, 0)
+        origin = wait_for(conn, "GPS_GLOBAL_ORIGIN", 5.0)
+        assert origin is not None and (origin.latitude, origin.longitude) == (
+            round(HOME[0] * 1e7), round(HOME[1] * 1e7))                  # the vehicle's origin
+        conn.mav.set_gps_global_origin_send(1, 950_000_000, 82_000_000, 0, 0)   # bad lat: dropped
+        conn.mav.set_gps_global_origin_send(7, 471_000_000, 82_000_000, 0, 0)   # another system
+        assert _long(conn, M.MAV_CMD_RUN_PREARM_CHECKS) == MavResult.ACCEPTED   # the three were read
+        calls = [args for name, args in vehicle.calls if name == "set_gps_global_origin"]
+        assert calls == [pytest.approx((47.1, 8.2, 420.5))]
+        assert server.stats["origin_rejected"] == 1
+        conn.close()

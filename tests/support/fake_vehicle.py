@@ -36,6 +36,7 @@ from autopilot_bridge.vehicle_interface import (
     MissionItem,
     MissionState,
     ModeChangedEvent,
+    MotorTestRequest,
     Odometry,
     Outcome,
     SpeedType,
@@ -98,7 +99,8 @@ class FakeVehicle:
                 attitude_rpy_rad=(0.01, -0.02, math.radians(90.0)), heading_deg=90.0,
                 battery_voltage_v=12.4, battery_current_a=1.5, battery_remaining_pct=87,
                 home_set=True, home_lat_deg=HOME[0], home_lon_deg=HOME[1],
-                home_alt_amsl_m=HOME[2], mission_current_seq=self.mission_seq,
+                home_alt_amsl_m=HOME[2], origin_set=True, origin_lat_deg=HOME[0],
+                origin_lon_deg=HOME[1], origin_alt_amsl_m=HOME[2], mission_current_seq=self.mission_seq,
                 mission_state=MissionState.NOT_STARTED if self.mission else MissionState.NO_MISSION,
                 ekf_flags=0x1FF)
 
@@ -132,6 +134,21 @@ class FakeVehicle:
             self._record("set_home", home)
             self._events.append(HomeChangedEvent())
             return Outcome(True)
+
+    def set_gps_global_origin(self, lat_deg: float, lon_deg: float, alt_amsl_m: float) -> Outcome:
+        with self._lock:
+            self._record("set_gps_global_origin", lat_deg, lon_deg, alt_amsl_m)
+            return Outcome(True)
+
+    def motor_test(self, request: MotorTestRequest) -> Outcome:
+        with self._lock:
+            self._record("motor_test", request)
+            return Outcome(not self.armed)
+
+    def reboot(self) -> None:
+        with self._lock:
+            self._record("reboot")
+            self.mission = ()
 
     def arm(self, force: bool) -> Outcome:
         with self._lock:
