@@ -260,6 +260,12 @@ def cast_ray_from(u0, v0, z0, du, dv, dz, heights, mip, mip_off, mip_w, nlev, hm
             ov = 1 if dv > 0.0 else 0
             s_cur = s_a
             lev = lev0
+            if axis < 0 and heights[row, col] >= z0 + dz * s_a:
+                # The start point is already on or below its pixel's top (typically the tallest roof
+                # under the ray's start height): the walk would descend to this pixel and stop there.
+                h = heights[row, col]
+                if s_a >= (z0 - h) * inv_dz:
+                    return s_a, 2 if h > 0.0 else 1, 0, col, row
             while True:
                 if lev > 0:
                     size = 1 << lev

@@ -39,7 +39,7 @@ import numpy as np
 from numba import njit
 
 from worlds.ground_window import FRAME_MARGIN_M, GroundWindow, WindowTracker
-from worlds.raycast import FACE_LIGHT, NO_NRT, HeightField, cast_ray, lod_texture, shade_hit
+from worlds.raycast import FACE_LIGHT, NO_NRT, HeightField, cast_ray_from, lod_texture, shade_hit
 
 # Clip planes of the TinyRenderer camera (sitl.mesh_camera uses the same): the near plane stays below
 # the lowest camera, the far plane beyond the grey frame seen by a tilted FIXED camera.
@@ -58,6 +58,10 @@ _EDGE_TOL_ABS_M = 1e-3
 _UV_TOL = 4e-3
 # Image tiles (pixels on a side) that bound their rays' start height together (_cast_kernel).
 _TILE = 8
+# Mipmap level a camera ray's walk starts at (any level gives the same hit): the tile's start-height
+# bound already excludes what a coarser cell would, so walks from level 5 mostly descended (measured:
+# ~0.6 fewer steps per ray on an 8000 x 8000 synthetic city from level 3).
+_START_LEVEL = 3
 
 _F32 = np.float32
 
@@ -430,6 +434,7 @@ def _cast_kernel(eye, right, up, back, width, height, tan_x, tan_y, heights, mip
     inv_m = 1.0 / m_per_px
     u0 = ex * inv_m + map_w / 2.0
     v0 = map_h / 2.0 - ey * inv_m
+    lev0 = min(_START_LEVEL, nlev)
     for tr in range(0, height, _TILE):
         for tc in range(0, width, _TILE):
             r_hi = min(tr + _TILE, height) - 1
@@ -477,8 +482,8 @@ def _cast_kernel(eye, right, up, back, width, height, tan_x, tan_y, heights, mip
                     dx = -back[0] + a * right[0] + b * up[0]
                     dy = -back[1] + a * right[1] + b * up[1]
                     dz = -back[2] + a * right[2] + b * up[2]
-                    s, sf, face, hc, hr = cast_ray(u0, v0, ez, dx * inv_m, -dy * inv_m, dz, heights, mip, mip_off,
-                                                   mip_w, nlev, h_tile)
+                    s, sf, face, hc, hr = cast_ray_from(u0, v0, ez, dx * inv_m, -dy * inv_m, dz, heights, mip,
+                                                        mip_off, mip_w, nlev, h_tile, lev0)
                     s_out[r, c] = s
                     surf_out[r, c] = sf
                     face_out[r, c] = face
