@@ -214,12 +214,17 @@ def cast_ray(u0, v0, z0, du, dv, dz, heights, mip, mip_off, mip_w, nlev, hmax):
     (``HeightField``); ``hmax`` the global maximum height (or any upper bound of the heights the ray
     can meet).
     """
-    return cast_ray_from(u0, v0, z0, du, dv, dz, heights, mip, mip_off, mip_w, nlev, hmax, nlev)
+    return cast_ray_from(u0, v0, z0, du, dv, dz, heights, mip, mip_off, mip_w, nlev, hmax, nlev, False)
 
 
 @njit(inline="always", **NO_NRT)
-def cast_ray_from(u0, v0, z0, du, dv, dz, heights, mip, mip_off, mip_w, nlev, hmax, lev0):
-    """``cast_ray`` starting its walk at mipmap level ``lev0`` (0 .. nlev; any level gives the same hit)."""
+def cast_ray_from(u0, v0, z0, du, dv, dz, heights, mip, mip_off, mip_w, nlev, hmax, lev0, inside):
+    """``cast_ray`` starting its walk at mipmap level ``lev0`` (0 .. nlev; any level gives the same hit).
+
+    ``inside``: the caller knows the ray stays over the map between heights ``hmax`` and 0 (its points
+    there are inside the map, away from the edge), so the map-entry tests are skipped: they would give
+    the start at height ``hmax`` and the end at the ground anyway.
+    """
     rows, cols = heights.shape
     if not dz < 0.0:
         return np.nan, 0, 0, -1, -1
@@ -233,10 +238,15 @@ def cast_ray_from(u0, v0, z0, du, dv, dz, heights, mip, mip_off, mip_w, nlev, hm
             s_start = 0.0
         inv_du = 1.0 / du if du != 0.0 else _INF
         inv_dv = 1.0 / dv if dv != 0.0 else _INF
-        su0, su1 = _slab(u0, du, inv_du, float(cols))
-        sv0, sv1 = _slab(v0, dv, inv_dv, float(rows))
-        s_in = max(su0, sv0)
-        s_out = min(su1, sv1)
+        if inside:
+            s_in = s_start
+            s_out = s_ground
+            su0 = sv0 = s_start
+        else:
+            su0, su1 = _slab(u0, du, inv_du, float(cols))
+            sv0, sv1 = _slab(v0, dv, inv_dv, float(rows))
+            s_in = max(su0, sv0)
+            s_out = min(su1, sv1)
         s_a = max(s_start, s_in)
         s_end = min(s_out, s_ground)
         if s_a <= s_end and s_in <= s_out:
@@ -260,6 +270,12 @@ def cast_ray_from(u0, v0, z0, du, dv, dz, heights, mip, mip_off, mip_w, nlev, hm
             ov = 1 if dv > 0.0 else 0
             s_cur = s_a
             lev = lev0
+            if axis < 0 and heights[row, col] >= z0 + dz * s_a:
+                # The start point is already on or below its pixel's top (typically the tallest roof
+                # under the ray's start height): the walk would descend to this pixel and stop there.
+                h = heights[row, col]
+                if s_a >= (z0 - h) * inv_dz:
+                    return s_a, 2 if h > 0.0 else 1, 0, col, row
             while True:
                 if lev > 0:
                     size = 1 << lev

@@ -39,7 +39,7 @@ import numpy as np
 from numba import njit
 
 from worlds.ground_window import FRAME_MARGIN_M, GroundWindow, WindowTracker
-from worlds.raycast import FACE_LIGHT, NO_NRT, HeightField, cast_ray, lod_texture, shade_hit
+from worlds.raycast import FACE_LIGHT, NO_NRT, HeightField, cast_ray_from, lod_texture, shade_hit
 
 # Clip planes of the TinyRenderer camera (sitl.mesh_camera uses the same): the near plane stays below
 # the lowest camera, the far plane beyond the grey frame seen by a tilted FIXED camera.
@@ -58,6 +58,10 @@ _EDGE_TOL_ABS_M = 1e-3
 _UV_TOL = 4e-3
 # Image tiles (pixels on a side) that bound their rays' start height together (_cast_kernel).
 _TILE = 8
+# Mipmap level a camera ray's walk starts at (any level gives the same hit): the tile's start-height
+# bound already excludes what a coarser cell would, so walks from level 5 mostly descended (measured:
+# ~0.6 fewer steps per ray on an 8000 x 8000 synthetic city from level 3).
+_START_LEVEL = 3
 
 _F32 = np.float32
 
@@ -419,7 +423,7 @@ def _region_max(mip, mip_off, mip_w, nlev, heights, u_lo, u_hi, v_lo, v_hi):
 
 @njit(**NO_NRT)
 def _cast_kernel(eye, right, up, back, width, height, tan_x, tan_y, heights, mip, mip_off, mip_w, nlev, hmax,
-                 m_per_px, map_w, map_h, s_out, surf_out, face_out, col_out, row_out):
+                 m_per_px, map_w, map_h, a_col, s_out, surf_out, face_out, col_out, row_out):
     """Pass 1 (relief only): the first hit of every pixel's ray.
 
     Image tiles of _TILE x _TILE pixels first bound their rays' start height: every ray of a tile, between
@@ -430,6 +434,7 @@ def _cast_kernel(eye, right, up, back, width, height, tan_x, tan_y, heights, mip
     inv_m = 1.0 / m_per_px
     u0 = ex * inv_m + map_w / 2.0
     v0 = map_h / 2.0 - ey * inv_m
+    lev0 = min(_START_LEVEL, nlev)
     for tr in range(0, height, _TILE):
         for tc in range(0, width, _TILE):
             r_hi = min(tr + _TILE, height) - 1
@@ -468,17 +473,20 @@ def _cast_kernel(eye, right, up, back, width, height, tan_x, tan_y, heights, mip
                     break
                 h_tile = min(h_tile, _region_max(mip, mip_off, mip_w, nlev, heights, u_lo - 1.0, u_hi + 1.0,
                                                  v_lo - 1.0, v_hi + 1.0))
+            # The last region holds every ray of the tile between h_tile and 0 (a lower start only
+            # shrinks it): well inside the map, the rays need no map-entry tests.
+            inside = ok and u_lo >= 1.0 and v_lo >= 1.0 and u_hi <= map_w - 1.0 and v_hi <= map_h - 1.0
             if not ok:
                 h_tile = hmax
             for r in range(tr, r_hi + 1):
                 b = (1.0 - (2.0 * r + 1.0) / height) * tan_y
                 for c in range(tc, c_hi + 1):
-                    a = ((2.0 * c + 1.0) / width - 1.0) * tan_x
+                    a = a_col[c]
                     dx = -back[0] + a * right[0] + b * up[0]
                     dy = -back[1] + a * right[1] + b * up[1]
                     dz = -back[2] + a * right[2] + b * up[2]
-                    s, sf, face, hc, hr = cast_ray(u0, v0, ez, dx * inv_m, -dy * inv_m, dz, heights, mip, mip_off,
-                                                   mip_w, nlev, h_tile)
+                    s, sf, face, hc, hr = cast_ray_from(u0, v0, ez, dx * inv_m, -dy * inv_m, dz, heights, mip,
+                                                        mip_off, mip_w, nlev, h_tile, lev0, inside)
                     s_out[r, c] = s
                     surf_out[r, c] = sf
                     face_out[r, c] = face
@@ -491,7 +499,7 @@ def _render_kernel(eye, right, up, back, width, height, tan_x, tan_y, relief, m_
                    tex, lod, facade, has_facade, grey, face_light,
                    win_cx, win_cy, half, outer, n_tex, bcol0, brow0, level_w, level_h, frame_c,
                    clip, pts, ws, inv_w, sub, nsub, vp, far32, near32, uvs, idx,
-                   out, out_flat, s_in, surf_out, face_out, col_out, row_out):
+                   a_col, out, out_flat, s_in, surf_out, face_out, col_out, row_out):
     """Pass 2: roofs and walls shaded from the hits of pass 1 (``relief``), the ground as TinyRenderer."""
     ex, ey, ez = eye[0], eye[1], eye[2]
     inv_m = 1.0 / m_per_px
@@ -502,7 +510,7 @@ def _render_kernel(eye, right, up, back, width, height, tan_x, tan_y, relief, m_
     for r in range(height):
         b = (1.0 - (2.0 * r + 1.0) / height) * tan_y
         for c in range(width):
-            a = ((2.0 * c + 1.0) / width - 1.0) * tan_x
+            a = a_col[c]
             dx = -back[0] + a * right[0] + b * up[0]
             dy = -back[1] + a * right[1] + b * up[1]
             dz = -back[2] + a * right[2] + b * up[2]
@@ -653,6 +661,7 @@ class CityRenderer:
         self._levels: dict[int, np.ndarray] = {1: self.top}
         self._trackers: dict[tuple[int, int, float, float], WindowTracker] = {}
         self._buffers: dict[tuple[int, int], tuple[np.ndarray, ...]] = {}
+        self._a_cols: dict[tuple[int, float], np.ndarray] = {}
         self._frame_c = frame_grey(self.grey)
         self._mesh_key: tuple | None = None
         self._mesh: tuple = ()
@@ -725,14 +734,21 @@ class CityRenderer:
                    np.empty((height, width), np.int64), np.empty((height, width), np.float64))
             self._buffers[key] = buf
         out, surf, face, col, row, s_buf = buf
+        a_key = (width, tan_x)
+        a_col = self._a_cols.get(a_key)
+        if a_col is None:
+            # Horizontal tangent of each pixel column's centre ray, the kernels' per-pixel expression.
+            a_col = ((2.0 * np.arange(width, dtype=np.float64) + 1.0) / width - 1.0) * tan_x
+            self._a_cols[a_key] = a_col
         e, rt, u, b = np.array(eye), np.array(right), np.array(up), np.array(back)
         if self.field is not None:
             _cast_kernel(e, rt, u, b, width, height, tan_x, tan_y, self._heights, self._mip, self._mip_off,
-                         self._mip_w, self._nlev, self._hmax, m, self.map_w, self.map_h, s_buf, surf, face, col, row)
+                         self._mip_w, self._nlev, self._hmax, m, self.map_w, self.map_h, a_col, s_buf, surf, face,
+                         col, row)
         _render_kernel(e, rt, u, b, width, height, tan_x, tan_y, self.field is not None, m, self.map_w, self.map_h,
                        tex, win.lod, self._facade, self._has_facade, self.grey, FACE_LIGHT,
                        cx, cy, half, half + FRAME_MARGIN_M, win.size_texels, win.col0_px // win.lod,
                        win.row0_px // win.lod, tex.shape[1], tex.shape[0], self._frame_c,
                        clip, pts, ws, 1.0 / ws.astype(np.float64), sub, nsub, vp, far32, near32,
-                       uvs32, idx, out, out.reshape(height * width, 3), s_buf, surf, face, col, row)
+                       uvs32, idx, a_col, out, out.reshape(height * width, 3), s_buf, surf, face, col, row)
         return out.copy()
