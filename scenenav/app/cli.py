@@ -127,7 +127,8 @@ def _sitl(args: argparse.Namespace) -> int:
                        speedup=args.speedup, out=args.out, tcp_port=args.tcp_port,
                        udp_out=args.udp_out, perception=args.perception, lockstep=args.lockstep,
                        overrides=tuple(args.set or ()), instance=args.instance, wipe=args.wipe,
-                       live_port=args.live_port if args.live else None)
+                       live_port=args.live_port if args.live else None,
+                       external=tuple(args.external or ()))
     summary = run_sitl(opts, announce=lambda text: print(text, flush=True))
     from scenenav.app.evaluation import format_summary
     print(format_summary(summary))
@@ -344,6 +345,11 @@ def build_parser(domain_commands: bool | str = True) -> argparse.ArgumentParser:
                          "--tcp-port)")
     st.add_argument("-w", "--wipe", action="store_true",
                     help="forget the instance's kept parameters before starting (sim_vehicle.py -w)")
+    st.add_argument("--external", action="append", metavar="ROLE:ID",
+                    help="a perception or guidance node you start yourself (repeatable), e.g. "
+                         "perception:my_matcher: the built-in one is not started and the clock waits for "
+                         "yours (external.join_timeout_s); it joins with RUN_DIR/run.json "
+                         "(docs/interfaces.md)")
     _live_args(st)
     st.set_defaults(func=_sitl)
 

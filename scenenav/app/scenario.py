@@ -226,12 +226,18 @@ def load_scenario(path: str | Path | None, overrides: tuple[str, ...] = (),
         data = apply_overrides(data, list(overrides))
         source += " (with --set overrides)"
     if external:
-        data = dict(data)
-        section = dict(data.get("external") or {})
-        section["nodes"] = [*(section.get("nodes") or []), *external]
-        data["external"] = section
+        data = with_external(data, external)
         source += " (with --external)"
     return load_config(ScenarioConfig, apply_realism(data, source), source)
+
+
+def with_external(data: dict, external: tuple[str, ...]) -> dict:
+    """Scenario data with the ``ROLE:ID`` nodes of ``--external`` added to ``external.nodes``."""
+    data = dict(data)
+    section = dict(data.get("external") or {})
+    section["nodes"] = [*(section.get("nodes") or []), *external]
+    data["external"] = section
+    return data
 
 
 def scenario_to_dict(cfg: ScenarioConfig) -> dict:

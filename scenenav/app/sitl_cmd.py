@@ -30,13 +30,14 @@ from scenenav.app.launcher import (
     Launch,
     announce_live,
     await_hub,
+    external_wait_text,
     prepare_run,
     resolve_world,
     restart_on_new_hub_port,
     spawn_recorder_and_perception,
 )
 from scenenav.app.realism import apply_realism
-from scenenav.app.scenario import ScenarioConfig, scenario_yaml
+from scenenav.app.scenario import ScenarioConfig, scenario_yaml, with_external
 from scenenav.app.signals import interrupt_on_stop_signals
 from scenenav.core.config import apply_overrides, load_config, set_dotted
 from scenenav.core.errors import UserError
@@ -66,6 +67,7 @@ class SitlOptions:
     instance: int = 0                  # vehicle instance: which kept parameter file
     wipe: bool = False                 # delete the instance's kept parameters before starting
     live_port: int | None = None       # --live: stream to Foxglove on this port (0: any free port)
+    external: tuple[str, ...] = ()     # --external ROLE:ID: nodes the user starts (perception, guidance)
 
 
 def params_store_path(instance: int) -> Path:
@@ -103,7 +105,15 @@ def sitl_scenario(opts: SitlOptions) -> ScenarioConfig:
     if opts.overrides:
         data = apply_overrides(data, list(opts.overrides))
         source += " (with --set overrides)"
-    return load_config(ScenarioConfig, apply_realism(data, source), source)
+    if opts.external:
+        data = with_external(data, opts.external)
+        source += " (with --external)"
+    cfg = load_config(ScenarioConfig, apply_realism(data, source), source)
+    if cfg.external.of_role("autopilot"):
+        raise UserError("--external autopilot:...: scenenav sitl's own autopilot is the vehicle ground "
+                        "stations connect to; an outside autopilot joins a `scenenav run --external "
+                        "autopilot:ID` instead")
+    return cfg
 
 
 def _check_tcp_port(port: int) -> None:
@@ -203,6 +213,8 @@ def _run_sitl(opts: SitlOptions, announce: Callable[[str], None]) -> dict:
         meta["mavlink"] = mavlink
         (run_dir / "run.json").write_text(json.dumps(meta, indent=2))
         announce(_connect_text(cfg, run_dir, mavlink))
+        if cfg.external.nodes:
+            announce(external_wait_text(cfg, run_dir))
         if opts.live_port is not None:
             announce_live(launch, announce)
         reason = _supervise(launch)

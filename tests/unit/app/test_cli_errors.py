@@ -30,6 +30,8 @@ def scenenav(*args):
     (["run", "--out", "{tmp}/p", "--set", "guidance.enabled=true", "--set", "flight.mode=autopilot",
       "--set", "guidance.goals_enu_m=[[0,0]]", "--set", "guidance.assistant_map=/nope.npz"], "/nope.npz"),
     (["experiment", "relief", "--world", "/nonexistent/world", "--json"], "/nonexistent/world"),
+    (["sitl", "--out", "{tmp}/m", "--tcp-port", "0", "--external", "autopilot:mine"], "scenenav run --external"),
+    (["sitl", "--out", "{tmp}/l", "--tcp-port", "0", "--external", "nonsense"], "ROLE:ID"),
 ])
 def test_one_line_error_exit_2(tmp_path, args, needle):
     bad = tmp_path / "bad.yaml"
