@@ -175,11 +175,12 @@ def fence_from_items(items: list[FenceItem] | tuple[FenceItem, ...], params: dic
 
 
 def apply_fence(probability: np.ndarray, m_per_px: float, fence: Fence) -> np.ndarray:
-    """A copy of the assistant map with every pixel outside the fence (or within its margin) a bad
-    matching area (probability 0): the planner routes around it as around any bad area."""
-    prob = np.array(probability, dtype=np.float32, copy=True)
+    """The assistant map with every pixel outside the fence (or within its margin) a bad matching
+    area (probability 0; a copy, same dtype): the planner routes around it as around any bad area.
+    Without a horizontal fence the map itself."""
     if not fence.horizontal:
-        return prob
+        return probability
+    prob = np.array(probability, copy=True)
     h, w = prob.shape
     rows, cols = np.mgrid[0:h, 0:w]
     x, y = pixel_to_world(cols.ravel() + 0.5, rows.ravel() + 0.5, w, h, m_per_px)

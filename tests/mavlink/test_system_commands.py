@@ -137,3 +137,39 @@ def test_set_gps_global_origin_is_handed_over_and_answered_with_gps_global_origi
         assert calls == [pytest.approx((47.1, 8.2, 420.5))]
         assert server.stats["origin_rejected"] == 1
         conn.close()
+
+
+def test_motor_test_and_reboot_on_scenenav_sitl(tmp_path):
+    """The real autopilot node (``scenenav sitl --lockstep``): DO_MOTOR_TEST spins motor 1 (test
+    order: front right, servo1) at 1200 us on the ground, then "finished motor test"; a reboot sends
+    the banner, the EKF aligns again ("EKF3 IMU0 origin set") with the parameters kept, and the
+    vehicle arms afterwards."""
+    from support.sitl_session import Gcs, SitlSession, statustext, wait_until
+
+    sitl = SitlSession(tmp_path, "--lockstep", "--perception", "off")
+    gcs = None
+    try:
+        sitl.wait_ready()
+        gcs = Gcs(sitl.port)
+        assert gcs.wait("EKF_STATUS_REPORT", lambda m: m.flags & M.EKF_POS_HORIZ_ABS, 60) is not None
+        gcs.send("request_data_stream_send", 1, 1, M.MAV_DATA_STREAM_RC_CHANNELS, 10, 1)
+        assert gcs.command(M.MAV_CMD_DO_MOTOR_TEST, 1, 1, 1200, 1.5, 1) == MavResult.ACCEPTED
+        servo = gcs.wait("SERVO_OUTPUT_RAW", lambda m: m.servo1_raw == 1200, 30, fresh=True)
+        assert servo is not None and servo.servo2_raw == servo.servo3_raw == servo.servo4_raw == 1000
+        assert statustext(gcs, "finished motor test", 30) is not None
+        gcs.send("param_set_send", 1, 1, b"RTL_ALT", 2500.0, M.MAV_PARAM_TYPE_INT32)
+        assert gcs.wait("PARAM_VALUE", lambda m: m.param_id == "RTL_ALT", 10) is not None
+        assert gcs.command(M.MAV_CMD_PREFLIGHT_REBOOT_SHUTDOWN, 1) == MavResult.ACCEPTED
+        assert statustext(gcs, "ArduCopter V4.5.7", 30) is not None
+        assert statustext(gcs, "EKF3 IMU0 origin set", 60) is not None
+        gcs.send("param_request_read_send", 1, 1, b"RTL_ALT", -1)
+        value = gcs.wait("PARAM_VALUE", lambda m: m.param_id == "RTL_ALT", 10, fresh=True)
+        assert value is not None and value.param_value == 2500.0
+        assert wait_for(gcs.conn, "HEARTBEAT", 10) is not None
+        assert gcs.command(M.MAV_CMD_DO_SET_MODE, M.MAV_MODE_FLAG_CUSTOM_MODE_ENABLED, 4) == MavResult.ACCEPTED
+        assert wait_until(lambda: gcs.command(M.MAV_CMD_COMPONENT_ARM_DISARM, 1) == MavResult.ACCEPTED,
+                          30, period_s=0.5), "could not arm after the reboot"
+    finally:
+        if gcs is not None:
+            gcs.close()
+        sitl.stop()

@@ -66,7 +66,7 @@ def test_routes_are_planned_inside_the_fence():
     wall = np.array([[-20.0, -200.0], [20.0, -200.0], [20.0, 120.0], [-20.0, 120.0]])
     f = Fence(exclusion_polygons=(wall,), margin_m=4.0)
     fenced = apply_fence(prob, m_per_px, f)
-    assert (fenced == 0.0).sum() > 0 and (prob == 0.9).all()         # a copy; the wall is bad
+    assert (fenced == 0.0).sum() > 0 and (prob == 0.9).all() and fenced.dtype == prob.dtype
     start, goal = (-150.0, 0.0), (150.0, 0.0)
     check_points_inside(f, [start, goal], ["start", "goal 1"])
     route = join_legs(plan_through(fenced, m_per_px, [start, goal],
