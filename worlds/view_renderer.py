@@ -506,6 +506,11 @@ def _render_kernel(eye, right, up, back, width, height, tan_x, tan_y, relief, m_
     u0 = ex * inv_m + map_w / 2.0
     v0 = map_h / 2.0 - ey * inv_m
     scale = abs(ex) + abs(ey) + abs(win_cx) + abs(win_cy) + half + ez
+    # 1 / uz of the window triangles' barycentric cross product (the same for every pixel).
+    uz_0 = _bary_cross(pts, 0, 0.0, 0.0)[2]
+    uz_1 = _bary_cross(pts, 1, 0.0, 0.0)[2]
+    iz_0 = 1.0 / uz_0 if uz_0 != 0.0 else 0.0
+    iz_1 = 1.0 / uz_1 if uz_1 != 0.0 else 0.0
     # Window triangle 0 = SW, SE, NE (below the SW-NE diagonal, ly < lx), 1 = SW, NE, NW.
     for r in range(height):
         b = (1.0 - (2.0 * r + 1.0) / height) * tan_y
@@ -582,7 +587,7 @@ def _render_kernel(eye, right, up, back, width, height, tan_x, tan_y, relief, m_
                     ux, uy, uz = _bary_cross(pts, t, np.float64(c), np.float64(py))
                     exact = True
                     if abs(uz) > 1e-2:
-                        iz = 1.0 / uz
+                        iz = iz_0 if t == 0 else iz_1     # uz does not depend on the pixel
                         q1 = uy * iz * inv_w[t, 1]
                         q2 = ux * iz * inv_w[t, 2]
                         q0 = (1.0 - (ux + uy) * iz) * inv_w[t, 0]
