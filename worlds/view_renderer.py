@@ -506,6 +506,21 @@ def _render_kernel(eye, right, up, back, width, height, tan_x, tan_y, relief, m_
     u0 = ex * inv_m + map_w / 2.0
     v0 = map_h / 2.0 - ey * inv_m
     scale = abs(ex) + abs(ey) + abs(win_cx) + abs(win_cy) + half + ez
+    # The longest pixel direction (|d| is convex in the image tangents: its maximum over the image is at
+    # a corner), a little enlarged, bounds every pixel's |d| without a square root per pixel.
+    d_max = 0.0
+    for ca in (-tan_x, tan_x):
+        for cb in (-tan_y, tan_y):
+            qx = -back[0] + ca * right[0] + cb * up[0]
+            qy = -back[1] + ca * right[1] + cb * up[1]
+            qz = -back[2] + ca * right[2] + cb * up[2]
+            d_max = max(d_max, math.sqrt(qx * qx + qy * qy + qz * qz))
+    d_max *= 1.0 + 1e-9
+    # 1 / uz of the window triangles' barycentric cross product (the same for every pixel).
+    uz_0 = _bary_cross(pts, 0, 0.0, 0.0)[2]
+    uz_1 = _bary_cross(pts, 1, 0.0, 0.0)[2]
+    iz_0 = 1.0 / uz_0 if uz_0 != 0.0 else 0.0
+    iz_1 = 1.0 / uz_1 if uz_1 != 0.0 else 0.0
     # Window triangle 0 = SW, SE, NE (below the SW-NE diagonal, ly < lx), 1 = SW, NE, NW.
     for r in range(height):
         b = (1.0 - (2.0 * r + 1.0) / height) * tan_y
@@ -545,7 +560,7 @@ def _render_kernel(eye, right, up, back, width, height, tan_x, tan_y, relief, m_
                 tg = ez / -dz
                 lx = ex + dx * tg - win_cx
                 ly = ey + dy * tg - win_cy
-                rng = tg * math.sqrt(dx * dx + dy * dy + dz * dz)
+                rng = tg * d_max     # an upper bound of the range: only widens the emulated bands
                 if not relief:
                     col_out[r, c] = int(math.floor((ex + dx * tg) / m_per_px + map_w / 2.0))
                     row_out[r, c] = int(math.floor(map_h / 2.0 - (ey + dy * tg) / m_per_px))
@@ -582,7 +597,7 @@ def _render_kernel(eye, right, up, back, width, height, tan_x, tan_y, relief, m_
                     ux, uy, uz = _bary_cross(pts, t, np.float64(c), np.float64(py))
                     exact = True
                     if abs(uz) > 1e-2:
-                        iz = 1.0 / uz
+                        iz = iz_0 if t == 0 else iz_1     # uz does not depend on the pixel
                         q1 = uy * iz * inv_w[t, 1]
                         q2 = ux * iz * inv_w[t, 2]
                         q0 = (1.0 - (ux + uy) * iz) * inv_w[t, 0]
