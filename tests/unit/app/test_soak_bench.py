@@ -1,12 +1,13 @@
-"""The soak's MAVLink fuzzer keeps its rate per simulated minute when the run is faster than real
-time (and per wall minute when slower), sending real bytes to a TCP port."""
+"""The soak benchmark's parts: the MAVLink fuzzer keeps its rate per simulated minute when the run is
+faster than real time (and per wall minute when slower), sending real bytes to a TCP port; the fd
+figure is a floor, so transient sockets do not count as growth and a leak does."""
 
 import json
 import socket
 import threading
 import time
 
-from scenenav.app.bench.soak import Fuzzer, SoakConfig
+from scenenav.app.bench.soak import FD_FLOOR_SAMPLES, Fuzzer, RoleFigures, Sample, SoakConfig
 
 
 def test_due_follows_the_faster_of_the_two_clocks(tmp_path):
@@ -43,3 +44,21 @@ def test_the_fuzzer_catches_up_with_simulated_time(tmp_path):
     time.sleep(0.2)
     assert len(received) > f.sent      # every frame has at least one byte
     server.close()
+
+
+def _figures(minute_5_fds, end_fds):
+    fig = RoleFigures("autopilot")
+    for i, n in enumerate(minute_5_fds):
+        fig.add(Sample(300.0 + i, 150.0, n), baseline=True, end=True)
+    for i, n in enumerate(end_fds):
+        fig.add(Sample(1700.0 + i, 150.0, n), baseline=True, end=True)
+    return fig
+
+
+def test_transient_fds_are_not_growth_but_a_raised_floor_is():
+    transient = [31, 33, 35, 31, 33, 31]
+    assert len(transient) == FD_FLOOR_SAMPLES
+    assert _figures(transient, [33, 31, 35, 31, 32, 33]).fd_growth == 0
+    assert _figures(transient, [32, 34, 33, 36, 32, 33]).fd_growth == 1     # never back to 31
+    fig = _figures(transient, [33, 31, 35, 31, 32, 33])
+    assert fig.at_minute_5.sim_time_s == 300.0 and fig.at_end.sim_time_s == 1705.0
