@@ -28,12 +28,13 @@ from __future__ import annotations
 import math
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
-from enum import IntEnum, IntFlag
+from enum import IntEnum
 
 import numpy as np
 
 from autopilot_bridge.failsafe import FailsafeAction, FailsafeEvent, FailsafeKind
 from autopilot_bridge.vehicle_interface import MavSeverity, MissionItem
+from scenenav.core.fence_items import FenceCommand, FenceType  # noqa: F401  (re-exported)
 
 FENCE_CHECK_PERIOD_S = 0.04        # ArduCopter checks the fence at 25 Hz
 FENCE_GIVE_UP_DISTANCE_M = 100.0   # AC_Fence: further outside than this -> LAND instead of RTL
@@ -41,31 +42,10 @@ MAX_FENCE_ITEMS = 100              # differs: ArduPilot's limit is its storage (
 MAX_RALLY_POINTS = 100             # differs: ArduPilot's limit is its storage (AP_Rally)
 
 
-class FenceCommand(IntEnum):
-    """MAV_CMD ids of fence and rally items."""
-
-    RETURN_POINT = 5000
-    POLYGON_VERTEX_INCLUSION = 5001
-    POLYGON_VERTEX_EXCLUSION = 5002
-    CIRCLE_INCLUSION = 5003
-    CIRCLE_EXCLUSION = 5004
-    RALLY_POINT = 5100
-
-
 FENCE_COMMANDS = frozenset({FenceCommand.RETURN_POINT, FenceCommand.POLYGON_VERTEX_INCLUSION,
                             FenceCommand.POLYGON_VERTEX_EXCLUSION, FenceCommand.CIRCLE_INCLUSION,
                             FenceCommand.CIRCLE_EXCLUSION})
 RALLY_COMMANDS = frozenset({FenceCommand.RALLY_POINT})
-
-
-class FenceType(IntFlag):
-    """FENCE_TYPE bits (AC_FENCE_TYPE_*)."""
-
-    NONE = 0
-    ALT_MAX = 1
-    CIRCLE = 2
-    POLYGON = 4
-    ALT_MIN = 8
 
 
 class FenceAction(IntEnum):

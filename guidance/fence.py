@@ -19,33 +19,14 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass, field
-from enum import IntEnum, IntFlag
 
 import numpy as np
 
 from scenenav.core.errors import UserError
+from scenenav.core.fence_items import FenceCommand, FenceType  # noqa: F401  (re-exported)
 from scenenav.core.frames import geodetic_to_enu, pixel_to_world
 
 FENCE_PARAM_NAMES = ("FENCE_ENABLE", "FENCE_TYPE", "FENCE_RADIUS", "FENCE_MARGIN", "FENCE_ALT_MAX")
-
-
-class FenceCommand(IntEnum):
-    """MAV_CMD values of the fence items."""
-
-    RETURN_POINT = 5000
-    POLYGON_VERTEX_INCLUSION = 5001
-    POLYGON_VERTEX_EXCLUSION = 5002
-    CIRCLE_INCLUSION = 5003
-    CIRCLE_EXCLUSION = 5004
-
-
-class FenceType(IntFlag):
-    """FENCE_TYPE bits (AC_Fence)."""
-
-    ALT_MAX = 1
-    CIRCLE = 2
-    POLYGON = 4
-    ALT_MIN = 8
 
 
 @dataclass(frozen=True)
