@@ -207,4 +207,11 @@ class AutopilotLink:
         return self.conn.recv_match(type=types, blocking=False)
 
     def close(self) -> None:
-        self.conn.close()
+        """Close the link; a link the autopilot already dropped (pymavlink's TCP connection then
+        has no socket left: ``port`` None) is closed already."""
+        if getattr(self.conn, "port", True) is None:
+            return
+        try:
+            self.conn.close()
+        except OSError as exc:
+            log.info("MAVLink link close: %s", exc)
