@@ -40,6 +40,7 @@ class AutopilotLink:
                  timeout_s: float = 30.0):
         self.url = url
         self.timeout_s = timeout_s
+        self._link_lost = False     # said once: the autopilot's link refused a reconnect
         self.conn = mavutil.mavlink_connection(url, source_system=source_system,
                                                source_component=source_component, autoreconnect=True)
         self._last_hb_sent = 0.0
@@ -203,8 +204,14 @@ class AutopilotLink:
 
     def poll(self, types=None):
         """Non-blocking read of one message (and keep our heartbeat going)."""
-        self.heartbeat()
-        return self.conn.recv_match(type=types, blocking=False)
+        try:
+            self.heartbeat()
+            return self.conn.recv_match(type=types, blocking=False)
+        except OSError as exc:      # the autopilot is gone: pymavlink's reconnect is refused
+            if not self._link_lost:
+                log.warning("MAVLink link to the autopilot lost (%s); still trying", exc)
+                self._link_lost = True
+            return None
 
     def close(self) -> None:
         """Close the link; a link the autopilot already dropped (pymavlink's TCP connection then
