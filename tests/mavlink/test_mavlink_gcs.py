@@ -28,6 +28,7 @@ from support.fake_vehicle import (
     server_config,
     wait_for,
 )
+from support.qgc_like import setup_complete
 from support.sitl_session import SitlSession, monitor_connection
 
 from autopilot_bridge import telemetry
@@ -440,20 +441,6 @@ def _all_params(conn) -> dict[str, float]:
     return got
 
 
-def qgc_setup_complete(p: dict[str, float]) -> dict[str, bool]:
-    """QGC's setupComplete() of the APM components that require setup, from QGC's source."""
-    channels = [int(p[f"RCMAP_{a}"]) for a in ("ROLL", "PITCH", "YAW", "THROTTLE")]
-    radio = all(c > 0 for c in channels) and any(
-        (int(p[f"RC{c}_MIN"]), int(p[f"RC{c}_MAX"]), int(p[f"RC{c}_TRIM"])) != (1100, 1900, 1500)
-        for c in channels)
-    compass_needed = any(
-        int(p[f"COMPASS_DEV_ID{s}"]) != 0 and int(p[f"COMPASS_USE{s}"]) != 0
-        and any(p[f"COMPASS_OFS{s}_{a}"] == 0.0 for a in "XYZ") for s in ("", "2", "3"))
-    accel_needed = all(p[f"INS_ACCOFFS_{a}"] == 0.0 for a in "XYZ")
-    return {"airframe": int(p["FRAME_CLASS"]) > 0, "radio": radio,
-            "sensors": not compass_needed and not accel_needed}
-
-
 def test_qgc_finds_every_setup_parameter_and_setup_complete():
     params = ParameterStore(PARAM_SPECS)
     with running_server(params=params) as (server, _):
@@ -463,7 +450,7 @@ def test_qgc_finds_every_setup_parameter_and_setup_complete():
             assert len(got) == params.count
             missing = [n for n in QGC_SETUP_PARAMS if n not in got]
             assert not missing, missing
-            assert qgc_setup_complete(got) == {"airframe": True, "radio": True, "sensors": True}
+            assert setup_complete(got) == {"airframe": True, "radio": True, "sensors": True}
             # the SITL calibration values, as ArduPilot's copter.parm
             assert got["INS_ACCOFFS_X"] == pytest.approx(0.001) and got["RC3_MIN"] == 1000
             assert [got[f"FLTMODE{i}"] for i in range(1, 7)] == [7, 9, 6, 3, 5, 0]
@@ -481,8 +468,8 @@ def test_qgc_finds_every_setup_parameter_and_setup_complete():
     # QGC would flag a radio that was never calibrated: the check can fail
     uncalibrated = dict(got, **{f"RC{c}_{k}": v for c in range(1, 5)
                                 for k, v in (("MIN", 1100), ("MAX", 1900), ("TRIM", 1500))})
-    assert not qgc_setup_complete(uncalibrated)["radio"]
-    assert not qgc_setup_complete(dict(got, INS_ACCOFFS_X=0, INS_ACCOFFS_Y=0,
+    assert not setup_complete(uncalibrated)["radio"]
+    assert not setup_complete(dict(got, INS_ACCOFFS_X=0, INS_ACCOFFS_Y=0,
                                        INS_ACCOFFS_Z=0))["sensors"]
 
 
