@@ -8,7 +8,8 @@ Two kinds of channel, both JSON with a JSON schema:
   (``docs/foxglove-layout.json``) opens every run, recorded or live: ``viz/camera``
   (``foxglove.RawImage``, every ``recorder.camera_every_n``-th frame), ``viz/truth/pose`` and
   ``viz/estimate/pose`` (``foxglove.PoseInFrame``, at most every :data:`POSE_STEP_S`), ``viz/truth/path`` and ``viz/estimate/path``
-  (``foxglove.PosesInFrame``, one pose per :data:`PATH_STEP_S` of simulated time), ``viz/fixes``
+  (``foxglove.PosesInFrame``, one pose per :data:`PATH_STEP_S` of simulated time, thinned past
+  :data:`PATH_MAX_POSES` so a message stays bounded however long the flight), ``viz/fixes``
   (``foxglove.SceneUpdate``: a sphere per valid fix, green accepted, red rejected),
   ``viz/route`` (``foxglove.SceneUpdate``: the planned route, one line per route file),
   ``viz/map/reference`` and ``viz/map/assistant`` (``foxglove.Grid``, frame ``world``),
@@ -48,6 +49,11 @@ FRAME_ID = "world"
 POSE_STEP_S = 0.1
 #: Simulated seconds between two poses of a path (a 600 s flight: 600 poses per path).
 PATH_STEP_S = 1.0
+#: Most poses a path message holds. Every path message carries the whole path, so an unbounded path
+#: made ``bus.mcap`` grow with the square of the flight time and the recorder's memory with it (a
+#: 30-minute soak: +0.3-0.7 MB a minute). Past this, every other pose is dropped and the step doubles:
+#: the path still spans the whole flight, at 1 s resolution up to ~17 minutes, 2 s up to ~33, ...
+PATH_MAX_POSES = 1000
 #: Largest side of a map grid in cells (the reference map is downsampled to it).
 MAP_MAX_CELLS = 512
 #: Height above the ground of the drawn maps and fixes (m): the assistant map above the reference.
@@ -184,10 +190,15 @@ def map_grid(image: np.ndarray, m_per_px: float, t_us: int, z_m: float) -> dict:
 class VizState:
     """Turns bus messages into the view's messages (keeps the paths and what was drawn)."""
 
-    def __init__(self, camera_every_n: int = 1) -> None:
+    def __init__(self, camera_every_n: int = 1, path_max_poses: int = PATH_MAX_POSES) -> None:
+        if path_max_poses < 2:
+            raise ValueError(f"path_max_poses = {path_max_poses}: expected at least 2")
         self.camera_every_n = camera_every_n
+        self.path_max_poses = path_max_poses
         self._paths: dict[str, list[dict]] = {T_TRUTH_PATH: [], T_EST_PATH: []}
         self._path_next_us: dict[str, int] = {T_TRUTH_PATH: 0, T_EST_PATH: 0}
+        self._path_step_us: dict[str, int] = {T_TRUTH_PATH: int(PATH_STEP_S * 1e6),
+                                              T_EST_PATH: int(PATH_STEP_S * 1e6)}
         self._pose_next_us: dict[str, int] = {T_TRUTH_POSE: 0, T_EST_POSE: 0}
         self._routes_seen: set[str] = set()
 
@@ -221,8 +232,12 @@ class VizState:
         out = [_msg(pose_topic, "foxglove.PoseInFrame",
                     {"timestamp": _stamp(t), "frame_id": FRAME_ID, "pose": pose}, t)]
         if t >= self._path_next_us[path_topic]:
-            self._path_next_us[path_topic] = t + int(PATH_STEP_S * 1e6)
-            self._paths[path_topic].append(pose)
+            path = self._paths[path_topic]
+            path.append(pose)
+            if len(path) > self.path_max_poses:
+                path[:] = path[::-2][::-1]            # every other pose, the newest kept
+                self._path_step_us[path_topic] *= 2
+            self._path_next_us[path_topic] = t + self._path_step_us[path_topic]
             out.append(_msg(path_topic, "foxglove.PosesInFrame", {
                 "timestamp": _stamp(t), "frame_id": FRAME_ID, "poses": self._paths[path_topic]}, t))
         return out

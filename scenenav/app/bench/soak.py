@@ -92,6 +92,8 @@ class Sample:
     sim_time_s: float
     rss_mb: float
     fds: int
+    #: what the fds are (``fd_kinds``: socket, pipe, shm, anon, file, dev, other -> count)
+    fd_kinds: dict[str, int] = field(default_factory=dict)
 
 
 @dataclass
@@ -103,6 +105,10 @@ class RoleFigures:
     #: fd counts of the first ``FD_FLOOR_SAMPLES`` samples from minute 5 on, and of the newest ones
     fds_from_minute_5: list[int] = field(default_factory=list)
     fds_last: list[int] = field(default_factory=list)
+    #: the fd kinds of the floor sample (the fewest fds) at minute 5 and at the end
+    kinds_minute_5: dict[str, int] = field(default_factory=dict)
+    kinds_end: dict[str, int] = field(default_factory=dict)
+    _end_kinds: list[dict[str, int]] = field(default_factory=list, repr=False)
 
     def add(self, sample: Sample, baseline: bool, end: bool) -> None:
         """Record a steady sample: ``baseline`` once minute 5 is reached, ``end`` up to the end window."""
@@ -110,10 +116,15 @@ class RoleFigures:
             if self.at_minute_5 is None:
                 self.at_minute_5 = sample
             if len(self.fds_from_minute_5) < FD_FLOOR_SAMPLES:
+                if not self.fds_from_minute_5 or sample.fds < min(self.fds_from_minute_5):
+                    self.kinds_minute_5 = dict(sample.fd_kinds)
                 self.fds_from_minute_5.append(sample.fds)
         if end:
             self.at_end = sample
             self.fds_last = [*self.fds_last, sample.fds][-FD_FLOOR_SAMPLES:]
+            self._end_kinds = [*self._end_kinds, dict(sample.fd_kinds)][-FD_FLOOR_SAMPLES:]
+            floor = min(range(len(self.fds_last)), key=lambda i: (self.fds_last[i], -i))
+            self.kinds_end = self._end_kinds[floor]
 
     @property
     def memory_growth(self) -> float | None:
@@ -184,7 +195,8 @@ class SoakResult:
                        "peak_rss_mb": round(r.peak_rss_mb, 1),
                        "memory_growth": None if r.memory_growth is None else round(r.memory_growth, 4),
                        "fds_at_minute_5": r.fd_floor_minute_5, "fds_at_end": r.fd_floor_end,
-                       "fd_growth": r.fd_growth} for r in self.roles],
+                       "fd_growth": r.fd_growth, "fd_kinds_at_minute_5": r.kinds_minute_5,
+                       "fd_kinds_at_end": r.kinds_end} for r in self.roles],
         }
 
 
@@ -205,6 +217,39 @@ def _fd_count(pid: int) -> int | None:
         return len(os.listdir(f"/proc/{pid}/fd"))
     except OSError:
         return None
+
+
+def fd_kind(target: str) -> str:
+    """The kind of an fd from its ``/proc/PID/fd`` link target."""
+    if target.startswith("socket:"):
+        return "socket"
+    if target.startswith("pipe:"):
+        return "pipe"
+    if target.startswith("anon_inode:"):
+        return "anon"
+    if target.startswith("/dev/shm/"):
+        return "shm"
+    if target.startswith("/dev/"):
+        return "dev"
+    if target.startswith("/"):
+        return "file"
+    return "other"
+
+
+def fd_kinds(pid: int) -> dict[str, int]:
+    """How many fds of each kind (:func:`fd_kind`) the process holds (empty if it is gone)."""
+    out: dict[str, int] = {}
+    try:
+        names = os.listdir(f"/proc/{pid}/fd")
+    except OSError:
+        return out
+    for name in names:
+        try:
+            kind = fd_kind(os.readlink(f"/proc/{pid}/fd/{name}"))
+        except OSError:
+            continue
+        out[kind] = out.get(kind, 0) + 1
+    return dict(sorted(out.items()))
 
 
 def _children(pid: int) -> list[int]:
@@ -271,7 +316,7 @@ class Sampler(threading.Thread):
                     continue
                 fig = self.roles.setdefault(role, RoleFigures(role))
                 fig.peak_rss_mb = max(fig.peak_rss_mb, rss)
-                sample = Sample(t, rss, fds)
+                sample = Sample(t, rss, fds, fd_kinds(pid))
                 if steady:
                     fig.add(sample, baseline=t >= self.cfg.baseline_s, end=t <= end_window_s)
 
@@ -459,12 +504,20 @@ def format_table(r: SoakResult) -> str:
                      f"{'-' if g is None else f'{100 * g:+.1f} %':>8} {f.peak_rss_mb:>6.0f} MB "
                      f"{_fds(f.fd_floor_minute_5):>9} {_fds(f.fd_floor_end):>8}  "
                      f"{_fd_range(f.fds_from_minute_5)} / {_fd_range(f.fds_last)}")
+    for f in r.roles:
+        if f.fd_growth:
+            lines.append(f"{f.role} fds by kind, floor at minute 5 -> at the end: {_kinds(f.kinds_minute_5)} -> "
+                         f"{_kinds(f.kinds_end)}")
     lines.append(f"ticks {r.ticks} of {r.ticks_expected}; lockstep answers timed out: {r.lockstep_timeouts}; "
                  f"autopilot ticks out of order: {r.autopilot_ticks_out_of_order}; MAVLink frames dropped "
                  f"(bad CRC or unparsable): {r.mavlink_frames_dropped}")
     lines.append(f"targets: memory within 10 % of minute 5: {'yes' if r.memory_ok else 'NO'}; "
                  f"no fd growth: {'yes' if r.fds_ok else 'NO'}; no dropped tick: {'yes' if r.ticks_ok else 'NO'}")
     return "\n".join(lines)
+
+
+def _kinds(kinds: dict[str, int]) -> str:
+    return ", ".join(f"{k} {n}" for k, n in kinds.items()) or "-"
 
 
 def _fds(n: int | None) -> str:

@@ -62,3 +62,25 @@ def test_transient_fds_are_not_growth_but_a_raised_floor_is():
     assert _figures(transient, [32, 34, 33, 36, 32, 33]).fd_growth == 1     # never back to 31
     fig = _figures(transient, [33, 31, 35, 31, 32, 33])
     assert fig.at_minute_5.sim_time_s == 300.0 and fig.at_end.sim_time_s == 1705.0
+
+
+def test_fd_kinds_name_what_a_process_holds_and_the_floor_samples_keep_theirs():
+    import os
+    import socket
+
+    from scenenav.app.bench.soak import fd_kind, fd_kinds
+    assert [fd_kind(t) for t in ("socket:[123]", "pipe:[9]", "anon_inode:[eventfd]", "/dev/shm/x.zenoh",
+                                 "/dev/null", "/tmp/run/bus.mcap", "net:[1]")] == \
+        ["socket", "pipe", "anon", "shm", "dev", "file", "other"]
+    before = fd_kinds(os.getpid())
+    s = socket.socket()
+    try:
+        assert fd_kinds(os.getpid()).get("socket", 0) == before.get("socket", 0) + 1
+    finally:
+        s.close()
+    fig = RoleFigures("recorder")
+    fig.add(Sample(300.0, 150.0, 33, {"socket": 20}), baseline=True, end=False)
+    fig.add(Sample(301.0, 150.0, 31, {"socket": 18}), baseline=True, end=False)
+    fig.add(Sample(1700.0, 150.0, 32, {"socket": 19, "file": 1}), baseline=False, end=True)
+    fig.add(Sample(1701.0, 150.0, 34, {"socket": 21}), baseline=False, end=True)
+    assert fig.kinds_minute_5 == {"socket": 18} and fig.kinds_end == {"socket": 19, "file": 1}

@@ -55,6 +55,20 @@ def test_poses_are_throttled_and_the_path_grows_one_pose_per_step():
     assert json.loads(poses[1].schema)["title"] == "foxglove.PoseInFrame"
 
 
+def test_a_long_path_is_thinned_to_a_bounded_size_and_still_spans_the_flight():
+    viz = VizState(path_max_poses=10)
+    sizes, last = [], None
+    for i in range(200):                      # 200 s of truth at 1 Hz (one path step each)
+        for m in viz.on_message(_truth(float(i), float(i))):
+            if m.topic == T_TRUTH_PATH:
+                last = _json(m)
+                sizes.append(len(last["poses"]))
+    assert max(sizes) <= 10
+    xs = [p["position"]["x"] for p in last["poses"]]
+    assert xs == sorted(xs) and xs[0] == 0.0 and xs[-1] >= 199.0 - 32.0    # first pose kept, recent end
+    assert len(sizes) < 200 / 2               # the step grew: fewer path messages than seconds
+
+
 def test_fixes_are_spheres_coloured_by_the_verdict_and_invalid_ones_are_not_drawn():
     viz = VizState()
     acc, rej = viz.on_message(_fix(1, True, True)), viz.on_message(_fix(2, True, False))
