@@ -53,6 +53,7 @@ from autopilot_bridge.vehicle_interface import (
     MissionItem,
     MissionItemReachedEvent,
     MissionState,
+    ModeChangedEvent,
     Outcome,
     SpeedType,
 )
@@ -167,9 +168,13 @@ class AutoMissionMixin:
         # heading targets of CONDITION_YAW and DO_SET_ROI (AUTO and GUIDED; ArduCopter's auto_yaw)
         self._auto_heading: float | None = None
         self._roi_enu: np.ndarray | None = None
+        # AUTO jumped to a landing sequence (DO_LAND_START command or a failsafe): reported as
+        # mode AUTO_RTL until the mode changes or the mission is restarted, moved or replaced
+        self._auto_rtl = False
 
     def mission_changed(self, items: tuple[MissionItem, ...]) -> Outcome:
         self._mission = tuple(items)
+        self._auto_rtl = False
         self._tel = None
         self._jump_runs = {}
         running = self._mode == CopterMode.AUTO and self._mission_state == MissionState.ACTIVE
@@ -193,6 +198,7 @@ class AutoMissionMixin:
     def start_mission(self, first_seq: int, last_seq: int) -> Outcome:
         if not self._mission:
             return self._refuse("Mission start failed: no mission")
+        self._auto_rtl = False
         if self._mission_state == MissionState.COMPLETE:
             self._mission_state = MissionState.NOT_STARTED
         if self._mode == CopterMode.AUTO:
@@ -207,12 +213,64 @@ class AutoMissionMixin:
             return self._refuse(f"Mission: no item {seq}")
         self._mission_index = index
         self._tel = None
+        self._auto_rtl = False
         if self._mode == CopterMode.AUTO and self._armed and self.nav.aligned \
                 and self._mission_state == MissionState.ACTIVE:
             self._auto_start(index, self.nav.state())
         elif self._mission_state == MissionState.COMPLETE:
             self._mission_state = MissionState.PAUSED
         return Outcome(True)
+
+    # ------------------------------------------------------------ landing sequence (AUTO_RTL)
+    def _landing_sequence_start(self, est: NavState) -> int | None:
+        """AP_Mission ``get_landing_sequence_start``: the DO_LAND_START item nearest to the stopping
+        point by its location (one without a location counts as far away; the first wins a tie)."""
+        stop = stopping_point(est.position_enu_m, est.velocity_enu_m_s, self._gcfg.wp_accel_m_s2)
+        best, best_d = None, math.inf
+        for i, item in enumerate(self._mission):
+            if item.command != MC.DO_LAND_START:
+                continue
+            d = math.inf
+            if item.lat_e7 != 0 or item.lon_e7 != 0:
+                x, y = self.geo.to_enu(item.lat_deg, item.lon_deg)
+                d = math.hypot(x - float(stop[0]), y - float(stop[1]))
+            if best is None or d < best_d:
+                best, best_d = i, d
+        return best
+
+    def jump_to_landing_sequence(self) -> Outcome:
+        return self._jump_to_landing_sequence(from_gcs=True)
+
+    def _jump_to_landing_sequence(self, from_gcs: bool) -> Outcome:
+        """ArduCopter ``ModeAuto::jump_to_landing_sequence_auto_RTL``: continue the mission in AUTO
+        at the nearest DO_LAND_START (resumed there whatever MIS_RESTART says), reported as
+        AUTO_RTL; refused without one or when AUTO cannot be entered."""
+        if not self._position_ok():
+            return self._refuse("Mode change to AUTO RTL failed: requires position")
+        est = self.nav.state()
+        index = self._landing_sequence_start(est)
+        if index is None:
+            self._announce(MavSeverity.WARNING, "Unable to start landing sequence")
+            return self._refuse("Mode change to AUTO RTL failed: No landing sequence found")
+        self._announce(MavSeverity.INFO, "Landing sequence start")
+        self._mission_index = index
+        self._tel = None
+        if self._mode == CopterMode.AUTO:
+            self._mission_state = MissionState.ACTIVE
+            if self._armed:
+                self._auto_start(index, est)
+        else:
+            self._mission_state = MissionState.PAUSED      # AP_Mission's force resume
+            outcome = self._enter_mode(CopterMode.AUTO, from_gcs=from_gcs)
+            if not outcome.ok:
+                return outcome
+        self._auto_rtl = True
+        self._events.append(ModeChangedEvent(CopterMode.AUTO_RTL))
+        return Outcome(True)
+
+    def _reported_mode(self) -> CopterMode:
+        """The mode the ground stations see: AUTO on a landing sequence is AUTO_RTL."""
+        return CopterMode.AUTO_RTL if self._auto_rtl and self._mode == CopterMode.AUTO else self._mode
 
     def _mission_starts_with_takeoff(self) -> bool:
         index = self._next_command(0, increment_jumps=False)

@@ -158,6 +158,7 @@ class CommandHandler:
             m.MAV_CMD_DO_SET_MODE: self._do_set_mode,
             m.MAV_CMD_MISSION_START: self._mission_start,
             m.MAV_CMD_DO_SET_MISSION_CURRENT: self._set_mission_current,
+            m.MAV_CMD_DO_LAND_START: self._land_start,
             m.MAV_CMD_DO_REPOSITION: self._reposition,
             m.MAV_CMD_DO_CHANGE_SPEED: self._change_speed,
             m.MAV_CMD_CONDITION_YAW: self._condition_yaw,
@@ -282,6 +283,11 @@ class CommandHandler:
             return CommandResult(MavResult.DENIED)
         return CommandResult(MavResult.ACCEPTED if self._svc.set_mission_current(seq)
                              else MavResult.FAILED)
+
+    def _land_start(self, req: CommandRequest, link: object) -> CommandResult:
+        """DO_LAND_START: the mission's landing sequence in AUTO (reported AUTO_RTL), FAILED without
+        one (ArduCopter ``handle_command_long``: ``jump_to_landing_sequence_auto_RTL``)."""
+        return CommandResult(self._outcome(self._vehicle.jump_to_landing_sequence()))
 
     def _reposition(self, req: CommandRequest, link: object) -> CommandResult:
         if not req.is_int:

@@ -98,7 +98,7 @@ class TelemetryMixin:
         battery = self.battery.state(self.params.get("BATT_CAPACITY"))
         ok = self.nav.config.position_ok_max_std_m
         return VehicleTelemetry(
-            time_boot_ms=int(self._now_s * 1000.0), armed=self._armed, mode=self._mode,
+            time_boot_ms=int(self._now_s * 1000.0), armed=self._armed, mode=self._reported_mode(),
             landed_state=self._landed_state(), system_status=self._system_status(),
             lat_deg=lat, lon_deg=lon, alt_amsl_m=self.geo.origin_alt_amsl_m + float(pos[2]),
             relative_alt_m=float(pos[2] - home[2]),

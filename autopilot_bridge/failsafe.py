@@ -67,6 +67,7 @@ class FailsafeAction(Enum):
     REPORT = "report"      # announcement only (the failsafe's action is "report" or not applicable)
     ALT_HOLD = "alt_hold"  # switch to ALT_HOLD (FS_EKF_ACTION 2)
     BRAKE = "brake"        # switch to BRAKE, LAND if refused (FENCE_ACTION 4)
+    LAND_START_OR_RTL = "land_start_or_rtl"   # the mission's landing sequence (AUTO_RTL), else RTL
 
 
 class VisionFailsafeState(Enum):

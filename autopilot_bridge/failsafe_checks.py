@@ -25,7 +25,8 @@ Battery failsafe (``AP_BattMonitor::check_failsafes``, ``ArduCopter/events.cpp``
   likewise with ``BATT_CRT_VOLT`` / ``BATT_CRT_MAH`` (a threshold of 0 is off);
 * a failsafe never clears and only escalates (low -> critical), as ArduPilot's;
 * action by ``BATT_FS_LOW_ACT`` / ``BATT_FS_CRT_ACT``: 0 warn only, 1 LAND, 2 RTL, 3 SmartRTL or
-  RTL (RTL here), 4 SmartRTL or LAND (LAND here), 6 DO_LAND_START or RTL (RTL: no DO_LAND_START),
+  RTL (RTL here), 4 SmartRTL or LAND (LAND here), 6 the mission's landing sequence (AUTO_RTL,
+  ``FlightCore.jump_to_landing_sequence``) or, without one, "Trying RTL Mode" and RTL,
   7 BRAKE or LAND (LAND here); 5 (terminate) is refused by the parameter store;
 * on the ground nothing is done (ArduCopter disarms a landed vehicle); the text is ArduPilot's
   "Battery 1 is low 10.40V used 2500 mAh" (CRITICAL).
@@ -78,7 +79,7 @@ _BATTERY_ACTIONS: dict[BatteryFailsafeAction, FailsafeAction] = {
     BatteryFailsafeAction.RTL: FailsafeAction.RTL,
     BatteryFailsafeAction.SMARTRTL_OR_RTL: FailsafeAction.RTL,
     BatteryFailsafeAction.SMARTRTL_OR_LAND: FailsafeAction.LAND,
-    BatteryFailsafeAction.AUTO_DO_LAND_START_OR_RTL: FailsafeAction.RTL,
+    BatteryFailsafeAction.AUTO_DO_LAND_START_OR_RTL: FailsafeAction.LAND_START_OR_RTL,
     BatteryFailsafeAction.BRAKE_OR_LAND: FailsafeAction.LAND,
 }
 

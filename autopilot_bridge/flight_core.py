@@ -206,7 +206,7 @@ class FlightCore(SensorFusionMixin, ArmingMixin, GuidedMixin, AutoMissionMixin,
 
     @property
     def mode(self) -> CopterMode:
-        return self._mode
+        return self._reported_mode()
 
     @property
     def landed(self) -> bool:
@@ -238,7 +238,7 @@ class FlightCore(SensorFusionMixin, ArmingMixin, GuidedMixin, AutoMissionMixin,
 
     def status(self) -> CoreStatus:
         seq = self._mission_index + 1 if self._mission else 0
-        return CoreStatus(armed=self._armed, mode=self._mode.name, landed=self.fc.landed,
+        return CoreStatus(armed=self._armed, mode=self._reported_mode().name, landed=self.fc.landed,
                           mission_seq=seq, mission_count=len(self._mission),
                           mission_complete=self._mission_state == MissionState.COMPLETE,
                           gps_used=self.gps_used)
@@ -439,6 +439,9 @@ class FlightCore(SensorFusionMixin, ArmingMixin, GuidedMixin, AutoMissionMixin,
         elif ev.action == FailsafeAction.LAND:
             self._vision_hold = None
             self._enter_mode(CopterMode.LAND, from_gcs=False)
+        elif ev.action == FailsafeAction.LAND_START_OR_RTL:
+            self._vision_hold = None
+            self._land_start_or_rtl()
         elif ev.action == FailsafeAction.BRAKE:
             self._vision_hold = None
             if not self._enter_mode(CopterMode.BRAKE, from_gcs=False).ok:
@@ -453,6 +456,15 @@ class FlightCore(SensorFusionMixin, ArmingMixin, GuidedMixin, AutoMissionMixin,
             self._vision_hold = None
             self._restart_mode_law(est)
         self.stats[f"failsafe_{ev.kind.value}_{ev.action.value}"] += 1
+
+    def _land_start_or_rtl(self) -> None:
+        """ArduCopter ``set_mode_auto_do_land_start_or_RTL``: the landing sequence, else RTL (LAND
+        when RTL is refused)."""
+        if self._jump_to_landing_sequence(from_gcs=False).ok:
+            return
+        self._announce(MavSeverity.WARNING, "Trying RTL Mode")
+        if not self._enter_mode(CopterMode.RTL, from_gcs=False).ok:
+            self._enter_mode(CopterMode.LAND, from_gcs=False)
 
     def _smart_rtl_first(self, ev: FailsafeEvent) -> bool:
         """FS_GCS_ENABLE 3 / 4 (SmartRTL or RTL / Land): SMART_RTL when its path is usable, else
@@ -583,6 +595,14 @@ class FlightCore(SensorFusionMixin, ArmingMixin, GuidedMixin, AutoMissionMixin,
                 and self.nav.position_ok())
 
     def _enter_mode(self, mode: CopterMode, from_gcs: bool) -> Outcome:
+        if mode == CopterMode.AUTO_RTL:
+            # differs: ArduCopter 4.5 first tries a DO_RETURN_PATH_START return path
+            return self._jump_to_landing_sequence(from_gcs)
+        if mode == CopterMode.AUTO and self._auto_rtl and self._mode == CopterMode.AUTO:
+            self._auto_rtl = False          # AUTO asked for again: the mission goes on as AUTO
+            self._tel = None
+            self._events.append(ModeChangedEvent(CopterMode.AUTO))
+            return Outcome(True)
         if mode == self._mode and (from_gcs or mode in (CopterMode.RTL, CopterMode.LAND)):
             return Outcome(True)
         if mode in NEEDS_POSITION and not self._position_ok():
@@ -599,6 +619,7 @@ class FlightCore(SensorFusionMixin, ArmingMixin, GuidedMixin, AutoMissionMixin,
             self._mission_state = MissionState.PAUSED
         previous = self._mode
         self._mode = mode
+        self._auto_rtl = False
         self._tel = None
         self._guided = None
         self._guided_heading = None

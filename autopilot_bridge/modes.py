@@ -54,6 +54,7 @@ SUPPORTED_MODES: frozenset[CopterMode] = frozenset({
     CopterMode.BRAKE,
     CopterMode.CIRCLE,
     CopterMode.SMART_RTL,
+    CopterMode.AUTO_RTL,      # AUTO flying the mission's landing sequence (not a mode of its own)
 })
 
 # Modes in which ArduCopter's horizontal position controller runs; HEARTBEAT.base_mode then
@@ -78,12 +79,14 @@ POSITION_CONTROLLED_MODES: frozenset[CopterMode] = frozenset({
 POSITION_MODES: frozenset[CopterMode] = frozenset({CopterMode.GUIDED, CopterMode.AUTO,
                                                    CopterMode.LOITER, CopterMode.RTL, CopterMode.LAND,
                                                    CopterMode.POSHOLD, CopterMode.BRAKE,
-                                                   CopterMode.CIRCLE, CopterMode.SMART_RTL})
+                                                   CopterMode.CIRCLE, CopterMode.SMART_RTL,
+                                                   CopterMode.AUTO_RTL})
 # Modes that need a horizontal position estimate to be entered (ArduCopter requires_GPS()).
 NEEDS_POSITION: frozenset[CopterMode] = frozenset({CopterMode.GUIDED, CopterMode.AUTO,
                                                    CopterMode.LOITER, CopterMode.RTL,
                                                    CopterMode.POSHOLD, CopterMode.BRAKE,
-                                                   CopterMode.CIRCLE, CopterMode.SMART_RTL})
+                                                   CopterMode.CIRCLE, CopterMode.SMART_RTL,
+                                                   CopterMode.AUTO_RTL})
 # Modes a ground station may arm in (ArduCopter Mode::allows_arming for GCS arming; BRAKE's is
 # false, POSHOLD's true).
 ARMABLE_MODES: frozenset[CopterMode] = frozenset({CopterMode.STABILIZE, CopterMode.ALT_HOLD,

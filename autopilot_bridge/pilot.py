@@ -202,7 +202,9 @@ class PilotMixin:
             if land:
                 to(CopterMode.LAND)
                 return
-        if action == RadioFailsafeAction.LAND:
+        if action == RadioFailsafeAction.AUTO_DO_LAND_START:
+            self._land_start_or_rtl()
+        elif action == RadioFailsafeAction.LAND:
             to(CopterMode.LAND)
         elif action == RadioFailsafeAction.BRAKE_OR_LAND:
             if not to(CopterMode.BRAKE).ok:

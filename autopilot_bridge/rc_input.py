@@ -56,7 +56,7 @@ class RadioFailsafeAction(IntEnum):
     LAND = 3
     SMARTRTL_OR_RTL = 4
     SMARTRTL_OR_LAND = 5
-    AUTO_DO_LAND_START = 6    # differs: RTL (no DO_LAND_START jump here)
+    AUTO_DO_LAND_START = 6    # the mission's landing sequence (AUTO_RTL), else RTL
     BRAKE_OR_LAND = 7
 
 

@@ -411,7 +411,7 @@ def encode_battery_status(tel: VehicleTelemetry, ctx: EncodeContext
 def encode_mission_current(tel: VehicleTelemetry, ctx: EncodeContext
                            ) -> mavlink2.MAVLink_message:
     total = ctx.mission_item_count if ctx.mission_item_count > 0 else UINT16_MAX
-    mode = MissionMode.IN_MISSION_MODE if tel.mode == CopterMode.AUTO else MissionMode.SUSPENDED
+    mode = MissionMode.IN_MISSION_MODE if tel.mode in (CopterMode.AUTO, CopterMode.AUTO_RTL) else MissionMode.SUSPENDED
     return mavlink2.MAVLink_mission_current_message(
         clamp_int(tel.mission_current_seq, 0, UINT16_MAX, 0), total,
         clamp_int(int(tel.mission_state), 0, 255, 0), int(mode))

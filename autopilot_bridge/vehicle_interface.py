@@ -585,6 +585,10 @@ class Vehicle(Protocol):
     def set_current_mission_item(self, seq: int) -> Outcome:
         """Continue the mission at item ``seq`` (1..n)."""
 
+    def jump_to_landing_sequence(self) -> Outcome:
+        """MAV_CMD_DO_LAND_START: continue the mission in AUTO at the DO_LAND_START item nearest
+        to the vehicle, reported as mode AUTO_RTL (ArduCopter ``jump_to_landing_sequence_auto_RTL``)."""
+
     def reposition(self, lat_deg: float, lon_deg: float, alt_m: float, alt_frame: AltFrame,
                    speed_m_s: float | None, yaw_deg: float | None) -> Outcome:
         """Fly to a point in GUIDED (MAV_CMD_DO_REPOSITION); the server has already switched

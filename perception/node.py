@@ -113,6 +113,12 @@ DIAG_COLUMNS = ("t_s", "frame_seq", "valid", "accepted", "rule", "reason", "sear
                 "p_true", "p_false", "ncc_peak", "ncc_psr", "ncc_second_peak_ratio")
 
 
+#: Camera frames waiting for the worker. In lockstep one or two wait; more pile up only after the node
+#: was frozen (SIGSTOP, a debugger) or in real time on an overloaded machine. Past this many the oldest
+#: is dropped (``stats["dropped_backlog"]``, logged, no fix and no ack for it): the newest frames are
+#: the ones worth matching.
+FRAME_BACKLOG = 64
+
 class PerceptionNode:
     """See the module docstring. ``camera``: the camera this node expects (FOV and size)."""
 
@@ -146,7 +152,8 @@ class PerceptionNode:
         self._altitudes: deque[tuple[int, float]] = deque(maxlen=200)
         self._tilts: deque[tuple[int, tuple[float, float]]] = deque(maxlen=400)
         self._sensor_lock = threading.Lock()
-        self._queue: queue.Queue = queue.Queue(maxsize=64)
+        self._queue: queue.Queue = queue.Queue(maxsize=FRAME_BACKLOG)
+        self._backlog_dropped: deque[CameraFrame] = deque()     # oldest frames pushed out
         self._stop = threading.Event()
         self.bus = Bus(bus_cfg)
         self._worker = threading.Thread(target=self._work, name="perception", daemon=True)
@@ -190,7 +197,21 @@ class PerceptionNode:
             heading = self._at(self._headings, msg.timestamp_us)
             altitude = self._at(self._altitudes, msg.timestamp_us)
             tilt = self._at(self._tilts, msg.timestamp_us) if self.homography and msg.mount == "fixed" else None
-        self._queue.put((msg, heading, altitude, tilt))
+        item = (msg, heading, altitude, tilt)
+        # Never block here: this runs in Zenoh's receive thread, and a blocked receive thread stalls
+        # every subscription of the node (after a SIGSTOP the backlog filled the queue and the node
+        # never saw a frame again). A full queue loses its oldest frame instead.
+        while True:
+            try:
+                self._queue.put_nowait(item)
+                return
+            except queue.Full:
+                try:
+                    old = self._queue.get_nowait()
+                except queue.Empty:
+                    continue
+                with self._sensor_lock:
+                    self._backlog_dropped.append(old[0])
 
     def _drop(self, reason: str, msg: CameraFrame, detail: str = "") -> None:
         """Count a dropped frame under a fixed ``reason`` key; log the first ones with detail."""
@@ -224,6 +245,11 @@ class PerceptionNode:
             except queue.Empty:
                 continue
             msg, heading, altitude, tilt = item
+            with self._sensor_lock:
+                dropped = list(self._backlog_dropped)
+                self._backlog_dropped.clear()
+            for old in dropped:
+                self._drop("backlog", old, f"more than {FRAME_BACKLOG} frames waiting: the oldest goes")
             try:
                 mismatch = self.camera.mismatch(msg.fov_deg, msg.width_px, msg.height_px)
                 if mismatch is not None:

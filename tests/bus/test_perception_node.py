@@ -2,6 +2,7 @@
 refused (counted, answered with an invalid fix), good frames get fixes scaled with the frame's FOV."""
 
 import contextlib
+import dataclasses
 import math
 import threading
 import time
@@ -155,3 +156,35 @@ def test_homography_node_aligns_fixed_mount_frames_with_the_estimated_attitude(w
     assert homography_stats.get("homography_without_estimate", 0) == 0
     assert nadir_stats["homography_without_estimate"] == 1
     assert not nadir_fixes[0].valid or math.hypot(*nadir_fixes[0].position_xy_enu_m) > 10.0
+
+
+def test_a_backlog_drops_the_oldest_frames_and_never_blocks_the_receive_thread(world):
+    """A frozen worker (the node was stopped, or is far behind) must not block Zenoh's receive
+    thread: other subscriptions keep being served, and the newest frames are the ones answered."""
+    from perception.node import FRAME_BACKLOG
+    with _live_node(world) as (hub, keys, node, fixes, acks):
+        gate = threading.Event()
+        real = node.pipeline.process
+
+        def held(*a, **kw):
+            gate.wait(30)
+            return real(*a, **kw)
+        node.pipeline.process = held
+        n = FRAME_BACKLOG + 40
+        frame = _frame(world, 0, 1000)
+        for seq in range(n):
+            hub.publish(keys.camera, dataclasses.replace(frame, timestamp_us=1000 + seq * 100_000, seq=seq))
+        hub.publish(keys.compass, CompassSample(99_000_000, 1.25))       # after the whole backlog
+        t0 = time.monotonic()
+        while time.monotonic() - t0 < 15 and not (node._headings and node._headings[-1][1] == 1.25):
+            time.sleep(0.05)
+        assert node._headings[-1] == (99_000_000, 1.25)                  # the receive thread was free
+        gate.set()
+        t0 = time.monotonic()
+        while time.monotonic() - t0 < 30 and not (acks and acks[-1].seq == n - 1):
+            time.sleep(0.05)
+        answered = [a.seq for a in acks]
+        assert answered[-1] == n - 1                                      # the newest frame answered
+        assert FRAME_BACKLOG <= len(answered) <= FRAME_BACKLOG + 2         # the rest dropped, oldest first
+        assert answered == sorted(answered)
+        assert node.stats["dropped_backlog"] == n - len(answered)

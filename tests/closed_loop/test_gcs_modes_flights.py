@@ -285,3 +285,72 @@ def test_loiter_roll_stick_moves_right_and_centred_holds(pilot_flight):
 
 def test_radio_failsafe_when_overrides_stop(pilot_flight):
     assert "Radio Failsafe" in pilot_flight["texts"]
+
+
+# ----------------------------------------------------------------------------- landing sequence (AUTO_RTL)
+@pytest.fixture(scope="module")
+def land_start_flight():
+    """An AUTO mission with two landing sequences; the RC overrides stop on the first leg and the
+    radio failsafe (FS_THR_ENABLE 6, "Auto DO_LAND_START or RTL") jumps to the nearer one."""
+    f = GpsFlight(8, WPNAV_ACCEL=500, FS_THR_ENABLE=6)
+    c = f.core
+
+    def item(seq, cmd, e=None, n=None, alt=0.0):
+        lat, lon = f.latlon(e, n) if e is not None else (0, 0)
+        return MissionItem(seq=seq, command=int(cmd), frame=REL, lat_e7=lat, lon_e7=lon, alt_m=alt)
+
+    r: dict = {"no_mission": c.jump_to_landing_sequence()}
+    assert c.mission_changed((item(1, MC.NAV_TAKEOFF, alt=4.0), item(2, MC.NAV_WAYPOINT, 0.0, 30.0, 4.0))).ok
+    r["no_land_start"] = c.jump_to_landing_sequence()
+    mission = (
+        item(1, MC.NAV_TAKEOFF, alt=4.0),
+        item(2, MC.NAV_WAYPOINT, 0.0, 40.0, 4.0),
+        item(3, MC.NAV_WAYPOINT, 40.0, 40.0, 4.0),
+        item(4, MC.DO_LAND_START, -60.0, 40.0),       # the far landing sequence
+        item(5, MC.NAV_WAYPOINT, -60.0, 40.0, 4.0),
+        item(6, MC.NAV_LAND, -60.0, 40.0),
+        item(7, MC.DO_LAND_START, 12.0, 12.0),        # the near one
+        item(8, MC.NAV_WAYPOINT, 12.0, 12.0, 4.0),
+        item(9, MC.NAV_LAND, 12.0, 12.0),
+    )
+    assert c.mission_changed(mission).ok
+    assert c.set_mode(CopterMode.GUIDED).ok and c.arm(False).ok and c.set_mode(CopterMode.AUTO).ok
+    for _ in range(3000):                             # the pilot's sticks centred until the first leg
+        if c._mission_index == 1 and f.p[1] > 8.0:
+            break
+        c.rc_channels_override((1500, 1500, 1500, 1500) + RELEASED)
+        f.tick()
+    assert c._mission_index == 1 and c.mode == CopterMode.AUTO, (f.t, c._mission_index, c.mode)
+    f.until(lambda: c.mode != CopterMode.AUTO, 6.0, "radio failsafe after RC_OVERRIDE_TIME")
+    r["failsafe_at"] = f.p.copy()
+    r["mode_after_failsafe"] = c.mode
+    r["seq_after_failsafe"] = c._mission_index + 1
+    f.run(2.0)
+    r["auto_again"] = (c.set_mode(CopterMode.AUTO).ok, c.mode)
+    r["auto_rtl_again"] = (c.set_mode(CopterMode.AUTO_RTL).ok, c.mode)
+    modes = []
+    f.until(lambda: modes.append(c.mode) or not c.armed, 60, "landing of the landing sequence")
+    r["modes_to_landing"] = set(modes)
+    r["end"] = f.p.copy()
+    r["texts"] = list(f.texts)
+    yield r
+    f.close()
+
+
+def test_no_landing_sequence_is_refused_as_arducopter(land_start_flight):
+    for key in ("no_mission", "no_land_start"):
+        outcome = land_start_flight[key]
+        assert not outcome.ok and outcome.reason == "Mode change to AUTO RTL failed: No landing sequence found"
+    assert "Unable to start landing sequence" in land_start_flight["texts"]
+
+
+def test_radio_failsafe_6_flies_the_nearest_landing_sequence_as_auto_rtl(land_start_flight):
+    r = land_start_flight
+    assert "Radio Failsafe" in r["texts"] and "Landing sequence start" in r["texts"]
+    assert r["mode_after_failsafe"] == CopterMode.AUTO_RTL
+    assert r["seq_after_failsafe"] in (7, 8)                 # the near DO_LAND_START, not item 4
+    assert r["auto_again"] == (True, CopterMode.AUTO)        # asking for AUTO: the mission goes on as AUTO
+    assert r["auto_rtl_again"] == (True, CopterMode.AUTO_RTL)
+    assert r["modes_to_landing"] == {CopterMode.AUTO_RTL}    # reported until it landed and disarmed
+    assert np.linalg.norm(r["end"][:2] - (12.0, 12.0)) < 1.5
+    assert r["end"][2] < 0.5

@@ -80,7 +80,7 @@ def test_enums_match_mavlink():
     assert mode_from_name("guided") == CopterMode.GUIDED
     assert {m.name for m in SUPPORTED_MODES} == {"STABILIZE", "ALT_HOLD", "GUIDED", "AUTO",
                                                  "LOITER", "RTL", "LAND", "POSHOLD", "BRAKE",
-                                                 "CIRCLE", "SMART_RTL"}
+                                                 "CIRCLE", "SMART_RTL", "AUTO_RTL"}
 
 
 # ----------------------------------------------------------------------------- arming & modes

@@ -1,7 +1,7 @@
 """Issue 15, items 3 and 5-7 over real MAVLink bytes against the FakeVehicle: missions with every
 command AP_Mission stores (DO_JUMP, loiters, conditions, camera and gimbal items, terrain frames)
 uploaded and downloaded unchanged, the "change altitude" item, CONDITION_YAW, DO_SET_ROI_LOCATION /
-DO_SET_ROI_NONE, DO_PAUSE_CONTINUE, NAV_TAKEOFF's param3, RC_CHANNELS_OVERRIDE and MANUAL_CONTROL
+DO_SET_ROI_NONE, DO_PAUSE_CONTINUE, DO_LAND_START and mode AUTO_RTL, NAV_TAKEOFF's param3, RC_CHANNELS_OVERRIDE and MANUAL_CONTROL
 only from SYSID_MYGCS, and the RC_CHANNELS / SERVO_OUTPUT_RAW stream."""
 
 from __future__ import annotations
@@ -105,6 +105,32 @@ def test_condition_yaw_roi_pause_and_takeoff_param3():
             vehicle.armed = True
             long_cmd(conn, M.MAV_CMD_NAV_TAKEOFF, 0, 0, 1, 0, 0, 0, 12.0)
             assert [c for c in vehicle.calls if c[0] == "takeoff"][-1][1] == (12.0, False)
+        finally:
+            conn.close()
+
+
+def test_do_land_start_and_mode_27_report_auto_rtl_and_fail_without_a_landing_sequence():
+    from autopilot_bridge.vehicle_interface import MissionCommand, MissionItem
+    with running_server() as (server, vehicle):
+        conn = gcs_connection(server.tcp_port)
+        try:
+            assert long_cmd(conn, M.MAV_CMD_DO_LAND_START) == MavResult.FAILED
+            text = wait_for(conn, "STATUSTEXT", condition=lambda m: "AUTO RTL" in m.text)
+            full = "Mode change to AUTO RTL failed: No landing sequence found"
+            assert text is not None and full.startswith(text.text) and len(text.text) >= 45
+            vehicle.mission = (MissionItem(1, int(MissionCommand.NAV_TAKEOFF), 3, alt_m=10.0),
+                               MissionItem(2, int(MissionCommand.DO_LAND_START), 3),
+                               MissionItem(3, int(MissionCommand.NAV_LAND), 3))
+            assert long_cmd(conn, M.MAV_CMD_DO_LAND_START) == MavResult.ACCEPTED
+            assert vehicle.calls[-1] == ("jump_to_landing_sequence", ())
+            hb = wait_for(conn, "HEARTBEAT", condition=lambda m: m.custom_mode == CopterMode.AUTO_RTL)
+            assert hb is not None                          # QGC shows "Auto RTL"
+            vehicle.mode = CopterMode.AUTO
+            conn.mav.command_long_send(1, 1, M.MAV_CMD_DO_SET_MODE, 0,
+                                       M.MAV_MODE_FLAG_CUSTOM_MODE_ENABLED, CopterMode.AUTO_RTL, 0, 0, 0, 0, 0)
+            ack = command_ack(conn, M.MAV_CMD_DO_SET_MODE)
+            assert ack is not None and ack.result == MavResult.ACCEPTED
+            assert vehicle.calls[-1] == ("set_mode", (CopterMode.AUTO_RTL,))
         finally:
             conn.close()
 

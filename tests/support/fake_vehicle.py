@@ -33,6 +33,7 @@ from autopilot_bridge.vehicle_interface import (
     LandedState,
     LocalPositionTarget,
     MavSeverity,
+    MissionCommand,
     MissionItem,
     MissionState,
     ModeChangedEvent,
@@ -219,6 +220,17 @@ class FakeVehicle:
         with self._lock:
             self._record("set_current_mission_item", seq)
             self.mission_seq = seq
+            return Outcome(True)
+
+    def jump_to_landing_sequence(self) -> Outcome:
+        """The first DO_LAND_START of the mission (the real core takes the nearest), mode AUTO_RTL."""
+        with self._lock:
+            self._record("jump_to_landing_sequence")
+            starts = [i.seq for i in self.mission if i.command == MissionCommand.DO_LAND_START]
+            if not starts:
+                return Outcome(False, "Mode change to AUTO RTL failed: No landing sequence found")
+            self.mission_seq = starts[0]
+            self._set_mode(CopterMode.AUTO_RTL)
             return Outcome(True)
 
     def reposition(self, lat_deg: float, lon_deg: float, alt_m: float, alt_frame: AltFrame,
