@@ -131,6 +131,7 @@ class NavFilter:
         self._v = [0.0, 0.0, 0.0]
         self._q = (1.0, 0.0, 0.0, 0.0)
         self._bg = [0.0, 0.0, 0.0]
+        self._w_flu = (0.0, 0.0, 0.0)   # the last body rate, bias removed (rad/s, FLU)
         self._ba = [0.0, 0.0, 0.0]
         self._P = np.zeros((NUM_ERROR_STATES, NUM_ERROR_STATES))
         self._F = np.eye(NUM_ERROR_STATES)
@@ -269,6 +270,7 @@ class NavFilter:
         wx = float(gyro_flu_rad_s[0]) - bg[0]
         wy = float(gyro_flu_rad_s[1]) - bg[1]
         wz = float(gyro_flu_rad_s[2]) - bg[2]
+        self._w_flu = (wx, wy, wz)
         ax = float(accel_flu_m_s2[0]) - ba[0]
         ay = float(accel_flu_m_s2[1]) - ba[1]
         az = float(accel_flu_m_s2[2]) - ba[2]
@@ -407,27 +409,41 @@ class NavFilter:
         self._require_aligned("fuse_compass")
         return self._fuse_heading(heading_rad, self._cfg.compass_noise_rad, "the compass")
 
-    def fuse_ext_nav_yaw(self, heading_rad: float, std_rad: float) -> FusionResult:
+    def fuse_ext_nav_yaw(self, heading_rad: float, std_rad: float, age_s: float = 0.0) -> FusionResult:
         """External-navigation heading (EK3_SRCn_YAW = 6: ArduPilot fuses the ExtNav yaw instead of
-        the compass; ``std_rad`` from VISO_YAW_M_NSE and the message) -> yaw."""
+        the compass; ``std_rad`` from VISO_YAW_M_NSE and the message) -> yaw. A heading measured
+        ``age_s`` ago is moved forward with the current turn rate, as positions are with the velocity."""
         self._require_aligned("fuse_ext_nav_yaw")
-        return self._fuse_heading(heading_rad, max(float(std_rad), 1e-3), "external navigation")
+        heading = float(heading_rad)
+        if age_s > 0.0:
+            heading += self._heading_rate_rad_s() * float(age_s)
+        return self._fuse_heading(heading, max(float(std_rad), 1e-3), "external navigation")
 
-    def fuse_ext_nav_height(self, z_enu_m: float, std_m: float) -> FusionResult:
+    def _heading_rate_rad_s(self) -> float:
+        """Clockwise heading rate (heading = pi/2 - yaw) from the last body rate, bias removed."""
+        return -float(quat_rotate(self._q, self._w_flu)[2])
+
+    def fuse_ext_nav_height(self, z_enu_m: float, std_m: float, age_s: float = 0.0) -> FusionResult:
         """External-navigation height (EK3_SRCn_POSZ = 6, ENU z in this filter's frame) -> z and the
         vertical velocity (not the barometer's bias states); reset after the height timeout as a
-        rejected barometer would be."""
+        rejected barometer would be. A height measured ``age_s`` ago is moved forward with the
+        vertical velocity (its uncertainty added), as positions are."""
         self._require_aligned("fuse_ext_nav_height")
         c = self._cfg
-        innov = np.array([float(z_enu_m) - self._p[2]])
+        z = float(z_enu_m)
+        var = max(float(std_m), 0.01) ** 2
+        if age_s > 0.0:
+            z += self._v[2] * float(age_s)
+            var += float(self._P[5, 5]) * float(age_s) ** 2
+        innov = np.array([z - self._p[2]])
         H = np.zeros((1, NUM_ERROR_STATES))
         H[0, 2] = 1.0
-        R = np.array([[max(float(std_m), 0.01) ** 2]])
+        R = np.array([[var]])
         result = self._update(innov, H, R, c.height_gate_sd, states=_EXT_HEIGHT_STATES)
         if result.accepted:
             self._hgt_last_ok_s = self._time_s
         elif self._time_s - self._hgt_last_ok_s > c.height_reject_timeout_s and math.isfinite(float(innov[0])):
-            self._reset_axes([2], np.array([float(z_enu_m)]), R)
+            self._reset_axes([2], np.array([z]), R)
             self._height_reset_count += 1
             self._hgt_last_ok_s = self._time_s
             logger.warning("NavFilter: height reset to external navigation (jump %.2f m)", float(innov[0]))

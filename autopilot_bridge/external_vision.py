@@ -13,7 +13,7 @@ to VISION_POSITION_ESTIMATE and ODOMETRY before the EKF fuses them.
   also the floor (``AP_VisualOdom``).
 * **Height and yaw** (``EK3_SRCn_POSZ`` / ``EK3_SRCn_YAW`` = 6 in the active source set): the fix's
   height and the message's yaw (VISION_POSITION_ESTIMATE's yaw, ODOMETRY's quaternion) are fused
-  instead of the barometer / compass; the yaw error is cbrt(c_rr^2 + c_pp^2 + c_yy^2) of the pose
+  instead of the barometer / compass, at the same delayed time as the position; the yaw error is cbrt(c_rr^2 + c_pp^2 + c_yy^2) of the pose
   covariance (indices 15, 18, 20, as GCS_Common.cpp) with ``VISO_YAW_M_NSE`` as the floor.
 * **reset_counter**: a change (after the first message) resets the EKF horizontal position to the
   fix (ArduPilot records the reset and EK3 resets its position to external nav).

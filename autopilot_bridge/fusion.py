@@ -86,8 +86,9 @@ class SensorFusionMixin:
         self._last_ext_nav_s: float | None = None
         self._viso_clock = JitterCorrection()   # MAVLink external nav: sender time -> ours
         self._viso_reset = ResetCounter()
-        self._ext_height: list[tuple[float, float]] = []   # (ENU z m, std m): EK3_SRCn_POSZ 6
-        self._ext_yaw: list[tuple[float, float]] = []      # (heading rad, std rad): EK3_SRCn_YAW 6
+        # (value, std, time it was measured: VISO_DELAY_MS before its jitter-corrected arrival)
+        self._ext_height: list[tuple[float, float, float]] = []   # ENU z m, m: EK3_SRCn_POSZ 6
+        self._ext_yaw: list[tuple[float, float, float]] = []      # heading rad, rad: EK3_SRCn_YAW 6
         self._last_ext_height_s: float | None = None
         self._last_ext_yaw_s: float | None = None
 
@@ -155,12 +156,12 @@ class SensorFusionMixin:
         nav = self.nav
         ext_height = self._ext_nav_source("POSZ")
         ext_yaw = self._ext_nav_source("YAW")
-        for z, std in self._ext_height:
-            nav.fuse_ext_nav_height(z, std)
+        for z, std, t_s in self._ext_height:
+            nav.fuse_ext_nav_height(z, std, age_s=max(0.0, self._now_s - t_s))
             self.stats["ext_nav_height_fused"] += 1
         self._ext_height.clear()
-        for hdg, std in self._ext_yaw:
-            nav.fuse_ext_nav_yaw(hdg, std)
+        for hdg, std, t_s in self._ext_yaw:
+            nav.fuse_ext_nav_yaw(hdg, std, age_s=max(0.0, self._now_s - t_s))
             self.stats["ext_nav_yaw_fused"] += 1
         self._ext_yaw.clear()
         # the barometer / compass while external navigation gives no height / yaw (the fallback)
@@ -266,10 +267,10 @@ class SensorFusionMixin:
         self._last_ext_nav_s = self._now_s
         self.stats["ext_nav_mavlink"] += 1
         if self._ext_nav_source("POSZ") and math.isfinite(float(enu[2])):
-            self._ext_height.append((float(enu[2]), err))
+            self._ext_height.append((float(enu[2]), err, t_s))
             self._last_ext_height_s = self._now_s
         if self._ext_nav_source("YAW"):
-            self._ext_yaw.append((heading_of(body_to_ned), angle_error_rad(cov21, s.yaw_noise_rad)))
+            self._ext_yaw.append((heading_of(body_to_ned), angle_error_rad(cov21, s.yaw_noise_rad), t_s))
             self._last_ext_yaw_s = self._now_s
         if self._viso_reset.changed(int(reset_counter)):
             self.nav.reset_horizontal_position(enu[:2], err * err)

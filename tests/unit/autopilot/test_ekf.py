@@ -284,3 +284,31 @@ def test_unobserved_tilt_step_recovers_through_velocity_reset():
     assert math.degrees(math.acos(min(1.0, float(est @ true_z)))) < 1.0
     assert np.linalg.norm(hist[-1][2].velocity_enu_m_s - truth.v) < 0.3
     assert np.linalg.norm(hist[-1][2].position_enu_m[:2] - truth.p[:2]) < 2.0
+
+
+def test_ext_nav_height_and_yaw_measured_earlier_are_moved_forward_to_now():
+    """VISO_DELAY_MS for height and yaw: a value measured ``age_s`` ago is moved forward with the
+    vertical velocity and the turn rate before it is compared with the state."""
+    import copy
+    rng = np.random.default_rng(4)
+    climb, turn = 2.0, 0.2                                   # m/s up; rad/s counter-clockwise
+
+    def accel(t):
+        return np.array([0.0, 0.0, climb]) if 1.0 <= t < 2.0 else np.zeros(3)
+
+    def rate(t):
+        return np.array([0.0, 0.0, turn]) if t >= 2.0 else np.zeros(3)
+    truth = KinematicTruth(accel, rate)
+    nav = _align(truth, rng)
+    _run(nav, truth, rng, 3.0)
+    age = 0.3
+    z_then = float(truth.p[2]) - climb * age
+    heading_then = truth.heading + turn * age              # heading = pi/2 - yaw: it decreases
+    innov = {}
+    for a in (0.0, age):
+        innov[a] = (float(copy.deepcopy(nav).fuse_ext_nav_height(z_then, 0.1, age_s=a).innovation[0]),
+                    float(copy.deepcopy(nav).fuse_ext_nav_yaw(heading_then, 0.05, age_s=a).innovation[0]))
+    assert innov[0.0][0] == pytest.approx(-climb * age, abs=0.25)      # on arrival: 0.6 m behind
+    assert abs(innov[age][0]) < 0.25
+    assert innov[0.0][1] == pytest.approx(turn * age, abs=0.03)
+    assert abs(innov[age][1]) < 0.03
