@@ -21,7 +21,7 @@ counter-clockwise when param3 < 0; ``circle``); NAV_DELAY (hold param1 s; differ
 a time of day, is not implemented: no delay); NAV_LAND; NAV_RETURN_TO_LAUNCH. Executed do
 commands: DO_CHANGE_SPEED, DO_SET_HOME (param1 1 or no location: here), DO_SET_ROI /
 DO_SET_ROI_LOCATION (face the location; a zero location or DO_SET_ROI_NONE ends it),
-DO_LAND_START (a marker), CONDITION_*. Every other stored command is skipped, as ArduCopter does
+DO_LAND_START (a marker), DO_FENCE_ENABLE (``core_geofence.fence_enable``), CONDITION_*. Every other stored command is skipped, as ArduCopter does
 for commands the frame cannot run (camera, gimbal, servo, relay, gripper, ...).
 
 Terrain frames (GLOBAL_TERRAIN_ALT): stored; flown as ArduCopter without terrain data flies them:
@@ -545,6 +545,9 @@ class AutoMissionMixin:
                 frame = item.alt_frame if item.alt_frame is not None else AltFrame.RELATIVE_HOME
                 home = np.array([x, y, self._alt_to_z(item.alt_m, frame)])
             self._set_home_enu(home)
+        elif cmd == MC.DO_FENCE_ENABLE:
+            # AP_Mission ``start_command_fence``: an unknown action fails the item, which is moved past
+            self.fence_enable(int(item.param1), int(item.param2))
 
     def _verify_do(self, est: NavState) -> bool:
         """Whether the running do command is done (ArduCopter's verify_command)."""

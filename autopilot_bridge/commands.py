@@ -159,6 +159,7 @@ class CommandHandler:
             m.MAV_CMD_MISSION_START: self._mission_start,
             m.MAV_CMD_DO_SET_MISSION_CURRENT: self._set_mission_current,
             m.MAV_CMD_DO_LAND_START: self._land_start,
+            m.MAV_CMD_DO_FENCE_ENABLE: self._fence_enable,
             m.MAV_CMD_DO_REPOSITION: self._reposition,
             m.MAV_CMD_DO_CHANGE_SPEED: self._change_speed,
             m.MAV_CMD_CONDITION_YAW: self._condition_yaw,
@@ -288,6 +289,15 @@ class CommandHandler:
         """DO_LAND_START: the mission's landing sequence in AUTO (reported AUTO_RTL), FAILED without
         one (ArduCopter ``handle_command_long``: ``jump_to_landing_sequence_auto_RTL``)."""
         return CommandResult(self._outcome(self._vehicle.jump_to_landing_sequence()))
+
+    def _fence_enable(self, req: CommandRequest, link: object) -> CommandResult:
+        """DO_FENCE_ENABLE: param1 the action (0, 1, 2; else FAILED), param2 the FENCE_TYPE mask
+        (0 = all); ENABLE with no such fence present is FAILED (ArduPilot GCS_Fence)."""
+        action = _as_int(req.p(1), 0, 255)
+        mask = _as_int(req.p(2), 0, 0xFFFF)
+        if action is None or mask is None:
+            return CommandResult(MavResult.FAILED)
+        return CommandResult(self._outcome(self._vehicle.fence_enable(action, mask)))
 
     def _reposition(self, req: CommandRequest, link: object) -> CommandResult:
         if not req.is_int:

@@ -20,6 +20,7 @@ from autopilot_bridge.geofence import (
 )
 from autopilot_bridge.modes import CopterMode
 from autopilot_bridge.vehicle_interface import MavSeverity, MissionItem, Outcome
+from scenenav.core.fence_items import FenceEnable
 
 
 class GeofenceMixin:
@@ -28,6 +29,45 @@ class GeofenceMixin:
     def _init_geofence(self) -> None:
         self.fence = FenceMonitor()
         self._rally_items: tuple[MissionItem, ...] = ()
+        # DO_FENCE_ENABLE: ArduPilot's runtime switch over FENCE_ENABLE, not stored as a parameter
+        # (AC_Fence ``enable``): None = as FENCE_ENABLE says (all FENCE_TYPE fences or none),
+        # else the fence types switched on
+        self._fences_enabled: FenceType | None = None
+
+    def _fences_on(self) -> FenceType:
+        if self._fences_enabled is not None:
+            return self._fences_enabled
+        return FenceType.all_fences() if self.params.get_int("FENCE_ENABLE") == 1 else FenceType.NONE
+
+    def _fences_present(self) -> FenceType:
+        """AC_Fence ``present``: the FENCE_TYPE fences that can be checked (a polygon fence only
+        with an uploaded fence)."""
+        present = FenceType(self.params.get_int("FENCE_TYPE") & FenceType.all_fences())
+        if self.fence.geometry.empty:
+            present &= ~FenceType.POLYGON
+        return present
+
+    def fence_enable(self, action: int, fence_mask: int = 0) -> Outcome:
+        """DO_FENCE_ENABLE (command or mission item): ``action`` 0 disables, 1 enables, 2 disables
+        the floor (ALT_MIN) only; ``fence_mask`` the FENCE_TYPE bits it applies to (0 = all), as
+        ArduPilot's GCS_Fence / AP_Mission. Enabling with none of them present fails; an unknown
+        action is refused."""
+        fences = FenceType(fence_mask & FenceType.all_fences()) or FenceType.all_fences()
+        on = self._fences_on()
+        if action == FenceEnable.DISABLE:
+            self._fences_enabled = on & ~fences
+            self._announce(MavSeverity.INFO, "Fence disabled")
+        elif action == FenceEnable.ENABLE:
+            if not self._fences_present() & fences:
+                return self._refuse("Fence: no fence present to enable")
+            self._fences_enabled = on | fences
+            self._announce(MavSeverity.INFO, "Fence enabled")
+        elif action == FenceEnable.DISABLE_FLOOR:
+            self._fences_enabled = on & ~FenceType.ALT_MIN
+            self._announce(MavSeverity.INFO, "Fence floor disabled")
+        else:
+            return self._refuse(f"Fence: unknown DO_FENCE_ENABLE action {action}")
+        return Outcome(True)
 
     def fence_changed(self, items: tuple[MissionItem, ...]) -> Outcome:
         geometry, reason = parse_fence(items, self.geo.to_enu)
@@ -49,8 +89,10 @@ class GeofenceMixin:
 
     def fence_settings(self) -> FenceSettings:
         p = self.params
-        return FenceSettings(enabled=p.get_int("FENCE_ENABLE") == 1,
-                             types=FenceType(p.get_int("FENCE_TYPE") & 0xF),
+        on = self._fences_on()
+        types = FenceType(p.get_int("FENCE_TYPE") & 0xF) & on
+        enabled = bool(on)
+        return FenceSettings(enabled=enabled, types=types,
                              action=p.get_int("FENCE_ACTION"), alt_max_m=p.get("FENCE_ALT_MAX"),
                              alt_min_m=p.get("FENCE_ALT_MIN"), radius_m=p.get("FENCE_RADIUS"),
                              margin_m=p.get("FENCE_MARGIN"))

@@ -589,6 +589,11 @@ class Vehicle(Protocol):
         """MAV_CMD_DO_LAND_START: continue the mission in AUTO at the DO_LAND_START item nearest
         to the vehicle, reported as mode AUTO_RTL (ArduCopter ``jump_to_landing_sequence_auto_RTL``)."""
 
+    def fence_enable(self, action: int, fence_mask: int) -> Outcome:
+        """MAV_CMD_DO_FENCE_ENABLE: ``action`` 0 disable, 1 enable, 2 disable the floor only, for
+        the FENCE_TYPE bits ``fence_mask`` (0 = every fence); not stored in FENCE_ENABLE
+        (ArduPilot ``GCS_MAVLINK::handle_command_do_fence_enable``)."""
+
     def reposition(self, lat_deg: float, lon_deg: float, alt_m: float, alt_frame: AltFrame,
                    speed_m_s: float | None, yaw_deg: float | None) -> Outcome:
         """Fly to a point in GUIDED (MAV_CMD_DO_REPOSITION); the server has already switched

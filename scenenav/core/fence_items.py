@@ -27,3 +27,16 @@ class FenceType(IntFlag):
     CIRCLE = 2
     POLYGON = 4
     ALT_MIN = 8
+
+    @classmethod
+    def all_fences(cls) -> FenceType:
+        return cls.ALT_MAX | cls.CIRCLE | cls.POLYGON | cls.ALT_MIN
+
+
+class FenceEnable(IntEnum):
+    """MAV_CMD_DO_FENCE_ENABLE param1 (common.xml FENCE_ENABLE_*; AC_Fence ``enable`` /
+    ``disable_floor``)."""
+
+    DISABLE = 0
+    ENABLE = 1
+    DISABLE_FLOOR = 2

@@ -78,3 +78,19 @@ def test_autopilot_version_claims_fence_and_rally():
         assert caps & M.MAV_PROTOCOL_CAPABILITY_MISSION_FENCE
         assert caps & M.MAV_PROTOCOL_CAPABILITY_MISSION_RALLY
         conn.close()
+
+
+def test_do_fence_enable_command_reaches_the_vehicle_and_bad_actions_fail():
+    """MAV_CMD_DO_FENCE_ENABLE as QGC's and MAVProxy's `fence enable` send it: param1 the action,
+    param2 the FENCE_TYPE mask; a non-integral action is FAILED before the vehicle sees it."""
+    with running_server() as (server, vehicle):
+        conn = gcs_connection(server.tcp_port)
+        cmd = M.MAV_CMD_DO_FENCE_ENABLE
+        results = []
+        for p1, p2 in ((1, 0), (2, 0), (0, 4), (7, 0), (0.5, 0)):
+            conn.mav.command_long_send(1, 1, cmd, 0, p1, p2, 0, 0, 0, 0, 0)
+            results.append(command_ack(conn, cmd).result)
+        assert results == [M.MAV_RESULT_ACCEPTED] * 3 + [M.MAV_RESULT_FAILED] * 2
+        calls = [args for name, args in vehicle.calls if name == "fence_enable"]
+        assert calls == [(1, 0), (2, 0), (0, 4), (7, 0)]
+        conn.close()

@@ -233,6 +233,14 @@ class FakeVehicle:
             self._set_mode(CopterMode.AUTO_RTL)
             return Outcome(True)
 
+    def fence_enable(self, action: int, fence_mask: int) -> Outcome:
+        """Records the call; actions other than 0, 1, 2 are refused as the real core refuses them."""
+        with self._lock:
+            self._record("fence_enable", action, fence_mask)
+            if action not in (0, 1, 2):
+                return Outcome(False, f"Fence: unknown DO_FENCE_ENABLE action {action}")
+            return Outcome(True)
+
     def reposition(self, lat_deg: float, lon_deg: float, alt_m: float, alt_frame: AltFrame,
                    speed_m_s: float | None, yaw_deg: float | None) -> Outcome:
         with self._lock:

@@ -91,3 +91,45 @@ def test_rally_or_home_as_ap_rally():
     # nearest point beyond RALLY_LIMIT_KM and home nearer -> home
     assert list(rally_or_home([(900.0, 0.0, 20.0)], (300.0, 0.0, 10.0), HOME, 0.3, False)) == [0, 0, 0]
     assert list(rally_or_home([], (300.0, 0.0, 10.0), HOME, 0.3, True)) == [0, 0, 0]
+
+
+def test_do_fence_enable_switches_fences_at_run_time_as_gcs_fence():
+    """MAV_CMD_DO_FENCE_ENABLE on a flight core: on/off over FENCE_ENABLE without storing it, the
+    floor alone, a type mask, ENABLE refused with nothing present, unknown actions refused; the
+    mission item does the same."""
+    from support.nav import nav_state
+
+    from autopilot_bridge.flight_core import FlightCore
+    from autopilot_bridge.param_specs import PARAM_SPECS
+    from autopilot_bridge.params import ParameterStore
+    from autopilot_bridge.vehicle_interface import MissionCommand
+
+    core = FlightCore(ParameterStore(PARAM_SPECS))
+    core.params.set("FENCE_TYPE", 15.0)
+    assert not core.fence_settings().enabled                     # FENCE_ENABLE 0
+    assert core.fence_enable(1, 0).ok
+    s = core.fence_settings()
+    # every FENCE_TYPE fence on; the stored parameter untouched
+    assert s.enabled and s.types == FenceType(15)
+    assert core.params.get_int("FENCE_ENABLE") == 0
+    assert core.fence_enable(2, 0).ok                            # the floor only
+    assert core.fence_settings().types == FenceType.ALT_MAX | FenceType.CIRCLE | FenceType.POLYGON
+    assert core.fence_enable(0, int(FenceType.CIRCLE)).ok        # one type by mask
+    assert core.fence_settings().types == FenceType.ALT_MAX | FenceType.POLYGON
+    assert core.fence_enable(0, 0).ok
+    assert not core.fence_settings().enabled
+    bad = core.fence_enable(3, 0)
+    assert not bad.ok and "unknown" in bad.reason
+    # ENABLE needs a fence present: a polygon only once one is uploaded
+    core.params.set("FENCE_TYPE", float(FenceType.POLYGON))
+    assert not core.fence_enable(1, int(FenceType.POLYGON)).ok
+    core.fence_changed(tuple(SQUARE))
+    assert core.fence_enable(1, int(FenceType.POLYGON)).ok and core.fence_settings().enabled
+    texts = [t for _, t in core.drain_texts()]
+    assert "Fence enabled" in texts and "Fence disabled" in texts
+    # the mission item
+    off = MissionItem(seq=1, command=int(MissionCommand.DO_FENCE_ENABLE), frame=int(MavFrame.MISSION),
+                      param1=0.0)
+    core._start_do(off, nav_state(position=(0.0, 0.0, 10.0)))
+    assert not core.fence_settings().enabled
+    core.close()
