@@ -240,4 +240,14 @@ class TelemetryMixin:
             health &= ~SensorFlag.VISION_POSITION
         if not (aligned and not self._prearm_failures()):
             health &= ~SensorFlag.PREARM_CHECK
+        # AC_Fence sys_status_present / _enabled / _failed: present with a fence to check, enabled
+        # when switched on and not FENCE_ACTION 0 (report only), healthy unless breached (MAVProxy's
+        # "fence enabled" / "fence breach" and QGC read these bits)
+        health |= SensorFlag.GEOFENCE
+        if self._fences_present():
+            present |= SensorFlag.GEOFENCE
+            if self._fences_on() and self.params.get_int("FENCE_ACTION") != 0:
+                enabled |= SensorFlag.GEOFENCE
+            if self.fence.breached:
+                health &= ~SensorFlag.GEOFENCE
         return present, enabled, health

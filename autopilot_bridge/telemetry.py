@@ -309,9 +309,6 @@ def encode_heartbeat(tel: VehicleTelemetry, ctx: EncodeContext) -> mavlink2.MAVL
 
 def encode_sys_status(tel: VehicleTelemetry, ctx: EncodeContext) -> mavlink2.MAVLink_message:
     present, enabled, health = tel.sensors_present, tel.sensors_enabled, tel.sensors_health
-    # no fence, so never breached: ArduPilot keeps the GEOFENCE health bit set in that case
-    # (MAVProxy announces "fence breach" when it is missing)
-    health |= SensorFlag.GEOFENCE
     battery = ctx.battery_monitor != 0
     if battery:
         present |= SensorFlag.BATTERY

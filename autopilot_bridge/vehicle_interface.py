@@ -480,7 +480,8 @@ class VehicleTelemetry:
     # SYS_STATUS: SensorFlag (MAV_SYS_STATUS_SENSOR) bitmasks
     sensors_present: int = int(DEFAULT_SENSORS)
     sensors_enabled: int = int(DEFAULT_SENSORS)
-    sensors_health: int = int(DEFAULT_SENSORS)
+    # GEOFENCE healthy without a fence, as ArduPilot (not failed when not present)
+    sensors_health: int = int(DEFAULT_SENSORS | SensorFlag.GEOFENCE)
     cpu_load_pct: float = 0.0
     # NAV_CONTROLLER_OUTPUT (ArduCopter: attitude target, bearing/distance to the waypoint, the
     # vertical position error, the cross-track error); 0 where the mode has no waypoint

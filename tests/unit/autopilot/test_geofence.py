@@ -127,6 +127,19 @@ def test_do_fence_enable_switches_fences_at_run_time_as_gcs_fence():
     assert core.fence_enable(1, int(FenceType.POLYGON)).ok and core.fence_settings().enabled
     texts = [t for _, t in core.drain_texts()]
     assert "Fence enabled" in texts and "Fence disabled" in texts
+    # SYS_STATUS GEOFENCE bits as AC_Fence sys_status_*: present, enabled (not with FENCE_ACTION 0,
+    # report only), healthy while not breached
+    from autopilot_bridge.vehicle_interface import SensorFlag
+    present, enabled, health = core._sensor_flags(False)
+    assert present & enabled & health & SensorFlag.GEOFENCE
+    core.fence._breaches = FenceType.POLYGON                    # as FenceMonitor.update sets it
+    assert not core._sensor_flags(False)[2] & SensorFlag.GEOFENCE
+    core.fence._breaches = FenceType.NONE
+    core.params.set("FENCE_ACTION", 0.0)
+    assert not core._sensor_flags(False)[1] & SensorFlag.GEOFENCE
+    core.params.set("FENCE_TYPE", 0.0)
+    present, enabled, health = core._sensor_flags(False)
+    assert not present & SensorFlag.GEOFENCE and health & SensorFlag.GEOFENCE
     # the mission item
     off = MissionItem(seq=1, command=int(MissionCommand.DO_FENCE_ENABLE), frame=int(MavFrame.MISSION),
                       param1=0.0)
