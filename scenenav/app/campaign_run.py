@@ -166,6 +166,15 @@ def _worker_name() -> str:
         return ""
 
 
+def warm_worker() -> bool:
+    """Imports what ``fly`` needs, once per worker process, before the first flight is submitted (run on
+    every worker by ``Client.run``): the import is a worker's start-up cost, paid by all workers at once
+    instead of inside each one's first flight."""
+    import scenenav.app.launcher  # noqa: F401
+    import scenenav.core.bus  # noqa: F401
+    return True
+
+
 def fly(task: FlightTask) -> dict:
     """One flight (runs on a Dask worker). Returns its record; raises FlightFailed on a failed flight."""
     from scenenav.app.launcher import die_with_parent
@@ -371,6 +380,7 @@ def _fly_all(spec: CampaignSpec, todo: list[PlannedRun], out: Path, workers: int
     futures = []
     t0 = time.time()
     try:
+        client.run(warm_worker)
         cwd = os.getcwd()
         for r in todo:
             task = FlightTask(r.run_id, str(out / "plan" / f"{r.run_id}.yaml"), str(out / "runs"), cwd,
