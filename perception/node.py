@@ -223,6 +223,13 @@ class PerceptionNode:
             self.bus.publish(self.keys.events(self.node_id), Event(
                 msg.timestamp_us, self.node_id, int(Severity.WARNING), text))
 
+    def _answer_invalid(self, msg: CameraFrame) -> None:
+        """The invalid VisionFix a frame that cannot be matched still gets (every frame is answered,
+        docs/interfaces.md), so the autopilot does not wait its vision timeout for it."""
+        from perception.pipeline import Reason
+        res = self.pipeline.refused(msg.timestamp_us * 1e-6, Reason.BAD_INPUT)
+        self.bus.publish(self.keys.vision_fix(self.node_id), self._fix_message(msg, res))
+
     def _refuse(self, msg: CameraFrame, mismatch: str) -> None:
         """A frame from another camera than configured: count, log once, answer with an invalid fix."""
         from perception.pipeline import Reason
@@ -256,8 +263,10 @@ class PerceptionNode:
                     self._refuse(msg, mismatch)
                 elif heading is None or altitude is None:
                     self._drop("no_compass_or_baro_yet", msg)
+                    self._answer_invalid(msg)
                 elif not (math.isfinite(heading) and math.isfinite(altitude)):
                     self._drop("nan_sensor", msg)
+                    self._answer_invalid(msg)
                 else:
                     if self.homography and msg.mount == "fixed" and tilt is None:
                         self.stats["homography_without_estimate"] += 1
@@ -268,6 +277,7 @@ class PerceptionNode:
                                                     distortion=msg.distortion_k1_k2_p1_p2)
                     except BadInput as exc:
                         self._drop("bad_input", msg, str(exc))
+                        self._answer_invalid(msg)
                     else:
                         self.bus.publish(self.keys.vision_fix(self.node_id),
                                          self._fix_message(msg, res))

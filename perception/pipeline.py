@@ -86,6 +86,7 @@ class Reason(str, Enum):
     TEMPLATE_TOO_LARGE = "template-too-large"
     FLAT_CAPTURE = "flat-capture"            # uniform capture: NCC undefined, no match computed
     CAMERA_MISMATCH = "camera-mismatch"      # the frame's FOV or size is not the configured camera's
+    BAD_INPUT = "bad-input"                  # the frame or its heading / height cannot be used
 
 
 @dataclass(frozen=True)

@@ -76,8 +76,10 @@ def test_garbage_dropped_good_frames_fixed(world):
         hub.publish(keys.compass, CompassSample(6000, 0.0))
         hub.publish(keys.camera, _frame(world, 4, 7000))                 # good again
         _wait_for(acks, 4)
-        assert [f.frame_seq for f in fixes] == [0, 1, 4]
+        # every decodable frame gets a VisionFix, also those it cannot match (docs/interfaces.md)
+        assert [f.frame_seq for f in fixes] == [0, 1, 3, 4]
         assert not fixes[1].valid and not fixes[1].accepted           # the refused frame's answer
+        assert not fixes[2].valid and not fixes[2].accepted           # the NaN-heading frame's answer
         good = fixes[0]
         assert good.valid and good.accepted and good.method == "none"
         assert math.hypot(*good.position_xy_enu_m) < 2.0                 # map centre = world origin
