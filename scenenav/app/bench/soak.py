@@ -219,21 +219,14 @@ def _fd_count(pid: int) -> int | None:
         return None
 
 
+# fd link target prefix -> kind, first match wins (``/dev/shm/`` before ``/dev/`` before ``/``)
+_FD_KINDS = (("socket:", "socket"), ("pipe:", "pipe"), ("anon_inode:", "anon"), ("/dev/shm/", "shm"),
+             ("/dev/", "dev"), ("/", "file"))
+
+
 def fd_kind(target: str) -> str:
     """The kind of an fd from its ``/proc/PID/fd`` link target."""
-    if target.startswith("socket:"):
-        return "socket"
-    if target.startswith("pipe:"):
-        return "pipe"
-    if target.startswith("anon_inode:"):
-        return "anon"
-    if target.startswith("/dev/shm/"):
-        return "shm"
-    if target.startswith("/dev/"):
-        return "dev"
-    if target.startswith("/"):
-        return "file"
-    return "other"
+    return next((kind for prefix, kind in _FD_KINDS if target.startswith(prefix)), "other")
 
 
 def fd_kinds(pid: int) -> dict[str, int]:
