@@ -167,7 +167,9 @@ class PerceptionNode:
         self.bus.declare_token(self.keys.node_alive("perception", node_id))
         if lockstep:
             self.bus.declare_token(self.keys.lockstep_member(LockstepRole.CAMERA, node_id))
-        self.bus.publish(self.keys.node_info(node_id), NodeInfo(0, node_id, "perception", method))
+        self._info = NodeInfo(0, node_id, "perception", method)
+        self._info_repeated = False
+        self.bus.publish(self.keys.node_info(node_id), self._info)
         log.info("perception node %s up (method %s, lockstep %s)", node_id, method, lockstep)
 
     def _on_compass(self, msg: CompassSample, _k: str) -> None:
@@ -252,6 +254,10 @@ class PerceptionNode:
             except queue.Empty:
                 continue
             msg, heading, altitude, tilt = item
+            if not self._info_repeated:
+                # the first put can leave before the recorder's subscription reached this session
+                self.bus.publish(self.keys.node_info(self.node_id), self._info)
+                self._info_repeated = True
             with self._sensor_lock:
                 dropped = list(self._backlog_dropped)
                 self._backlog_dropped.clear()

@@ -208,11 +208,14 @@ class PerceptionNode:
         lv = self.session.liveliness()
         self.tokens = [lv.declare_token(self.key(f"lockstep/member/camera/{self.node_id}")),
                        lv.declare_token(self.key(f"nodes/perception/{self.node_id}"))]
-        self.session.put(self.key(f"info/{self.node_id}"), encode("NodeInfo", 1, {
-            "timestamp_us": 0, "node_id": self.node_id, "role": "perception", "detail": METHOD}))
+        self.publish_info()
         self.worker = threading.Thread(target=self.work, daemon=True)
         self.worker.start()
         log.info("perception node %s up on %s", self.node_id, meta["bus"]["endpoint"])
+
+    def publish_info(self) -> None:
+        self.session.put(self.key(f"info/{self.node_id}"), encode("NodeInfo", 1, {
+            "timestamp_us": 0, "node_id": self.node_id, "role": "perception", "detail": METHOD}))
 
     # zenoh callbacks: decode, store, hand frames to the worker (never block here)
     def on_compass(self, sample) -> None:
@@ -254,11 +257,18 @@ class PerceptionNode:
 
     # worker: one VisionFix per frame, then the ack
     def work(self) -> None:
+        first = True
         while not self.stop.is_set():
             try:
                 header, pixels = self.frames.get(timeout=0.2)
             except queue.Empty:
                 continue
+            if first:
+                # A put right after connecting can go out before the recorder's subscription has
+                # reached this session (then nobody receives it); once a frame has arrived, the
+                # routes are known: say it again (NodeInfo is idempotent).
+                self.publish_info()
+                first = False
             try:
                 fix = self.process(header, pixels)
             except Exception:               # whatever one frame did: still answer it
