@@ -56,7 +56,7 @@ from scenenav.core.keys import Keys
 from scenenav.core.rotations import aviation_euler_from_quat
 
 if TYPE_CHECKING:
-    from perception.pipeline import FixResult
+    from perception.pipeline import FixResult, Reason
 
 log = logging.getLogger(__name__)
 
@@ -225,12 +225,13 @@ class PerceptionNode:
             self.bus.publish(self.keys.events(self.node_id), Event(
                 msg.timestamp_us, self.node_id, int(Severity.WARNING), text))
 
-    def _answer_invalid(self, msg: CameraFrame) -> None:
+    def _answer_invalid(self, msg: CameraFrame, reason: Reason | None = None) -> FixResult:
         """The invalid VisionFix a frame that cannot be matched still gets (every frame is answered,
         docs/interfaces.md), so the autopilot does not wait its vision timeout for it."""
         from perception.pipeline import Reason
-        res = self.pipeline.refused(msg.timestamp_us * 1e-6, Reason.BAD_INPUT)
+        res = self.pipeline.refused(msg.timestamp_us * 1e-6, reason or Reason.BAD_INPUT)
         self.bus.publish(self.keys.vision_fix(self.node_id), self._fix_message(msg, res))
+        return res
 
     def _refuse(self, msg: CameraFrame, mismatch: str) -> None:
         """A frame from another camera than configured: count, log once, answer with an invalid fix."""
@@ -242,9 +243,7 @@ class PerceptionNode:
             log.warning("%s", text)
             self.bus.publish(self.keys.events(self.node_id), Event(
                 msg.timestamp_us, self.node_id, int(Severity.WARNING), text))
-        res = self.pipeline.refused(msg.timestamp_us * 1e-6, Reason.CAMERA_MISMATCH)
-        self.bus.publish(self.keys.vision_fix(self.node_id), self._fix_message(msg, res))
-        self._write_diag(msg, res)
+        self._write_diag(msg, self._answer_invalid(msg, Reason.CAMERA_MISMATCH))
 
     def _work(self) -> None:
         from perception.pipeline import BadInput
