@@ -31,6 +31,7 @@ lint: install
 	echo '== ruff'; $(VENV)/bin/ruff check . || status=1; \
 	echo '== lint-imports'; $(VENV)/bin/lint-imports || status=1; \
 	echo '== mypy'; $(VENV)/bin/mypy || status=1; \
+	echo '== module map'; PYTHONPATH=. $(VENV)/bin/python tools/module_map.py --check docs/architecture.md || status=1; \
 	exit $$status
 
 # Two pytest workers (pytest-xdist): most tests are real runs whose processes wait on each other, the
