@@ -6,13 +6,19 @@ only the view channels of ``scenenav.app.viz``, whose topics carry no run namesp
 green accepted / red rejected), the camera image, the autopilot status, the events, and a plot of
 the estimate against the truth (east and north).
 
-Regenerate: ``python -m scenenav.app.foxglove_layout > docs/foxglove-layout.json``
-(tests/unit/app/test_viz.py checks that the shipped file is this one).
+Lichtblick (the open-source fork of Foxglove Studio) reads layouts in Studio's older format, a
+binary split tree over ``configById``; :func:`lichtblick_layout` writes the same layout in it
+(``docs/lichtblick-layout.json``, for *Layouts > Import from file* in Lichtblick).
+
+Regenerate: ``python -m scenenav.app.foxglove_layout > docs/foxglove-layout.json`` and
+``python -m scenenav.app.foxglove_layout --lichtblick > docs/lichtblick-layout.json``
+(tests/unit/app/test_viz.py checks that the shipped files are these).
 """
 
 from __future__ import annotations
 
 import json
+import sys
 
 import foxglove.layouts as fl
 
@@ -50,7 +56,8 @@ def scene_topics() -> dict:
 
 
 def _position_plot() -> fl.PlotPanel:
-    series = [fl.PlotSeries(value=f"{topic}.pose.position.{axis}", id=f"{name}-{axis}")
+    series = [fl.PlotSeries(value=f"{topic}.pose.position.{axis}", id=f"{name}-{axis}", enabled=True,
+                            timestamp_method="receiveTime")
               for axis in ("x", "y")
               for topic, name in ((viz.T_TRUTH_POSE, "truth"), (viz.T_EST_POSE, "estimate"))]
     return fl.PlotPanel(title="position: truth vs estimate (m, x east / y north)",
@@ -68,7 +75,8 @@ def build_layout() -> fl.Layout:
     status = fl.RawMessagesPanel(title="autopilot status", config=fl.RawMessagesConfig(
         topic_path=viz.T_STATUS, expansion="all"))
     events = fl.LogPanel(title="events", config=fl.LogConfig(topic_to_render=viz.T_EVENTS,
-                                                              show_name=True))
+                                                              show_name=True, search_terms=[],
+                                                              min_log_level=1))
     side = fl.SplitContainer(direction="column", items=[
         fl.SplitItem(proportion=2, content=camera),
         fl.SplitItem(proportion=1, content=status),
@@ -87,5 +95,45 @@ def layout_json() -> str:
     return json.dumps(json.loads(build_layout().to_json()), indent=2) + "\n"
 
 
+#: Panel type names that differ between the Foxglove layout format and Studio's older one.
+_LEGACY_PANEL_TYPE = {"ThreeDee": "3D", "Log": "RosOut"}
+
+
+def lichtblick_layout(layout: dict) -> dict:
+    """``layout`` (the Foxglove layout format: n-ary splits with proportions) as Studio's older
+    ``LayoutData`` that Lichtblick imports: every panel's config under ``configById`` (id
+    ``<type>!<n>``, its title as ``foxglovePanelTitle``) and ``layout`` a binary split tree
+    (``first``, ``second``, ``direction``, ``splitPercentage`` of the first)."""
+    config_by_id: dict[str, dict] = {}
+
+    def node(content: dict):
+        if content["type"] == "panel":
+            kind = _LEGACY_PANEL_TYPE.get(content["panelType"], content["panelType"])
+            panel_id = f"{kind}!{len(config_by_id) + 1}"
+            config = dict(content.get("config", {}))
+            if content.get("title"):
+                config["foxglovePanelTitle"] = content["title"]
+            config_by_id[panel_id] = config
+            return panel_id
+        items = content["items"]
+        return split(content["direction"], [(i["proportion"], node(i["content"])) for i in items])
+
+    def split(direction: str, items: list[tuple[float, object]]):
+        if len(items) == 1:
+            return items[0][1]
+        total = sum(p for p, _ in items)
+        return {"direction": direction, "first": items[0][1], "second": split(direction, items[1:]),
+                "splitPercentage": round(100.0 * items[0][0] / total, 3)}
+
+    tree = node(layout["content"])
+    return {"configById": config_by_id, "globalVariables": {}, "userNodes": {},
+            "playbackConfig": {"speed": 1.0}, "layout": tree}
+
+
+def lichtblick_layout_json() -> str:
+    """The Lichtblick layout file's text (indented JSON, newline-terminated)."""
+    return json.dumps(lichtblick_layout(json.loads(layout_json())), indent=2) + "\n"
+
+
 if __name__ == "__main__":
-    print(layout_json(), end="")
+    print(lichtblick_layout_json() if "--lichtblick" in sys.argv[1:] else layout_json(), end="")

@@ -5,7 +5,8 @@ lockstep member, so a slow or absent viewer never holds the clock.
 
 Inputs: everything under ``scenenav/<ns>/**`` (like the recorder) and the run folder
 (``scenario.yaml`` for the world and the assistant map, the guidance node's ``route*.json``).
-Outputs: a WebSocket server speaking ``foxglove.websocket.v1`` on ``127.0.0.1:<port>``
+Outputs: a WebSocket server speaking ``foxglove.websocket.v1`` on ``127.0.0.1:<port>`` (under
+that name and foxglove-sdk's ``foxglove.sdk.v1``: :mod:`scenenav.app.ws_subprotocol`)
 (``live.json`` in the run folder names the bound port and URL), with the channels
 ``bus.mcap`` records (``scenenav.app.viz``): every bus message on its key (JSON, schema
 ``scenenav.<Type>``; camera frames only as ``viz/camera``) and the view channels ``viz/...``. The
@@ -22,6 +23,7 @@ from pathlib import Path
 import foxglove
 
 from scenenav.app.viz import VizMessage, VizState, bus_schema
+from scenenav.app.ws_subprotocol import SubprotocolBridge
 from scenenav.core.bus import Bus, BusConfig
 from scenenav.core.contracts import CameraFrame, DecodeError, decode, message_type
 from scenenav.core.keys import Keys, type_for_key
@@ -47,8 +49,15 @@ class LiveNode:
         self._sim_time_us = 0
         self.sent = 0
         self.dropped = 0
-        self.server = foxglove.start_server(name=f"scenenav {bus_cfg.namespace}", host=HOST, port=port)
-        self.port = self.server.port
+        # the SDK's server on a private port; the public one is the bridge that also accepts the
+        # protocol's old subprotocol name (Lichtblick, @foxglove/ws-protocol clients)
+        self.server = foxglove.start_server(name=f"scenenav {bus_cfg.namespace}", host=HOST, port=0)
+        try:
+            self.bridge = SubprotocolBridge(HOST, port, self.server.port)
+        except OSError as exc:
+            self.server.stop()
+            raise RuntimeError(str(exc)) from exc
+        self.port = self.bridge.port
         tmp = self.run_dir / (LIVE_FILE + ".tmp")
         tmp.write_text(json.dumps({"host": HOST, "port": self.port, "url": f"ws://{HOST}:{self.port}",
                                    "protocol": "foxglove.websocket.v1"}, indent=2))
@@ -111,5 +120,8 @@ class LiveNode:
 
     def close(self) -> dict:
         self.bus.close()
+        self.bridge.close()
         self.server.stop()
-        return {"port": self.port, "messages_sent": self.sent, "dropped": self.dropped}
+        return {"port": self.port, "messages_sent": self.sent, "dropped": self.dropped,
+                "viewer_connections": self.bridge.connections,
+                "viewers_on_the_old_subprotocol_name": self.bridge.renamed}

@@ -78,7 +78,8 @@ def bus_schema(type_name: str) -> tuple[str, bytes]:
     for name, tp in schema_of(cls):
         if name == "pixels":
             continue
-        props[name] = {"type": _JSON_TYPES.get(tp, "array")}
+        props[name] = ({"type": "array", "items": {"type": "number"}} if tp.startswith("tuple[float")
+                       else {"type": _JSON_TYPES[tp]})
     return f"scenenav.{type_name}", json.dumps(
         {"type": "object", "title": cls.__name__, "properties": props}).encode()
 
@@ -95,17 +96,33 @@ _QUAT = _obj(x=_NUM, y=_NUM, z=_NUM, w=_NUM)
 _POSE = _obj(position=_VEC3, orientation=_QUAT)
 _COLOR = _obj(r=_NUM, g=_NUM, b=_NUM, a=_NUM)
 _BYTES = {"type": "string", "contentEncoding": "base64"}
-_ARRAY = {"type": "array"}
+_BOOL = {"type": "boolean"}
+
+
+def _array(items: dict) -> dict:
+    return {"type": "array", "items": items}
+
+
+#: The parts of the Foxglove message schemas (docs.foxglove.dev, "Message schemas") the view sends.
+#: Every array names its items: Lichtblick's JSON-schema reader rejects an array without them.
+_SPHERE = _obj(pose=_POSE, size=_VEC3, color=_COLOR)
+_LINE = _obj(type=_INT, pose=_POSE, thickness=_NUM, scale_invariant=_BOOL, points=_array(_VEC3),
+             color=_COLOR, colors=_array(_COLOR), indices=_array({"type": "integer", "minimum": 0}))
+_ENTITY = _obj(timestamp=_TIME, frame_id=_STR, id=_STR, lifetime=_TIME, frame_locked=_BOOL,
+               metadata=_array(_obj(key=_STR, value=_STR)), spheres=_array(_SPHERE),
+               lines=_array(_LINE))
+_DELETION = _obj(timestamp=_TIME, type=_INT, id=_STR)
+_GRID_FIELD = _obj(name=_STR, offset=_INT, type=_INT)
 
 FOXGLOVE_SCHEMAS: dict[str, dict] = {
     "foxglove.RawImage": _obj(timestamp=_TIME, frame_id=_STR, width=_INT, height=_INT,
                               encoding=_STR, step=_INT, data=_BYTES),
     "foxglove.PoseInFrame": _obj(timestamp=_TIME, frame_id=_STR, pose=_POSE),
-    "foxglove.PosesInFrame": _obj(timestamp=_TIME, frame_id=_STR, poses=_ARRAY),
-    "foxglove.SceneUpdate": _obj(deletions=_ARRAY, entities=_ARRAY),
+    "foxglove.PosesInFrame": _obj(timestamp=_TIME, frame_id=_STR, poses=_array(_POSE)),
+    "foxglove.SceneUpdate": _obj(deletions=_array(_DELETION), entities=_array(_ENTITY)),
     "foxglove.Grid": _obj(timestamp=_TIME, frame_id=_STR, pose=_POSE, column_count=_INT,
                           cell_size=_obj(x=_NUM, y=_NUM), row_stride=_INT, cell_stride=_INT,
-                          fields=_ARRAY, data=_BYTES),
+                          fields=_array(_GRID_FIELD), data=_BYTES),
     "foxglove.Log": _obj(timestamp=_TIME, level=_INT, message=_STR, name=_STR, file=_STR,
                          line=_INT),
 }

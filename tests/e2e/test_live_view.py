@@ -19,9 +19,9 @@ from pathlib import Path
 import pytest
 import websockets
 
-#: The protocol is ``foxglove.websocket.v1``; foxglove-sdk servers negotiate it under its newer
-#: name ``foxglove.sdk.v1`` (the same messages), so a client offers both.
-SUBPROTOCOLS = ["foxglove.websocket.v1", "foxglove.sdk.v1"]
+#: The protocol's own name only, as Lichtblick and ``@foxglove/ws-protocol`` clients offer it (the
+#: live view also accepts foxglove-sdk's newer ``foxglove.sdk.v1``: tests/unit/app/test_ws_subprotocol.py).
+SUBPROTOCOLS = ["foxglove.websocket.v1"]
 WANTED = ("viz/camera", "viz/estimate/pose")
 _OP_MESSAGE_DATA = 0x01
 _MESSAGE_HEADER = struct.Struct("<BIQ")      # opcode, subscription id, log time (ns)
@@ -89,7 +89,7 @@ def test_live_view_streams_camera_and_estimate_during_a_flight(tmp_path):
         if launcher.poll() is None:
             launcher.send_signal(signal.SIGINT)
             launcher.wait(60)
-    assert protocol in SUBPROTOCOLS
+    assert protocol == "foxglove.websocket.v1"
     assert f"live view: {url}" in err
     for topic in WANTED:
         assert len(got[topic]) >= 3, f"{topic}: {len(got[topic])} messages"
@@ -111,6 +111,7 @@ def test_live_view_streams_camera_and_estimate_during_a_flight(tmp_path):
         assert (ch["schemaName"], ch["schema"].encode(), ch["encoding"]) == recorded[topic], topic
     stats = json.loads((run / "live_stats.json").read_text())
     assert stats["messages_sent"] > 0 and stats["dropped"] == 0
+    assert stats["viewer_connections"] == stats["viewers_on_the_old_subprotocol_name"] == 1
 
 
 @pytest.mark.parametrize("command", ["run", "sitl"])

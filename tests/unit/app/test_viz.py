@@ -155,3 +155,105 @@ def test_the_shipped_layout_is_the_generated_one_and_names_view_channels_only():
     topics = {v for k, v in vars(viz).items() if k.startswith("T_")}
     assert all(f'"{t}' in text for t in topics)          # every view channel has a place
     assert "scenenav/" not in text                         # no run namespace in the layout
+
+
+def test_the_lichtblick_layout_is_the_same_layout_in_studios_older_format():
+    from pathlib import Path
+
+    from scenenav.app.foxglove_layout import lichtblick_layout, lichtblick_layout_json, layout_json
+    shipped = Path(__file__).resolve().parents[3] / "docs" / "lichtblick-layout.json"
+    assert shipped.read_text() == lichtblick_layout_json(), \
+        "regenerate: python -m scenenav.app.foxglove_layout --lichtblick > docs/lichtblick-layout.json"
+    new, old = json.loads(layout_json()), json.loads(shipped.read_text())
+
+    def panels(c):           # the Foxglove format's panels, in order
+        return [c] if c["type"] == "panel" else [p for i in c["items"] for p in panels(i["content"])]
+
+    def leaves(t):            # the binary tree's panel ids, in order
+        return [t] if isinstance(t, str) else leaves(t["first"]) + leaves(t["second"])
+
+    assert leaves(old["layout"]) == list(old["configById"])
+    for panel, pid in zip(panels(new["content"]), leaves(old["layout"]), strict=True):
+        kind = {"ThreeDee": "3D", "Log": "RosOut"}.get(panel["panelType"], panel["panelType"])
+        assert pid.startswith(kind + "!")
+        assert old["configById"][pid] == {**panel["config"], "foxglovePanelTitle": panel["title"]}
+    # three items 2:1:1 -> 50 % then 50 % of the rest
+    tree = lichtblick_layout({"content": {"type": "split", "direction": "column", "items": [
+        {"proportion": p, "content": {"type": "panel", "panelType": "Log", "config": {}}}
+        for p in (2, 1, 1)]}})["layout"]
+    assert (tree["splitPercentage"], tree["second"]["splitPercentage"]) == (50.0, 50.0)
+
+
+# --- the schemas are complete enough for viewers that read them (Lichtblick's JSON-schema reader
+# --- turns them into datatypes and refuses an array without items or an unknown type)
+_SCALARS = {"boolean": bool, "string": str, "number": (int, float), "integer": int}
+
+
+def _readable(schema: dict, where: str) -> None:
+    """The rules of a JSON-schema-to-datatypes reader: objects with properties, scalars, base64
+    strings, arrays whose items have one of these types."""
+    assert schema.get("type") == "object", f"{where}: not an object"
+    for name, field in schema.get("properties", {}).items():
+        at = f"{where}.{name}"
+        kind = field.get("type")
+        if kind == "array":
+            items = field.get("items")
+            assert isinstance(items, dict) and items.get("type") in (*_SCALARS, "object"), \
+                f"{at}: an array needs items of a known type"
+            assert "contentEncoding" not in items, at
+            if items["type"] == "object":
+                _readable(items, at + "[]")
+        elif kind == "object":
+            _readable(field, at)
+        else:
+            assert kind in _SCALARS, f"{at}: type {kind!r}"
+            assert field.get("contentEncoding") in (None, "base64"), at
+
+
+def _conforms(value, schema: dict, where: str) -> None:
+    """Every field of a payload is declared with its JSON type (null allowed: NaN-free optionals)."""
+    if value is None:
+        return
+    kind = schema["type"]
+    if kind == "object":
+        assert isinstance(value, dict), where
+        undeclared = set(value) - set(schema.get("properties", {}))
+        assert not undeclared, f"{where}: undeclared {sorted(undeclared)}"
+        for k, v in value.items():
+            _conforms(v, schema["properties"][k], f"{where}.{k}")
+    elif kind == "array":
+        assert isinstance(value, list), where
+        for i, v in enumerate(value):
+            _conforms(v, schema["items"], f"{where}[{i}]")
+    else:
+        assert isinstance(value, _SCALARS[kind]) and not (kind != "boolean" and isinstance(value, bool)), \
+            f"{where}: {value!r} is not {kind}"
+
+
+def test_every_schema_is_readable_and_every_view_payload_conforms(tmp_path):
+    from scenenav.app.viz import FOXGLOVE_SCHEMAS, foxglove_schema
+    from scenenav.core.contracts import MESSAGE_TYPES
+    from scenenav.core.formats.route_file import write_route_json
+    for name in FOXGLOVE_SCHEMAS:
+        _readable(json.loads(foxglove_schema(name)), name)
+    for cls in MESSAGE_TYPES:
+        _readable(json.loads(bus_schema(cls.__name__)[1]), cls.__name__)
+    write_route_json(tmp_path / "route.json", {"waypoints": [{"x_m": 0, "y_m": 0}, {"x_m": 5, "y_m": 5}],
+                                               "length_m": 7.1, "min_clearance_m": 3.0})
+    viz = VizState()
+    px = np.zeros((4, 3, 3), np.uint8)
+    out = [*viz.on_message(_truth(0.0, 1.0)), *viz.on_message(_truth(1.0, 2.0)),
+           *viz.on_message(_fix(1, True, True)),
+           *viz.on_message(CameraFrame(0, 0, 3, 4, "rgb8", 60.0, "gimbal", (2.6, 2.6, 1.5, 2.0),
+                                       (0.0, 0.0, 0.0, 0.0), px)),
+           *viz.on_message(Event(1, "autopilot", int(Severity.INFO), "hello")),
+           *viz.route_messages(tmp_path, 0)]
+    grids = [map_grid(np.zeros((4, 4, 3), np.uint8), 1.0, 0, 0.0),
+             map_grid(np.full((4, 4), 0.5, np.float32), 1.0, 0, 0.5)]
+    kinds = {m.schema_name for m in out}
+    assert {"foxglove.PoseInFrame", "foxglove.PosesInFrame", "foxglove.SceneUpdate",
+            "foxglove.RawImage", "foxglove.Log"} <= kinds
+    for m in out:
+        _conforms(_json(m), json.loads(m.schema), m.topic)
+    for g in grids:
+        _conforms(g, FOXGLOVE_SCHEMAS["foxglove.Grid"], "grid")
