@@ -255,7 +255,8 @@ class SimulatorNode:
                 self.event(Severity.WARNING, f"t={t_s:.2f}s: no lockstep answer from "
                                              f"{', '.join(late)} within {answer_timeout:.1f} s; "
                                              f"going on without it until it answers again", t_us)
-            for node_id in self.barrier.take_rejoined():
+            rejoined = self.barrier.take_rejoined()
+            for node_id in rejoined if lockstep else ():     # paced: a late answer is no news
                 self.event(Severity.INFO, f"t={t_s:.2f}s: {node_id} answers again; waiting for it "
                                           f"again", t_us)
             self.stats.time_bus_wait_s += time.perf_counter() - tw

@@ -647,6 +647,6 @@ def plain_summary(summary: dict, run_dir: Path | None = None) -> str:
         pics = [p for p in ("trajectory.png",) if (Path(run_dir) / p).is_file()]
         files = [str(Path(run_dir) / p) for p in pics]
         lines.append("Pictures: " + (", ".join(files) if files else "none") +
-                     f"; everything recorded: {Path(run_dir) / 'bus.mcap'} (Foxglove, "
-                     "layout docs/foxglove-layout.json).")
+                     f"; everything recorded: {Path(run_dir) / 'bus.mcap'} (Foxglove or "
+                     "Lichtblick, layout docs/foxglove-layout.json or docs/lichtblick-layout.json).")
     return "\n".join(lines)

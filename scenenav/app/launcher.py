@@ -381,8 +381,8 @@ def announce_live(launch: Launch, announce: Callable[[str], None],
         except (OSError, ValueError, KeyError):
             url = None
         if url:
-            announce(f"live view: {url} (Foxglove: Open connection > Foxglove WebSocket; layout "
-                     "docs/foxglove-layout.json)")
+            announce(f"live view: {url} (Foxglove or Lichtblick: Open connection > Foxglove "
+                     "WebSocket; layout docs/foxglove-layout.json, Lichtblick docs/lichtblick-layout.json)")
             return url
         if live is None or live.proc.poll() is not None:
             break
