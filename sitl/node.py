@@ -21,8 +21,9 @@ Its configuration (``sitl.config.SimNodeConfig``) is resolved by the app layer (
 Lockstep (default): per tick the simulator publishes sensors and the clock, waits for every live
 ``tick`` member (the autopilot) and, on camera ticks, every ``camera`` member (perception), then
 applies the newest motor command for the tick's physics sub-steps. Realtime: the same, paced so that
-simulated time runs at ``speed_factor`` times the wall clock, waiting at most one tick period for
-answers.
+simulated time runs at ``speed_factor`` times the wall clock; ``tick`` members are still waited for
+(physics never runs on a stale motor command, as in ArduPilot's SITL), ``camera`` members at most one
+tick period.
 """
 
 from __future__ import annotations
@@ -59,6 +60,9 @@ from worlds.landcover import LandCover
 log = logging.getLogger(__name__)
 
 NODE_ID = "sim"
+#: Realtime mode: wall seconds the loop may fall behind the paced clock and catch up (a short stall);
+#: further behind, it paces on from where it is instead of running flat out to catch up.
+MAX_PACE_LAG_S = 0.25
 
 
 @dataclass
@@ -80,6 +84,8 @@ class SimStats:
     #: per lockstep member: answers timed and their mean answer time (publish -> ack), wall ms
     member_answers: dict[str, int] = field(default_factory=dict)
     member_answer_ms_mean: dict[str, float] = field(default_factory=dict)
+    #: realtime mode: wall seconds the loop fell behind the paced clock (then paced from there on)
+    realtime_lag_s: float = 0.0
 
 
 def sensor_surface(sim, world) -> Surface | None:
@@ -200,10 +206,17 @@ class SimulatorNode:
                                                        cancelled=self._stop.is_set):
             self.event(Severity.WARNING, f"not every expected node joined within "
                                          f"{clock.startup_timeout_s:.0f} s: {self.barrier.members()}")
-        answer_timeout = clock.member_timeout_s if lockstep else 1.0 / clock.tick_rate_hz
+        # The control tick's members (the autopilot) are waited for in both modes, as ArduPilot's
+        # SITL waits for its servo outputs: physics never runs on a stale motor command, so a busy
+        # machine slows simulated time down instead of letting the vehicle fly open loop (a paced
+        # takeoff under load flipped the vehicle when the autopilot's answers came ticks late).
+        # Camera members (perception) are waited for in lockstep only; paced, a frame answered
+        # late is a fix that arrives late, as on a real drone.
+        tick_timeout = clock.member_timeout_s
+        camera_timeout = clock.member_timeout_s if lockstep else 1.0 / clock.tick_rate_hz
         duration_ticks = round(self.cfg.duration_s * self.tick_rate_hz)
         camera_acked = -1
-        wall0 = time.perf_counter()
+        wall0 = pace0 = time.perf_counter()
         reason = "duration reached"
         tick = 0
         for tick in range(duration_ticks + 1):
@@ -246,17 +259,18 @@ class SimulatorNode:
             self.stats.time_publish_s += time.perf_counter() - tp - render_s
 
             tw = time.perf_counter()
-            late = self.barrier.wait(LockstepRole.TICK, tick, answer_timeout)
+            late = self.barrier.wait(LockstepRole.TICK, tick, tick_timeout)
+            if late:
+                self._report_late(late, tick_timeout, t_s, t_us)
             if frame_out:
-                late += self.barrier.wait(LockstepRole.CAMERA, camera_seq, answer_timeout)
+                late = self.barrier.wait(LockstepRole.CAMERA, camera_seq, camera_timeout)
                 camera_acked = camera_seq
-            if late and lockstep:
-                self.stats.ack_timeouts += 1
-                self.event(Severity.WARNING, f"t={t_s:.2f}s: no lockstep answer from "
-                                             f"{', '.join(late)} within {answer_timeout:.1f} s; "
-                                             f"going on without it until it answers again", t_us)
+                if late and lockstep:
+                    self._report_late(late, camera_timeout, t_s, t_us)
             rejoined = self.barrier.take_rejoined()
-            for node_id in rejoined if lockstep else ():     # paced: a late answer is no news
+            waited = set(self.barrier.members(LockstepRole.TICK)) if not lockstep else None
+            for node_id in (n for n in rejoined if waited is None or n in waited):
+                # paced, a camera member answering late is no news
                 self.event(Severity.INFO, f"t={t_s:.2f}s: {node_id} answers again; waiting for it "
                                           f"again", t_us)
             self.stats.time_bus_wait_s += time.perf_counter() - tw
@@ -268,9 +282,16 @@ class SimulatorNode:
             self.stats.time_physics_s += time.perf_counter() - tphys
             self.stats.ticks = tick + 1
             if not lockstep:
-                ahead = (t_s + 1.0 / self.tick_rate_hz) / clock.speed_factor - (time.perf_counter() - wall0)
+                ahead = (t_s + 1.0 / self.tick_rate_hz) / clock.speed_factor - (time.perf_counter() - pace0)
                 if ahead > 0:
                     time.sleep(ahead)
+                elif ahead < -MAX_PACE_LAG_S:     # behind: pace on from here, no catch-up burst
+                    if self.stats.realtime_lag_s == 0.0:
+                        self.event(Severity.WARNING, f"t={t_s:.2f}s: the simulation fell behind "
+                                   f"{clock.speed_factor:g}x real time (the machine is busy); it "
+                                   f"runs slower rather than on stale motor commands", t_us)
+                    self.stats.realtime_lag_s += -ahead
+                    pace0 -= ahead
         t_end_us = self.stats.ticks * self.tick_us
         self.bus.publish(self.keys.clock, ClockTick(
             t_end_us, tick, self.tick_us, camera_acked, clock.mode.value, RunState.FINISHED.value))
@@ -287,6 +308,12 @@ class SimulatorNode:
         self.event(Severity.INFO, f"simulation finished: {reason} at t={t_end_us * 1e-6:.1f}s "
                                   f"({stats.real_time_factor:.1f}x real time)", t_end_us)
         return self.stats
+
+    def _report_late(self, late: list[str], timeout_s: float, t_s: float, t_us: int) -> None:
+        self.stats.ack_timeouts += 1
+        self.event(Severity.WARNING, f"t={t_s:.2f}s: no lockstep answer from {', '.join(late)} "
+                                     f"within {timeout_s:.1f} s; going on without it until it "
+                                     f"answers again", t_us)
 
     def _publish_sensors(self, out: TickOutput) -> None:
         keys = self.keys
