@@ -40,13 +40,14 @@ lint: install
 # shared flights (module-scoped fixtures) are flown once. TEST_WORKERS=0 runs the suite in one process.
 TEST_WORKERS ?= 2
 
-# The real-time SITL flights (marker `realtime`: MAVProxy, MAVSDK, the failsafes, ...) run alone
-# afterwards: beside the lockstep part (even with that one under `nice`) MAVSDK's mission, the
+# The real-time SITL flights (marker `realtime`: MAVProxy, MAVSDK, the failsafes, ...) run
+# afterwards, apart from the lockstep part: beside its full-speed flights MAVSDK's mission, the
 # failsafe RTL's landing and the swap flight fell behind the wall clock, which is a test of the
-# machine, not of the code.
+# machine, not of the code. Two of them at a time fit the two cores (paced flights leave CPU idle;
+# the physics waits for the autopilot, so a busy moment slows a flight instead of spoiling it).
 test: install lint
 	$(PY) -m pytest -q -ra -n $(TEST_WORKERS) --dist loadscope --durations=40 -m "not realtime"
-	$(PY) -m pytest -q -ra -p no:xdist --durations=10 -m realtime
+	$(PY) -m pytest -q -ra -n $(TEST_WORKERS) --dist loadscope --durations=10 -m realtime
 
 bench: install
 	$(VENV)/bin/scenenav bench sim
