@@ -160,7 +160,7 @@ def test_the_shipped_layout_is_the_generated_one_and_names_view_channels_only():
 def test_the_lichtblick_layout_is_the_same_layout_in_studios_older_format():
     from pathlib import Path
 
-    from scenenav.app.foxglove_layout import lichtblick_layout, lichtblick_layout_json, layout_json
+    from scenenav.app.foxglove_layout import layout_json, lichtblick_layout, lichtblick_layout_json
     shipped = Path(__file__).resolve().parents[3] / "docs" / "lichtblick-layout.json"
     assert shipped.read_text() == lichtblick_layout_json(), \
         "regenerate: python -m scenenav.app.foxglove_layout --lichtblick > docs/lichtblick-layout.json"

@@ -12,8 +12,7 @@ import foxglove
 import pytest
 import websockets
 
-from scenenav.app.ws_subprotocol import (NEW_NAME, OLD_NAME, SubprotocolBridge, offered, rename_answer,
-                                         rename_offer)
+from scenenav.app.ws_subprotocol import NEW_NAME, OLD_NAME, SubprotocolBridge, offered, rename_answer, rename_offer
 
 REQUEST = (b"GET / HTTP/1.1\r\nHost: 127.0.0.1:8765\r\nUpgrade: websocket\r\nConnection: Upgrade\r\n"
            b"Sec-WebSocket-Key: dGhlIHNhbXBsZSBub25jZQ==\r\nSec-WebSocket-Version: 13\r\n")
