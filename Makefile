@@ -44,10 +44,12 @@ TEST_WORKERS ?= 2
 # afterwards, apart from the lockstep part: beside its full-speed flights MAVSDK's mission, the
 # failsafe RTL's landing and the swap flight fell behind the wall clock, which is a test of the
 # machine, not of the code. Two of them at a time fit the two cores (paced flights leave CPU idle;
-# the physics waits for the autopilot, so a busy moment slows a flight instead of spoiling it).
-test: install lint
+# the physics waits for the autopilot, so a busy moment slows a flight instead of spoiling it);
+# they share no module fixtures, so they are dealt out one test at a time (--dist load).
+# `make lint` is its own target (CI runs both): `make test` is the suite alone.
+test: install
 	$(PY) -m pytest -q -ra -n $(TEST_WORKERS) --dist loadscope --durations=40 -m "not realtime"
-	$(PY) -m pytest -q -ra -n $(TEST_WORKERS) --dist loadscope --durations=10 -m realtime
+	$(PY) -m pytest -q -ra -n $(TEST_WORKERS) --dist load --durations=10 -m realtime
 
 bench: install
 	$(VENV)/bin/scenenav bench sim
