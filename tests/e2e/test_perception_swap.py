@@ -11,7 +11,7 @@ from pathlib import Path
 
 import pytest
 
-#: real-time SITL flights: `make test` runs them alone, after the parallel part
+#: real-time SITL flights: `make test` runs them after the parallel part, apart from it
 pytestmark = pytest.mark.realtime
 
 

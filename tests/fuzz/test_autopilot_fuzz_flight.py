@@ -30,7 +30,7 @@ from support.sitl_session import Gcs, SitlSession, enu_to_latlon, final_position
 
 from scenenav.core.geometry import distance_to_polyline_m
 
-#: real-time SITL flights: `make test` runs them alone, after the parallel part
+#: real-time SITL flights: `make test` runs them after the parallel part, apart from it
 pytestmark = pytest.mark.realtime
 
 SEED = 20240917

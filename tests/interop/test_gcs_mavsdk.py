@@ -14,7 +14,7 @@ import time
 import pytest
 from support.sitl_session import TIMEOUT_S, SitlSession, enu_to_latlon, final_position, wait_until
 
-#: real-time SITL flights: `make test` runs them alone, after the parallel part
+#: real-time SITL flights: `make test` runs them after the parallel part, apart from it
 pytestmark = pytest.mark.realtime
 
 WAYPOINTS_ENU = [(25.0, 0.0), (25.0, 25.0), (5.0, 30.0)]

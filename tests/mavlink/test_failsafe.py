@@ -108,7 +108,7 @@ from support.sitl_session import (  # noqa: F401
     write_params,
 )
 
-#: real-time SITL flights: `make test` runs them alone, after the parallel part
+#: real-time SITL flights: `make test` runs them after the parallel part, apart from it
 pytestmark = pytest.mark.realtime
 
 

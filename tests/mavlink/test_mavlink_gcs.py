@@ -39,7 +39,7 @@ from autopilot_bridge.param_specs import PARAM_SPECS
 from autopilot_bridge.params import ParameterStore, ParamType
 from scenenav.core.errors import UserError
 
-#: real-time SITL flights: `make test` runs them alone, after the parallel part
+#: real-time SITL flights: `make test` runs them after the parallel part, apart from it
 pytestmark = pytest.mark.realtime
 
 M = mavlink2
