@@ -1,4 +1,4 @@
-"""``scenenav campaign`` end to end: real Dask (a 2-worker LocalCluster), real 20-second flights
+"""``scenenav campaign`` end to end: real Dask (a 2-worker LocalCluster), real 10 to 20-second flights
 (scripted mode: no autopilot needed), real process trees."""
 
 from __future__ import annotations
@@ -20,7 +20,10 @@ from support.campaign_cli import (
 
 pytestmark = pytest.mark.slow
 
-FLIGHT_S = 20
+#: The flights of the campaigns that run to the end: short, the campaign machinery is under test.
+FLIGHT_S = 10
+#: The flights of the Ctrl-C test: long enough that two are in the air when the signal comes.
+STOPPED_FLIGHT_S = 20
 
 
 def _table(out):
@@ -32,7 +35,7 @@ def _finish(proc, timeout_s=900):
     return proc.returncode, stdout, stderr
 
 
-@pytest.mark.timeout(900)     # six 20 s flights plus one flown again, two at a time, then a resume
+@pytest.mark.timeout(900)     # six short flights plus one flown again, two at a time, then a resume
 def test_six_runs_complete_through_a_worker_kill_then_rerun_flies_nothing(tmp_path):
     """Six runs on two workers; a Dask worker is SIGKILLed during the first flight: its flight
     stops its nodes and is flown again, no row is lost, and a second invocation flies nothing."""
@@ -97,7 +100,7 @@ def test_failing_run_is_recorded_and_the_others_complete(tmp_path):
 
 def test_ctrl_c_leaves_no_orphans_and_a_readable_table_then_resumes(tmp_path):
     campaign = write_campaign(tmp_path / "stop.yaml", name="stop", base=str(SCRIPTED),
-                              set={"duration_s": FLIGHT_S}, grid={"seed": [1, 2, 3, 4]})
+                              set={"duration_s": STOPPED_FLIGHT_S}, grid={"seed": [1, 2, 3, 4]})
     out = tmp_path / "out"
     proc = start_campaign(campaign, out, "--workers", "2")
     try:
