@@ -149,6 +149,10 @@ class ScenarioConfig:
         check(not self.guidance.enabled or self.flight.mode == FlightMode.AUTOPILOT,
               "guidance.enabled", self.guidance.enabled,
               "false unless flight.mode is autopilot (the guidance node flies through the autopilot)")
+        check(not self.guidance.enabled or self.autopilot.mavlink_tcp_port != 0,
+              "autopilot.mavlink_tcp_port", self.autopilot.mavlink_tcp_port,
+              "a port, not 0, when guidance.enabled (the guidance node uploads its mission over the "
+              "autopilot's MAVLink TCP port): set a free port, or guidance.enabled=false")
         check(self.seed >= 0, "seed", self.seed, "a non-negative integer")
         # In lockstep the simulator waits up to clock.member_timeout_s for the autopilot's answer,
         # and the autopilot may itself wait up to autopilot.vision_wait_s for perception's fix

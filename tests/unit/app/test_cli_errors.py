@@ -29,6 +29,8 @@ def scenenav(*args):
      "goals_enu_m"),
     (["run", "--out", "{tmp}/p", "--set", "guidance.enabled=true", "--set", "flight.mode=autopilot",
       "--set", "guidance.goals_enu_m=[[0,0]]", "--set", "guidance.assistant_map=/nope.npz"], "/nope.npz"),
+    (["run", "scenarios/gps_denied.yaml", "--out", "{tmp}/k", "--set", "autopilot.mavlink_tcp_port=0"],
+     "when guidance.enabled"),
     (["experiment", "relief", "--world", "/nonexistent/world", "--json"], "/nonexistent/world"),
     (["sitl", "--out", "{tmp}/m", "--tcp-port", "0", "--external", "autopilot:mine"], "scenenav run --external"),
     (["sitl", "--out", "{tmp}/l", "--tcp-port", "0", "--external", "nonsense"], "ROLE:ID"),
