@@ -268,9 +268,10 @@ class SimulatorNode:
                 if late and lockstep:
                     self._report_late(late, camera_timeout, t_s, t_us)
             rejoined = self.barrier.take_rejoined()
-            waited = set(self.barrier.members(LockstepRole.TICK)) if not lockstep else None
-            for node_id in (n for n in rejoined if waited is None or n in waited):
-                # paced, a camera member answering late is no news
+            if rejoined and not lockstep:     # paced, a camera member answering late is no news
+                ticking = self.barrier.members(LockstepRole.TICK)
+                rejoined = [n for n in rejoined if n in ticking]
+            for node_id in rejoined:
                 self.event(Severity.INFO, f"t={t_s:.2f}s: {node_id} answers again; waiting for it "
                                           f"again", t_us)
             self.stats.time_bus_wait_s += time.perf_counter() - tw
