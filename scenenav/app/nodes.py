@@ -113,6 +113,7 @@ def wait_external_nodes(node, cfg: ScenarioConfig, run_dir: Path,
 
 
 def run_sim(run_dir: Path, bus_cfg: BusConfig, expect: tuple[str, ...]) -> int:
+    stop = stop_event()     # first: a stop signal while the node is being built is not lost
     from sitl.node import SimulatorNode
     cfg = load_scenario(run_dir / "scenario.yaml")
     world = load_world_for(cfg)
@@ -121,7 +122,6 @@ def run_sim(run_dir: Path, bus_cfg: BusConfig, expect: tuple[str, ...]) -> int:
     except HubPortTaken as exc:
         log.error("%s; the launcher starts the run again on another port", exc)
         return EXIT_HUB_PORT_TAKEN
-    stop = stop_event()
     threading.Thread(target=lambda: (stop.wait(), node.stop()), daemon=True).start()
     if "recorder" in expect:
         node_ready = threading.Event()
@@ -148,13 +148,13 @@ def run_sim(run_dir: Path, bus_cfg: BusConfig, expect: tuple[str, ...]) -> int:
 
 
 def run_recorder(run_dir: Path, bus_cfg: BusConfig) -> int:
+    stop = stop_event()     # first: a stop signal while the node is being built is not lost
     from scenenav.app.recorder import RecorderNode
     cfg = load_scenario(run_dir / "scenario.yaml")
     node = RecorderNode(run_dir, cfg.recorder, bus_cfg)
     # the maps of the view (viz/map/...) after the node is up: the simulator waits for it
     from scenenav.app.viz import map_messages, run_assistant_map
     node.set_viz_maps(map_messages(load_world_for(cfg), run_assistant_map(cfg)))
-    stop = stop_event()
     stop.wait()
     info = node.close()
     write_stats(run_dir / "recorder_stats.json", info)
@@ -162,6 +162,7 @@ def run_recorder(run_dir: Path, bus_cfg: BusConfig) -> int:
 
 
 def run_live(run_dir: Path, bus_cfg: BusConfig, port: int) -> int:
+    stop = stop_event()     # first: a stop signal while the node is being built is not lost
     from scenenav.app.live import LiveNode
     from scenenav.app.viz import map_messages, run_assistant_map
     cfg = load_scenario(run_dir / "scenario.yaml")
@@ -171,7 +172,6 @@ def run_live(run_dir: Path, bus_cfg: BusConfig, port: int) -> int:
     except RuntimeError as exc:       # the port is taken: the run flies on without a live view
         log.error("live view: cannot listen on port %d: %s", port, exc)
         return 1
-    stop = stop_event()
     node.run(stop)
     write_stats(run_dir / "live_stats.json", node.close())
     return 0
@@ -198,6 +198,7 @@ def perception_camera(cfg: ScenarioConfig):
 def run_perception(run_dir: Path | None, bus_cfg: BusConfig, method: str | None,
                    node_id: str, world_dir: str | None, assistant_map: str | None,
                    lockstep: bool | None) -> int:
+    stop = stop_event()     # first: a stop signal while the node is being built is not lost
     from perception.node import PerceptionNode
     cfg = load_scenario(run_dir / "scenario.yaml") if run_dir else ScenarioConfig()
     world = load_world_for(cfg) if not world_dir else __import__(
@@ -209,7 +210,6 @@ def run_perception(run_dir: Path | None, bus_cfg: BusConfig, method: str | None,
         lockstep=pcfg.lockstep if lockstep is None else lockstep,
         out_dir=run_dir, camera=perception_camera(cfg), weights=_perception_weights(pcfg),
         reference=pcfg.reference, alignment=pcfg.alignment)
-    stop = stop_event()
     stop.wait()
     node.close()
     return 0
@@ -258,6 +258,7 @@ def run_mavlink_port(run_dir: Path, timeout_s: float) -> int:
 
 
 def run_guidance(run_dir: Path, bus_cfg: BusConfig) -> int:
+    stop = stop_event()     # first: a stop signal while the node is being built is not lost
     from guidance.node import GuidanceNode
     from scenenav.core.contracts import ClockMode
     from scenenav.core.formats.world_manifest import read_manifest
@@ -268,7 +269,6 @@ def run_guidance(run_dir: Path, bus_cfg: BusConfig) -> int:
         cfg, run_mavlink_port(run_dir, cfg.clock.startup_timeout_s),
         lockstep=cfg.clock.mode == ClockMode.LOCKSTEP)
     node = GuidanceNode(world, bus_cfg, node_cfg, planner_cfg, out_dir=run_dir)
-    stop = stop_event()
     threading.Thread(target=lambda: (stop.wait(), node.stop()), daemon=True).start()
     try:
         node.run()
@@ -319,10 +319,10 @@ def autopilot_setup(cfg: ScenarioConfig, origin_lat_lon_deg: tuple[float, float]
 
 
 def run_autopilot(run_dir: Path | None, bus_cfg: BusConfig) -> int:
+    stop = stop_event()     # first: a stop signal while the node is being built is not lost
     from autopilot_bridge.node import AutopilotNode
     cfg = load_scenario(run_dir / "scenario.yaml") if run_dir else ScenarioConfig()
     node = AutopilotNode(autopilot_setup(cfg), bus_cfg, run_dir)
-    stop = stop_event()
     try:
         stop.wait()
     finally:
