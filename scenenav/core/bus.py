@@ -1,4 +1,4 @@
-"""Zenoh session helpers: peer mode on loopback, multicast scouting off, explicit endpoints.
+"""Zenoh session helpers: peer mode on loopback, multicast scouting off, explicit endpoints, no shared memory.
 
 Topology of a run: the simulator listens on the run's hub endpoint ``tcp/127.0.0.1:<port>``; every
 other node connects to it and listens on an ephemeral loopback port; gossip scouting (over those
@@ -47,6 +47,12 @@ class BusConfig:
         cfg = zenoh.Config()
         for key, value in conf.items():
             cfg.insert_json5(key, json.dumps(value))
+        # No shared memory: zenoh 1.x moves every payload over 3 kB (camera frames) through a 16 MB
+        # pool per publisher that each subscriber maps, plus small segments per peer link. Our
+        # payloads are bytes built per message, so it saves no copy; but a node kept the segments of
+        # peers long gone and its resident memory grew with the pool pages it touched (``bench soak``:
+        # recorder +4 to +10 % in 30 minutes, +2 fds over 14 perception swaps).
+        cfg.insert_json5("transport/shared_memory/enabled", "false")
         if not self.listen_hub:
             # Keep retrying the hub until it is up (nodes may start before the simulator).
             cfg.insert_json5("connect/timeout_ms", "-1")
