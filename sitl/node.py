@@ -203,7 +203,8 @@ class SimulatorNode:
         self.bus.publish(self.keys.node_info(NODE_ID), NodeInfo(0, NODE_ID, "sim", clock.mode.value))
         expected = self._expected_members()
         if expected and not self.barrier.wait_members(expected, clock.startup_timeout_s,
-                                                       cancelled=self._stop.is_set):
+                                                       cancelled=self._stop.is_set) \
+                and not self._stop.is_set():
             self.event(Severity.WARNING, f"not every expected node joined within "
                                          f"{clock.startup_timeout_s:.0f} s: {self.barrier.members()}")
         # The control tick's members (the autopilot) are waited for in both modes, as ArduPilot's

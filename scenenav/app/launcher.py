@@ -533,8 +533,10 @@ def _fly(cfg: ScenarioConfig, world, scenario_path: str | None, out_dir: str, pr
             announce(external_wait_text(cfg, run_dir))
         swap = PerceptionSwap(launch, cfg) if cfg.perception.enabled and cfg.perception.swap_at_s > 0 \
             and not cfg.external.of_role("perception") else None
-        _wait_sim(sim, launch, cfg, progress, swap, watch, disk)
-        if sim.proc.returncode == EXIT_EXTERNAL_MISSING:
+        abort = _wait_sim(sim, launch, cfg, progress, swap, watch, disk)
+        if abort:
+            log.error("%s", abort)
+        elif sim.proc.returncode == EXIT_EXTERNAL_MISSING:
             abort = external_missing_text(cfg, run_dir)
             log.error("%s", abort)
     except KeyboardInterrupt:
@@ -705,10 +707,20 @@ def _fixes_from(run_dir: Path, node_id: str, since_offset: int = 0) -> bool:
     return f",{node_id},".encode() in _tail(path, min(20000, max(0, size - since_offset)))
 
 
+def startup_death_text(failures: list[NodeFailure]) -> str:
+    """Why the launcher stopped a run whose nodes died before the simulator's first tick."""
+    names = ", ".join(f.node for f in failures)
+    return (f"stopped the run before take-off: {names} died while the run was starting (see "
+            + ", ".join(f"logs/{f.node}.log" for f in failures) + "); the simulator would have waited "
+            "clock.startup_timeout_s for it and flown without it")
+
+
 def _wait_sim(sim: Child, launch: Launch, cfg: ScenarioConfig, progress: bool,
               swap: PerceptionSwap | None = None, watch: ChildWatch | None = None,
-              disk: DiskWatch | None = None) -> None:
-    """Wait for the simulator to end; show progress from its log of simulated time."""
+              disk: DiskWatch | None = None) -> str | None:
+    """Wait for the simulator to end; show progress from its log of simulated time. Returns why the
+    run was ended early (a node the simulator waits for died before its first tick: flying without
+    it is not what the scenario asked for), else None."""
     bar = None
     if progress and sys.stderr.isatty():
         from tqdm import tqdm
@@ -716,6 +728,12 @@ def _wait_sim(sim: Child, launch: Launch, cfg: ScenarioConfig, progress: bool,
     watch = watch or ChildWatch(launch, time.time())
     while sim.proc.poll() is None:
         watch.poll()
+        if watch.failures and last_sim_time_s(launch.run_dir) is None:
+            dead = [f for f in watch.failures if f.node not in ("sim", "live")]
+            if dead:
+                if bar is not None:
+                    bar.close()
+                return startup_death_text(dead)
         if disk is not None:
             disk.check()
         time.sleep(0.25)
@@ -729,6 +747,7 @@ def _wait_sim(sim: Child, launch: Launch, cfg: ScenarioConfig, progress: bool,
     if bar is not None:
         bar.close()
     watch.poll()        # the simulator's own exit, if it failed
+    return None
 
 
 def _sim_progress(run_dir: Path) -> float | None:

@@ -24,6 +24,7 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Callable
 
+from scenenav.app.evaluation import last_sim_time_s
 from scenenav.app.launcher import (
     HUB_ATTEMPTS,
     STOP_STAGES,
@@ -263,6 +264,10 @@ def _supervise(launch: Launch) -> str:
                 continue
             if c.name in ("sim", "autopilot"):
                 return f"{c.name} exited with code {code}"
+            if code != 0 and c.name != "live" and last_sim_time_s(launch.run_dir) is None:
+                # before the first tick: the simulator would wait for it, then fly without it
+                return (f"{c.name} exited with code {code} while the run was starting "
+                        f"(see logs/{c.name}.log)")
             if code != 0 and c.name not in reported:
                 reported.add(c.name)
                 log.error("%s exited with code %s (see logs/%s.log)", c.name, code, c.name)

@@ -3,6 +3,8 @@
 * SIGKILL of the simulator: no process of the run survives (the camera render worker included),
   the summary says the simulator died and when.
 * SIGKILL of perception: said once on the terminal, with the reason, and in the summary.
+* A node the simulator waits for dies while the run is starting: the run is stopped before take-off
+  (not flown without it after the simulator's start-up timeout), said on one line and in the summary.
 * SIGKILL of the recorder: bus.mcap opens with the standard mcap reader (recovered from its whole
   chunks), CSV rows are whole, the summary says the recording ended early.
 """
@@ -10,10 +12,13 @@
 from __future__ import annotations
 
 import csv
+import json
+import os
 import signal
+import time
 
 import pytest
-from support.fault_run import FaultRun, wait_gone
+from support.fault_run import FaultRun, last_sim_time, wait_gone
 
 SHORT = ["--set", "duration_s=15", "--set", "perception.method=statistical"]
 
@@ -69,6 +74,28 @@ def test_a_dying_child_is_reported_once_with_its_reason(runs, tmp_path):
     assert s["failed_nodes"] == ["perception"]
 
 
+def test_a_node_dying_before_take_off_stops_the_run(runs, tmp_path):
+    r = _start(runs, tmp_path, "startup")
+    deadline = time.monotonic() + 120.0
+    while "perception" not in r.pids():
+        assert time.monotonic() < deadline and r.proc.poll() is None, r.stderr
+        time.sleep(0.05)
+    assert last_sim_time(r.run_dir) is None      # still loading: the simulator waits for it
+    pids = r.group_pids()
+    r.kill_node("perception", signal.SIGKILL)
+    code = r.finish()
+    assert code == 1
+    assert last_sim_time(r.run_dir) is None, "the run flew without its perception node"
+    assert wait_gone(pids) == set(), "processes of the run outlived it"
+    lines = [ln for ln in r.stderr.splitlines() if "before take-off" in ln]
+    assert len(lines) == 1 and "perception" in lines[0] and "logs/perception.log" in lines[0], r.stderr[-3000:]
+    assert "Traceback" not in r.stderr
+    s = r.summary()
+    assert s["aborted"] is True and s["end_reason"].startswith("stopped the run before take-off")
+    assert s["failed_nodes"] == ["perception"]
+    assert "not every expected node joined" not in (r.run_dir / "logs" / "sim.log").read_text()
+
+
 def test_reason_is_the_last_error_line_of_the_log(tmp_path):
     from scenenav.app.launcher import last_error_line
     log = tmp_path / "x.log"
@@ -107,3 +134,23 @@ def test_sigkill_of_the_recorder_leaves_a_readable_run(runs, tmp_path):
             rows = list(csv.reader(f))
         assert len(rows) > 1 and all(len(row) == len(rows[0]) for row in rows), name
     assert "recorder killed by SIGKILL" in r.stderr
+
+
+def test_sitl_stops_when_a_node_dies_before_take_off(tmp_path):
+    from support.sitl_session import SitlSession
+    s = SitlSession(tmp_path)
+    try:
+        deadline = time.monotonic() + 120.0
+        while s.child_pid("perception") is None:
+            assert time.monotonic() < deadline and s.proc.poll() is None, "\n".join(s.lines[-40:])
+            time.sleep(0.05)
+        assert last_sim_time(s.run_dir) is None
+        children = set(json.loads((s.run_dir / "logs" / "pids.json").read_text()).values())
+        os.kill(s.child_pid("perception"), signal.SIGKILL)
+        assert s.proc.wait(120) == 1
+        text = "\n".join(s.lines)
+        assert "perception exited with code -9 while the run was starting (see logs/perception.log)" in text, text
+        assert last_sim_time(s.run_dir) is None
+        assert wait_gone(children) == set(), "processes of the run outlived it"
+    finally:
+        s.stop()
