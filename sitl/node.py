@@ -138,6 +138,14 @@ class SimulatorNode:
         self._has_flown = False
         self.stats = SimStats()
 
+        # The streams a camera member (perception) subscribes to are dropped for a subscriber whose
+        # link is full instead of blocking: a frozen perception node (SIGSTOP, a debugger) must not
+        # stop the clock once the barrier gave up on it (clock.member_timeout_s). The frames fill
+        # that link's queue first, and a blocking compass or baro sample queued behind them would
+        # then wait for the frozen node (measured: the clock stood still until SIGCONT). In lockstep
+        # a healthy member has at most one frame outstanding, so its queue never fills.
+        for key in (self.keys.camera, self.keys.compass, self.keys.baro):
+            self.bus.publisher(key, drop_when_congested=True)
         self.bus.subscribe(self.keys.motors, MotorCommand, self._on_motor)
         self.bus.subscribe(self.keys.lockstep_ack_all, LockstepAck, self._on_ack)
         self.bus.subscribe(self.keys.autopilot_status, AutopilotStatus, self._on_status)

@@ -31,20 +31,63 @@ def _exit_late() -> None:
     os._exit(3)
 
 
-def stop_event() -> threading.Event:
+_PR_GET_PDEATHSIG = 2   # linux/prctl.h
+#: How often a node looks whether its parent (the launcher) is still there (``stop_event``).
+PARENT_POLL_S = 0.5
+
+
+def _parent_death_signal() -> int:
+    """The signal this process gets when its parent dies (Linux ``prctl(PR_GET_PDEATHSIG)``), 0 if none."""
+    try:
+        import ctypes
+        sig = ctypes.c_int(0)
+        libc = ctypes.CDLL(None, use_errno=True)
+        if libc.prctl(_PR_GET_PDEATHSIG, ctypes.byref(sig)) != 0:
+            return 0
+        return int(sig.value)
+    except (OSError, AttributeError):
+        return 0
+
+
+def stop_event(watch_parent: bool | None = None) -> threading.Event:
     """An event that SIGINT or SIGTERM sets (for node processes); the process exits anyway
-    ``STOP_DEADLINE_S`` after the first stop signal."""
+    ``STOP_DEADLINE_S`` after the first stop signal.
+
+    ``watch_parent`` (default: when a parent-death signal is set, i.e. the launcher started this node
+    to die with it; a node a user started by hand may outlive its shell): a daemon thread also sets
+    the event (and starts the same deadline) when the process's parent is gone (it was re-parented). PDEATHSIG's SIGTERM alone is not enough: Python runs a signal
+    handler only in the main thread between bytecodes, so a main thread blocked in native code (a bus
+    call whose peer is gone, a long kernel) never starts the deadline, and the node would outlive its
+    run. The watchdog does not depend on the main thread."""
     ev = threading.Event()
+    deadline_started = threading.Lock()
+    started: list[threading.Timer] = []
+
+    def stop(why: str) -> None:
+        with deadline_started:
+            if not started:
+                log.info("%s: stopping", why)
+                timer = threading.Timer(STOP_DEADLINE_S, _exit_late)
+                timer.daemon = True
+                timer.start()
+                started.append(timer)
+        ev.set()
 
     def handler(signum, _frame) -> None:
-        log.info("signal %d: stopping", signum)
-        if not ev.is_set():
-            timer = threading.Timer(STOP_DEADLINE_S, _exit_late)
-            timer.daemon = True
-            timer.start()
-        ev.set()
+        stop(f"signal {signum}")
     for sig in STOP_SIGNALS:
         signal.signal(sig, handler)
+    if watch_parent is None:
+        watch_parent = _parent_death_signal() != 0
+    if watch_parent:
+        parent = os.getppid()
+
+        def watch() -> None:
+            while not ev.wait(PARENT_POLL_S):
+                if os.getppid() != parent:
+                    stop(f"parent process {parent} is gone")
+                    return
+        threading.Thread(target=watch, name="parent-watchdog", daemon=True).start()
     return ev
 
 

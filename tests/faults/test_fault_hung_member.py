@@ -22,17 +22,19 @@ def _events(run_dir) -> list[str]:
 
 
 def test_a_stopped_member_is_reported_skipped_and_rejoins(tmp_path):
-    r = FaultRun(tmp_path / "hung", "--set", "duration_s=40", "--set", "perception.method=statistical",
+    # the route (154 s) still flies when perception wakes: without perception to wait for, the
+    # clock runs at the simulator's own speed (about 14x here: some 30 s in the 2 s after the timeout)
+    r = FaultRun(tmp_path / "hung", "--set", "duration_s=150", "--set", "perception.method=statistical",
                  "--set", "clock.member_timeout_s=2", scenario="scenarios/logging_flight.yaml")
     try:
         t_stop = r.wait_sim_time(4.0)
         r.kill_node("perception", signal.SIGSTOP)
         stopped_at = time.monotonic()
-        time.sleep(6.0)
+        time.sleep(4.0)
         t_during = r.wait_sim_time(0.0)      # simulated time reached while it was still frozen
         r.kill_node("perception", signal.SIGCONT)
         resumed_at = time.monotonic()
-        assert resumed_at - stopped_at >= 6.0
+        assert resumed_at - stopped_at >= 4.0
         code = r.finish()
     finally:
         r.kill()
@@ -46,16 +48,16 @@ def test_a_stopped_member_is_reported_skipped_and_rejoins(tmp_path):
     timed_out = [e for e in events if "no lockstep answer from perception" in e
                  and window[0] <= sim_t(e) <= window[1]]
     rejoined = [e for e in events if "perception answers again" in e and sim_t(e) >= window[0]]
-    # one report for the stop, not one per 10 Hz frame (about 60 in those 6 s); a second one inside
+    # one report for the stop, not one per 10 Hz frame (about 40 in those 4 s); a second one inside
     # the stop was seen twice on a loaded machine (t = 6.25 s and 23.75 s): an answer queued before
     # the stop arrived late, counted as a rejoin, and the wait began again (not yet understood)
     assert 1 <= len(timed_out) <= 2, timed_out[:5]
     assert rejoined, events[-10:]
     # the clock went on while perception was frozen: after the one 2 s timeout it ran freely (waiting
-    # 2 s for every 10 Hz frame instead would have advanced it by about 0.4 s in those 6 s)
+    # 2 s for every 10 Hz frame instead would have advanced it by about 0.2 s in those 4 s)
     assert t_during - t_stop >= 1.0, (t_stop, t_during)
     s = r.summary()
-    assert s["end_reason"] == "duration reached"
+    assert s["end_reason"] in ("duration reached", "scripted route complete")
     # fixes came again after the rejoin (a loaded machine may stall the node again later: another
     # stall with its own report, so the fixes are counted right after this rejoin, not to the end)
     t_rejoin = min(sim_t(e) for e in rejoined)

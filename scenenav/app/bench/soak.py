@@ -94,6 +94,8 @@ class Sample:
     fds: int
     #: what the fds are (``fd_kinds``: socket, pipe, shm, anon, file, dev, other -> count)
     fd_kinds: dict[str, int] = field(default_factory=dict)
+    #: what its TCP sockets are (``tcp_sockets``: "listen", "<state> <what>" -> count)
+    tcp: dict[str, int] = field(default_factory=dict)
 
 
 @dataclass
@@ -108,7 +110,11 @@ class RoleFigures:
     #: the fd kinds of the floor sample (the fewest fds) at minute 5 and at the end
     kinds_minute_5: dict[str, int] = field(default_factory=dict)
     kinds_end: dict[str, int] = field(default_factory=dict)
+    #: the TCP sockets of those two floor samples
+    tcp_minute_5: dict[str, int] = field(default_factory=dict)
+    tcp_end: dict[str, int] = field(default_factory=dict)
     _end_kinds: list[dict[str, int]] = field(default_factory=list, repr=False)
+    _end_tcp: list[dict[str, int]] = field(default_factory=list, repr=False)
 
     def add(self, sample: Sample, baseline: bool, end: bool) -> None:
         """Record a steady sample: ``baseline`` once minute 5 is reached, ``end`` up to the end window."""
@@ -118,13 +124,16 @@ class RoleFigures:
             if len(self.fds_from_minute_5) < FD_FLOOR_SAMPLES:
                 if not self.fds_from_minute_5 or sample.fds < min(self.fds_from_minute_5):
                     self.kinds_minute_5 = dict(sample.fd_kinds)
+                    self.tcp_minute_5 = dict(sample.tcp)
                 self.fds_from_minute_5.append(sample.fds)
         if end:
             self.at_end = sample
             self.fds_last = [*self.fds_last, sample.fds][-FD_FLOOR_SAMPLES:]
             self._end_kinds = [*self._end_kinds, dict(sample.fd_kinds)][-FD_FLOOR_SAMPLES:]
+            self._end_tcp = [*self._end_tcp, dict(sample.tcp)][-FD_FLOOR_SAMPLES:]
             floor = min(range(len(self.fds_last)), key=lambda i: (self.fds_last[i], -i))
             self.kinds_end = self._end_kinds[floor]
+            self.tcp_end = self._end_tcp[floor]
 
     @property
     def memory_growth(self) -> float | None:
@@ -196,7 +205,8 @@ class SoakResult:
                        "memory_growth": None if r.memory_growth is None else round(r.memory_growth, 4),
                        "fds_at_minute_5": r.fd_floor_minute_5, "fds_at_end": r.fd_floor_end,
                        "fd_growth": r.fd_growth, "fd_kinds_at_minute_5": r.kinds_minute_5,
-                       "fd_kinds_at_end": r.kinds_end} for r in self.roles],
+                       "fd_kinds_at_end": r.kinds_end, "tcp_at_minute_5": r.tcp_minute_5,
+                       "tcp_at_end": r.tcp_end} for r in self.roles],
         }
 
 
@@ -245,6 +255,48 @@ def fd_kinds(pid: int) -> dict[str, int]:
     return dict(sorted(out.items()))
 
 
+# /proc/net/tcp state codes (include/net/tcp_states.h)
+_TCP_STATES = {"01": "established", "02": "syn-sent", "03": "syn-recv", "04": "fin-wait1", "05": "fin-wait2",
+               "06": "time-wait", "07": "close", "08": "close-wait", "09": "last-ack", "0A": "listen",
+               "0B": "closing"}
+
+
+def tcp_sockets(pid: int, named_ports: dict[int, str] | None = None) -> dict[str, int]:
+    """The process's TCP sockets by state and far end: ``"listen"``, or ``"<state> <name>"`` where
+    the name is ``named_ports``' name of the local or remote port (e.g. the Zenoh hub, the MAVLink
+    port), else ``"peer"`` (empty if the process is gone)."""
+    named = named_ports or {}
+    try:
+        names = os.listdir(f"/proc/{pid}/fd")
+    except OSError:
+        return {}
+    inodes = set()
+    for name in names:
+        try:
+            target = os.readlink(f"/proc/{pid}/fd/{name}")
+        except OSError:
+            continue      # closed meanwhile (the listing's own fd, for one)
+        if target.startswith("socket:["):
+            inodes.add(target[len("socket:["):-1])
+    out: dict[str, int] = {}
+    for table in ("tcp", "tcp6"):
+        try:
+            with open(f"/proc/{pid}/net/{table}") as f:
+                rows = f.read().splitlines()[1:]
+        except OSError:
+            continue
+        for row in rows:
+            cols = row.split()
+            if len(cols) < 10 or cols[9] not in inodes:
+                continue
+            state = _TCP_STATES.get(cols[3], cols[3])
+            lport, rport = int(cols[1].rsplit(":", 1)[1], 16), int(cols[2].rsplit(":", 1)[1], 16)
+            key = "listen" if state == "listen" else \
+                f"{state} {named.get(lport) or named.get(rport) or 'peer'}"
+            out[key] = out.get(key, 0) + 1
+    return dict(sorted(out.items()))
+
+
 def _children(pid: int) -> list[int]:
     try:
         with open(f"/proc/{pid}/task/{pid}/children") as f:
@@ -286,6 +338,15 @@ class Sampler(threading.Thread):
                 out[RENDER_WORKER] = child
         return out
 
+    def _named_ports(self) -> dict[int, str]:
+        """The run's known TCP ports (run.json): the Zenoh hub and the autopilot's MAVLink port."""
+        try:
+            meta = json.loads((self.run_dir / "run.json").read_text())
+        except (OSError, ValueError):
+            return {}
+        ports = {meta.get("hub_port"): "zenoh hub", meta.get("mavlink_tcp_port"): "mavlink"}
+        return {int(p): name for p, name in ports.items() if isinstance(p, int) and p > 0}
+
     def run(self) -> None:
         end_window_s = self.cfg.duration_s - 3.0 * self.cfg.sample_period_s
         first_seen: dict[int, float] = {}
@@ -309,7 +370,7 @@ class Sampler(threading.Thread):
                     continue
                 fig = self.roles.setdefault(role, RoleFigures(role))
                 fig.peak_rss_mb = max(fig.peak_rss_mb, rss)
-                sample = Sample(t, rss, fds, fd_kinds(pid))
+                sample = Sample(t, rss, fds, fd_kinds(pid), tcp_sockets(pid, self._named_ports()))
                 if steady:
                     fig.add(sample, baseline=t >= self.cfg.baseline_s, end=t <= end_window_s)
 
@@ -501,6 +562,7 @@ def format_table(r: SoakResult) -> str:
         if f.fd_growth:
             lines.append(f"{f.role} fds by kind, floor at minute 5 -> at the end: {_kinds(f.kinds_minute_5)} -> "
                          f"{_kinds(f.kinds_end)}")
+            lines.append(f"{f.role} TCP sockets, same samples: {_kinds(f.tcp_minute_5)} -> {_kinds(f.tcp_end)}")
     lines.append(f"ticks {r.ticks} of {r.ticks_expected}; lockstep answers timed out: {r.lockstep_timeouts}; "
                  f"autopilot ticks out of order: {r.autopilot_ticks_out_of_order}; MAVLink frames dropped "
                  f"(bad CRC or unparsable): {r.mavlink_frames_dropped}")

@@ -84,3 +84,24 @@ def test_fd_kinds_name_what_a_process_holds_and_the_floor_samples_keep_theirs():
     fig.add(Sample(1700.0, 150.0, 32, {"socket": 19, "file": 1}), baseline=False, end=True)
     fig.add(Sample(1701.0, 150.0, 34, {"socket": 21}), baseline=False, end=True)
     assert fig.kinds_minute_5 == {"socket": 18} and fig.kinds_end == {"socket": 19, "file": 1}
+
+
+def test_tcp_sockets_name_listeners_and_connections_by_port():
+    import os
+    import socket
+
+    from scenenav.app.bench.soak import tcp_sockets
+    server = socket.create_server(("127.0.0.1", 0))
+    port = server.getsockname()[1]
+    client = socket.create_connection(("127.0.0.1", port))
+    accepted, _ = server.accept()
+    try:
+        named = tcp_sockets(os.getpid(), {port: "mavlink"})
+        assert named.get("listen", 0) >= 1
+        assert named.get("established mavlink", 0) == 2      # both ends of the connection are ours
+        unnamed = tcp_sockets(os.getpid())
+        assert unnamed.get("established peer", 0) >= 2
+    finally:
+        for s in (client, accepted, server):
+            s.close()
+    assert tcp_sockets(2 ** 22 + 7) == {}                      # no such process
