@@ -63,6 +63,9 @@ NODE_ID = "sim"
 #: Realtime mode: wall seconds the loop may fall behind the paced clock and catch up (a short stall);
 #: further behind, it paces on from where it is instead of running flat out to catch up.
 MAX_PACE_LAG_S = 0.25
+#: Lockstep: while every camera member is suspended (frozen), at most one camera frame per this many
+#: wall seconds is published (the others are withheld): enough for a member that wakes to rejoin.
+SUSPENDED_PROBE_S = 1.0
 
 
 @dataclass
@@ -71,6 +74,8 @@ class SimStats:
 
     ticks: int = 0
     camera_frames: int = 0
+    #: frames not published because every camera member was suspended (frozen) at the time
+    camera_frames_withheld: int = 0
     ack_timeouts: int = 0
     time_physics_s: float = 0.0
     time_render_s: float = 0.0
@@ -138,14 +143,6 @@ class SimulatorNode:
         self._has_flown = False
         self.stats = SimStats()
 
-        # The streams a camera member (perception) subscribes to are dropped for a subscriber whose
-        # link is full instead of blocking: a frozen perception node (SIGSTOP, a debugger) must not
-        # stop the clock once the barrier gave up on it (clock.member_timeout_s). The frames fill
-        # that link's queue first, and a blocking compass or baro sample queued behind them would
-        # then wait for the frozen node (measured: the clock stood still until SIGCONT). In lockstep
-        # a healthy member has at most one frame outstanding, so its queue never fills.
-        for key in (self.keys.camera, self.keys.compass, self.keys.baro):
-            self.bus.publisher(key, drop_when_congested=True)
         self.bus.subscribe(self.keys.motors, MotorCommand, self._on_motor)
         self.bus.subscribe(self.keys.lockstep_ack_all, LockstepAck, self._on_ack)
         self.bus.subscribe(self.keys.autopilot_status, AutopilotStatus, self._on_status)
@@ -225,6 +222,7 @@ class SimulatorNode:
         camera_timeout = clock.member_timeout_s if lockstep else 1.0 / clock.tick_rate_hz
         duration_ticks = round(self.cfg.duration_s * self.tick_rate_hz)
         camera_acked = -1
+        last_probe = 0.0
         wall0 = pace0 = time.perf_counter()
         reason = "duration reached"
         tick = 0
@@ -259,9 +257,20 @@ class SimulatorNode:
                 frame = core.camera_frame(out.camera_release, self.camera.result(camera_seq))
                 render_s = time.perf_counter() - tr
                 self.stats.time_render_s += render_s
-                self.barrier.published(LockstepRole.CAMERA, camera_seq)
-                self.bus.publish(self.keys.camera, frame)
-                self.stats.camera_frames += 1
+                if (lockstep and self.barrier.all_suspended(LockstepRole.CAMERA)
+                        and time.monotonic() - last_probe < SUSPENDED_PROBE_S):
+                    # Every camera member is frozen (SIGSTOP, a debugger): frames at the clock's
+                    # pace would only fill its link's queue, and once that is full the simulator's
+                    # next put blocks until Zenoh closes the link (seconds: the clock would stand
+                    # still). One frame a wall second still goes out: a member that wakes answers
+                    # it (a later frame than the one it timed out on) and rejoins.
+                    frame_out = False
+                    self.stats.camera_frames_withheld += 1
+                else:
+                    last_probe = time.monotonic()
+                    self.barrier.published(LockstepRole.CAMERA, camera_seq)
+                    self.bus.publish(self.keys.camera, frame)
+                    self.stats.camera_frames += 1
             self.barrier.published(LockstepRole.TICK, tick)
             self.bus.publish(self.keys.clock, ClockTick(
                 t_us, tick, self.tick_us, camera_acked, clock.mode.value, RunState.RUNNING.value))

@@ -102,19 +102,16 @@ class Bus:
         self._lock = threading.Lock()
 
     # --------------------------------------------------------------------------- publishing
-    def publisher(self, key: str, drop_when_congested: bool = False):
-        """The publisher of ``key`` (declared on first use; its first caller sets its policy).
-
-        Congestion control BLOCK by default: nothing is lost, and a subscriber that cannot keep up
-        slows the publisher down. ``drop_when_congested`` (for sensor streams a subscriber may be
-        too slow or frozen for, such as camera frames): a message that does not fit the queue of one
-        subscriber's link is dropped for that subscriber only, so one hung node never stops the
-        publisher."""
+    def publisher(self, key: str):
+        """The publisher of ``key`` (declared on first use). Congestion control BLOCK: a healthy
+        subscriber never loses a message (lockstep determinism depends on it), and one that cannot
+        keep up slows the publisher down until Zenoh closes its link (a frozen node: see
+        docs/faults.md)."""
         pub = self._publishers.get(key)
         if pub is None:
-            cc = zenoh.CongestionControl.DROP if drop_when_congested else zenoh.CongestionControl.BLOCK
-            pub = self.session.declare_publisher(key, congestion_control=cc,
-                                                 reliability=zenoh.Reliability.RELIABLE)
+            pub = self.session.declare_publisher(
+                key, congestion_control=zenoh.CongestionControl.BLOCK,
+                reliability=zenoh.Reliability.RELIABLE)
             self._publishers[key] = pub
         return pub
 

@@ -98,6 +98,12 @@ class LockstepBarrier:
         with self._cond:
             return sorted(n for n, m in self._members.items() if m.suspended)
 
+    def all_suspended(self, role: LockstepRole) -> bool:
+        """True when ``role`` has members and every one of them is suspended."""
+        with self._cond:
+            ms = [m for m in self._members.values() if m.role == role]
+            return bool(ms) and all(m.suspended for m in ms)
+
     def members(self, role: LockstepRole | None = None) -> list[str]:
         with self._cond:
             return sorted(n for n, m in self._members.items() if role is None or m.role == role)
