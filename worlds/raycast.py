@@ -190,6 +190,10 @@ class RayHits:
 # The per-ray kernel. Ray in map pixel space: u(s) = u0 + du s, v(s) = v0 + dv s, z(s) = z0 + dz s.
 
 _INF = np.inf
+# Array indices that are never negative are cast to unsigned: numba then drops its negative-index
+# wrap-around (a shift, an and and an add on every load), which lies on the walk's chain of dependent
+# loads (measured: cast pass 3-4 % faster).
+_U = np.uint64
 
 
 @njit(cache=True, inline="always")
@@ -270,10 +274,10 @@ def cast_ray_from(u0, v0, z0, du, dv, dz, heights, mip, mip_off, mip_w, nlev, hm
             ov = 1 if dv > 0.0 else 0
             s_cur = s_a
             lev = lev0
-            if axis < 0 and heights[row, col] >= z0 + dz * s_a:
+            if axis < 0 and heights[_U(row), _U(col)] >= z0 + dz * s_a:
                 # The start point is already on or below its pixel's top (typically the tallest roof
                 # under the ray's start height): the walk would descend to this pixel and stop there.
-                h = heights[row, col]
+                h = heights[_U(row), _U(col)]
                 if s_a >= (z0 - h) * inv_dz:
                     return s_a, 2 if h > 0.0 else 1, 0, col, row
             while True:
@@ -281,7 +285,7 @@ def cast_ray_from(u0, v0, z0, du, dv, dz, heights, mip, mip_off, mip_w, nlev, hm
                     size = 1 << lev
                     cx = col >> lev
                     cy = row >> lev
-                    hm = mip[mip_off[lev] + cy * mip_w[lev] + cx]
+                    hm = mip[_U(mip_off[_U(lev)] + cy * mip_w[_U(lev)] + cx)]
                     s_hm = (z0 - hm) * inv_dz
                     if s_cur >= s_hm:
                         lev -= 1     # already below this cell's maximum: look at the finer level
@@ -320,12 +324,12 @@ def cast_ray_from(u0, v0, z0, du, dv, dz, heights, mip, mip_off, mip_w, nlev, hm
                     row = min(max(int(math.floor(vm)), cy * size), cy * size + size - 1, rows - 1)
                     axis = -1
                     # Often the pixel there is the one that holds the maximum: its roof is hit.
-                    if heights[row, col] >= hm:
+                    if heights[_U(row), _U(col)] >= hm:
                         return s_cur, 2 if hm > 0.0 else 1, 0, col, row
                     lev -= 1
                     continue
                 # A map pixel: [s_cur, s_next) inside it, reaching its height at s_h.
-                h = heights[row, col]
+                h = heights[_U(row), _U(col)]
                 s_h = (z0 - h) * inv_dz
                 sp_u = (col + ou - u0) * inv_du if du != 0.0 else _INF
                 sp_v = (row + ov - v0) * inv_dv if dv != 0.0 else _INF
