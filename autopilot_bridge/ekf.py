@@ -596,10 +596,11 @@ class NavFilter:
 
     # ------------------------------------------------------------------ outputs
     def state(self) -> NavState:
-        d = np.sqrt(np.maximum(self._P[self._diag, self._diag], 0.0))
+        sqrt = math.sqrt
+        d = [sqrt(x) if x > 0.0 else (x if x != x else 0.0) for x in self._P.diagonal()[:6].tolist()]
         return NavState(position_enu_m=np.array(self._p), velocity_enu_m_s=np.array(self._v),
                         q_wxyz=np.array(self._q), gyro_bias=np.array(self._bg), accel_bias=np.array(self._ba),
-                        position_std_m=d[0:3].copy(), velocity_std_m_s=d[3:6].copy(),
+                        position_std_m=np.array(d[0:3]), velocity_std_m_s=np.array(d[3:6]),
                         heading_rad=heading_from_quat(self._q))
 
     def position_std_m(self) -> np.ndarray:
@@ -619,8 +620,9 @@ class NavFilter:
         usable (STABILIZE / ALT_HOLD). Position and velocity quality: ``position_ok()``, ``velocity_ok()``."""
         if not self.aligned:
             return False
-        values = self._p + self._v + list(self._q)
-        if not all(math.isfinite(x) for x in values) or not np.all(np.isfinite(self._P)):
+        isfinite = math.isfinite
+        if not (all(map(isfinite, self._p)) and all(map(isfinite, self._v)) and all(map(isfinite, self._q))
+                and np.isfinite(self._P).all()):
             return False
         tilt_std = math.sqrt(max(self._P[6, 6] + self._P[7, 7], 0.0))
         return tilt_std <= self._cfg.healthy_max_tilt_std_rad
