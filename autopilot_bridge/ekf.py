@@ -59,7 +59,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from autopilot_bridge.config import EkfConfig, PositionSource
-from autopilot_bridge.ekf_kernels import predict_covariance, update_direct, update_scalar
+from autopilot_bridge.ekf_kernels import predict_covariance, update_direct, update_scalar, warm_up
 from scenenav.core.frames import wrap_pi
 from scenenav.core.rotations import (
     heading_from_quat,
@@ -153,6 +153,7 @@ class NavFilter:
         self._w_flu = (0.0, 0.0, 0.0)   # the last body rate, bias removed (rad/s, FLU)
         self._ba = [0.0, 0.0, 0.0]
         self._P = np.zeros((NUM_ERROR_STATES, NUM_ERROR_STATES))
+        warm_up()           # the compiled kernels load now, not in the first control tick
         # work arrays of the compiled kernels (ekf_kernels)
         self._tmp = np.zeros((NUM_ERROR_STATES, NUM_ERROR_STATES))
         self._qd = np.zeros(NUM_ERROR_STATES)
