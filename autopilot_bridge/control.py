@@ -111,6 +111,11 @@ class ControlOutput:
     touchdown: bool                      # the land detector fired on this tick: disarm in LAND / RTL
 
 
+def _floats(x) -> list[float]:
+    """The entries of a vector as Python floats (``tolist`` for an ndarray: one call)."""
+    return x.tolist() if type(x) is np.ndarray else [float(a) for a in x]
+
+
 def sqrt_controller(error: float, p_gain: float, accel_max: float) -> float:
     """Velocity for a position error: p * e near zero, a braking-distance curve beyond a_max / p^2."""
     if accel_max <= 0.0 or p_gain <= 0.0:
@@ -454,7 +459,7 @@ class FlightController:
     def _attitude_stage(self, nav: NavState, gyro, q_target, thrust: float, dt_s: float, *, yaw_rate_ff: float,
                         accel, velocity, lean_limited: bool) -> ControlOutput:
         c = self._cfg
-        q = tuple(float(a) for a in nav.q_wxyz)
+        q = tuple(_floats(nav.q_wxyz))
         q_t = q_target
         z_cur = quat_rotate(q, (0.0, 0.0, 1.0))
         z_tgt = quat_rotate(q_t, (0.0, 0.0, 1.0))
@@ -495,8 +500,8 @@ class FlightController:
 
     def _rate_loop(self, nav: NavState, gyro, rate_target, dt_s: float) -> tuple[float, float, float]:
         c = self._cfg
-        bias = nav.gyro_bias
-        w = (float(gyro[0]) - float(bias[0]), float(gyro[1]) - float(bias[1]), float(gyro[2]) - float(bias[2]))
+        g, bias = _floats(gyro), _floats(nav.gyro_bias)
+        w = (g[0] - bias[0], g[1] - bias[1], g[2] - bias[2])
         alpha = _lpf_alpha(c.rate_d_filter_hz, dt_s)
         prev = self._prev_rate if self._prev_rate is not None else w
         self._prev_rate = w
