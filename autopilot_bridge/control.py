@@ -176,6 +176,10 @@ class FlightController:
 
     def __init__(self, cfg: ControlConfig | None = None, airframe: Airframe | None = None) -> None:
         self._cfg = cfg if cfg is not None else ControlConfig()
+        c = self._cfg
+        # rate loop gains per body axis (roll, pitch, yaw): kp, ki, kd, imax
+        rp = (c.rate_rp_p_1_s, c.rate_rp_i_1_s2, c.rate_rp_d_unitless, c.rate_rp_imax_rad_s2)
+        self._rate_gains = (rp, rp, (c.rate_yaw_p_1_s, c.rate_yaw_i_1_s2, 0.0, c.rate_yaw_imax_rad_s2))
         self._airframe = airframe if airframe is not None else Airframe()
         c, v = self._cfg, self._airframe
         self._mass = v.thrust_mass_kg
@@ -508,18 +512,14 @@ class FlightController:
         lim = self._limits
         ix_ok = not lim.roll_pitch
         alpha_cmd = [0.0, 0.0, 0.0]
-        for i in range(3):
-            yaw_axis = i == 2
-            kp = c.rate_yaw_p_1_s if yaw_axis else c.rate_rp_p_1_s
-            ki = c.rate_yaw_i_1_s2 if yaw_axis else c.rate_rp_i_1_s2
-            kd = 0.0 if yaw_axis else c.rate_rp_d_unitless
-            imax = c.rate_yaw_imax_rad_s2 if yaw_axis else c.rate_rp_imax_rad_s2
+        rate_d, rate_i = self._rate_d, self._rate_i
+        for i, (kp, ki, kd, imax) in enumerate(self._rate_gains):
             err = rate_target[i] - w[i]
-            self._rate_d[i] += alpha * ((w[i] - prev[i]) / dt_s - self._rate_d[i])
-            frozen = (lim.yaw if yaw_axis else not ix_ok) and err * self._rate_i[i] > 0.0
+            rate_d[i] += alpha * ((w[i] - prev[i]) / dt_s - rate_d[i])
+            frozen = (lim.yaw if i == 2 else not ix_ok) and err * rate_i[i] > 0.0
             if not frozen:
-                self._rate_i[i] = min(max(self._rate_i[i] + ki * err * dt_s, -imax), imax)
-            alpha_cmd[i] = kp * err + self._rate_i[i] - kd * self._rate_d[i]
+                rate_i[i] = min(max(rate_i[i] + ki * err * dt_s, -imax), imax)
+            alpha_cmd[i] = kp * err + rate_i[i] - kd * rate_d[i]
         ixx, iyy, izz = self._inertia
         hx, hy, hz = ixx * w[0], iyy * w[1], izz * w[2]
         # tau = I alpha + w x (I w)

@@ -83,6 +83,7 @@ class QuadXMixer:
         # Rows: collective thrust, roll torque, pitch torque, yaw torque; columns: rotor thrusts.
         self._allocation = np.vstack([np.ones(NUM_ROTORS), ys, -xs, -dirs * a.moment_constant_m])
         self._inverse = np.linalg.inv(self._allocation)
+        self._alloc_rows = tuple(tuple(float(v) for v in row) for row in self._allocation)
         self._inv_cols = tuple(tuple(float(v) for v in self._inverse[:, j]) for j in range(NUM_ROTORS))
         self._k = a.thrust_coefficient_n_per_rad2_s2
         self._w_max = a.max_rotor_speed_rad_s
@@ -166,14 +167,15 @@ class QuadXMixer:
         scale = max(scale, 0.0)
         yaw_limited = scale < 1.0 - 1e-9
         thrust_list = [min(max(pa + scale * y, t_min), t_max) for pa, y in zip(partial, yaw)]
-        thrusts = np.array(thrust_list)
-
         commands = np.array(self._commands_list(thrust_list))
-        achieved = self._allocation @ thrusts
+        # what the thrusts achieve (allocation x thrusts, summed in rotor order; the flight uses only
+        # the commands and the limits)
+        t0, t1, t2, t3 = thrust_list
+        achieved = [r0 * t0 + r1 * t1 + r2 * t2 + r3 * t3 for r0, r1, r2, r3 in self._alloc_rows]
         limits = MixerLimits(roll_pitch=roll_pitch_limited, thrust_upper=thrust_upper,
                              thrust_lower=thrust_lower, yaw=yaw_limited)
-        return MixerOutput(commands=commands, rotor_thrusts_n=thrusts, thrust_n=float(achieved[0]),
-                           torque_flu_n_m=achieved[1:].copy(), limits=limits)
+        return MixerOutput(commands=commands, rotor_thrusts_n=np.array(thrust_list), thrust_n=achieved[0],
+                           torque_flu_n_m=np.array(achieved[1:]), limits=limits)
 
     def _commands_list(self, thrusts: list[float]) -> list[float]:
         """``_commands`` on a list of floats (the same arithmetic, element by element)."""
