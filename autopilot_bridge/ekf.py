@@ -180,6 +180,11 @@ class NavFilter:
         self._last_position_reset_m = np.zeros(2)
         self._height_reset_count = 0
         self.aligned = False
+        # is_healthy() is kept until the state changes: _rev counts the changes (predict, updates,
+        # resets, initialise)
+        self._rev = 0
+        self._healthy_rev = -1
+        self._healthy = False
 
     # ------------------------------------------------------------------ setup
     @property
@@ -263,6 +268,7 @@ class NavFilter:
         self._hdg_last_ok_s = 0.0
         self._vel_last_ok_s = 0.0
         self.aligned = True
+        self._rev += 1
         logger.info("NavFilter aligned: roll %.2f deg, pitch %.2f deg, heading %.1f deg, position (%.1f, %.1f, %.1f) m"
                     " +- %.1f m, source %s", math.degrees(roll), math.degrees(-pitch),
                     math.degrees(heading_rad % _TWO_PI), px, py, pz, pos_std, self._source.name)
@@ -329,6 +335,7 @@ class NavFilter:
         if P[3, 3] > self._max_vel_var or P[4, 4] > self._max_vel_var or P[5, 5] > self._max_vel_var:
             self._clamp_variance(range(3, 6), self._max_vel_var)
         self._time_s += dt
+        self._rev += 1
 
     def _clamp_variance(self, indices, max_var: float) -> None:
         """Scale row/column i so that P[i, i] <= max_var (D P D keeps P positive semi-definite)."""
@@ -380,6 +387,7 @@ class NavFilter:
         return FusionResult(False, innovation, ratio)
 
     def _inject(self, dx: np.ndarray) -> None:
+        self._rev += 1
         d = dx.tolist()
         for i in range(3):
             self._p[i] += d[i]
@@ -486,6 +494,7 @@ class NavFilter:
             P[8, :] = 0.0
             P[:, 8] = 0.0
             P[8, 8] = std_rad ** 2 + c.initial_heading_std_rad ** 2
+            self._rev += 1
             self._heading_reset_count += 1
             self._hdg_last_ok_s = self._time_s
             logger.warning("NavFilter: heading reset to %s (jump %.1f deg)", what, math.degrees(float(innov[0])))
@@ -536,6 +545,7 @@ class NavFilter:
             P[6, 6] = P[7, 7] = 16.0 * (c.initial_tilt_std_rad ** 2
                                         + (c.initial_accel_bias_std_m_s2 / self._g) ** 2)
             self._velocity_reset_count += 1
+            self._rev += 1
             self._vel_last_ok_s = self._time_s
             logger.warning("NavFilter: velocity reset to GPS (jump %.2f, %.2f, %.2f m/s)", *innov.tolist())
             return FusionResult(True, innov, result.test_ratio, reset=True)
@@ -594,6 +604,7 @@ class NavFilter:
 
     def _reset_axes(self, axes: list[int], values: np.ndarray, R: np.ndarray) -> None:
         """Set position axes to a measurement: decorrelate them and give them the measurement variance."""
+        self._rev += 1
         P = self._P
         for k, i in enumerate(axes):
             self._p[i] = float(values[k])
@@ -629,6 +640,13 @@ class NavFilter:
         usable (STABILIZE / ALT_HOLD). Position and velocity quality: ``position_ok()``, ``velocity_ok()``."""
         if not self.aligned:
             return False
+        if self._healthy_rev == self._rev:
+            return self._healthy
+        self._healthy_rev = self._rev
+        self._healthy = self._compute_healthy()
+        return self._healthy
+
+    def _compute_healthy(self) -> bool:
         isfinite = math.isfinite
         if not (all(map(isfinite, self._p)) and all(map(isfinite, self._v)) and all(map(isfinite, self._q))
                 and np.isfinite(self._P).all()):

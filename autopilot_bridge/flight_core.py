@@ -435,10 +435,8 @@ class FlightCore(SensorFusionMixin, ArmingMixin, GuidedMixin, AutoMissionMixin,
         """The EKF and battery failsafes (``failsafe_checks``)."""
         p = self.params
 
-        def variances() -> EkfVariances:    # EKF_STATUS_REPORT's, built only when a check is due
-            tel = self._build_telemetry()
-            return EkfVariances(tel.ekf_velocity_variance, tel.ekf_pos_horiz_variance,
-                                tel.ekf_compass_variance)
+        def variances() -> EkfVariances:    # EKF_STATUS_REPORT's, computed only when a check is due
+            return EkfVariances(*self._ekf_variances())
         # differs from ArduCopter: with external navigation as the position source the vision
         # failsafe (SN_VIS_*) owns position loss; dead reckoning between fixes is by design there
         thresh = 0.0 if inputs.vision_required else p.get("FS_EKF_THRESH")
