@@ -131,7 +131,7 @@ class QuadXMixer:
         thrust = float(thrust_n)
         base = [c * thrust for c in c0]             # equal thrusts for a pure collective demand
         base_level = (base[0] + (base[1] + base[2] + base[3])) / NUM_ROTORS   # numpy's reduction order
-        rp = [a * tx + b * ty for a, b in zip(c1, c2)]
+        rp = [a * tx + b * ty for a, b in zip(c1, c2, strict=True)]
         yaw = [c * tz for c in c3]
 
         roll_pitch_limited = False
@@ -166,7 +166,7 @@ class QuadXMixer:
                 scale = min(scale, (t_min - partial[i]) / y)
         scale = max(scale, 0.0)
         yaw_limited = scale < 1.0 - 1e-9
-        thrust_list = [min(max(pa + scale * y, t_min), t_max) for pa, y in zip(partial, yaw)]
+        thrust_list = [min(max(pa + scale * y, t_min), t_max) for pa, y in zip(partial, yaw, strict=True)]
         commands = np.array(self._commands_list(thrust_list))
         # what the thrusts achieve (allocation x thrusts, summed in rotor order; the flight uses only
         # the commands and the limits)
