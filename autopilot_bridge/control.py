@@ -111,6 +111,11 @@ class ControlOutput:
     touchdown: bool                      # the land detector fired on this tick: disarm in LAND / RTL
 
 
+def _floats(x) -> list[float]:
+    """The entries of a vector as Python floats (``tolist`` for an ndarray: one call)."""
+    return x.tolist() if type(x) is np.ndarray else [float(a) for a in x]
+
+
 def sqrt_controller(error: float, p_gain: float, accel_max: float) -> float:
     """Velocity for a position error: p * e near zero, a braking-distance curve beyond a_max / p^2."""
     if accel_max <= 0.0 or p_gain <= 0.0:
@@ -171,6 +176,10 @@ class FlightController:
 
     def __init__(self, cfg: ControlConfig | None = None, airframe: Airframe | None = None) -> None:
         self._cfg = cfg if cfg is not None else ControlConfig()
+        c = self._cfg
+        # rate loop gains per body axis (roll, pitch, yaw): kp, ki, kd, imax
+        rp = (c.rate_rp_p_1_s, c.rate_rp_i_1_s2, c.rate_rp_d_unitless, c.rate_rp_imax_rad_s2)
+        self._rate_gains = (rp, rp, (c.rate_yaw_p_1_s, c.rate_yaw_i_1_s2, 0.0, c.rate_yaw_imax_rad_s2))
         self._airframe = airframe if airframe is not None else Airframe()
         c, v = self._cfg, self._airframe
         self._mass = v.thrust_mass_kg
@@ -454,7 +463,7 @@ class FlightController:
     def _attitude_stage(self, nav: NavState, gyro, q_target, thrust: float, dt_s: float, *, yaw_rate_ff: float,
                         accel, velocity, lean_limited: bool) -> ControlOutput:
         c = self._cfg
-        q = tuple(float(a) for a in nav.q_wxyz)
+        q = tuple(_floats(nav.q_wxyz))
         q_t = q_target
         z_cur = quat_rotate(q, (0.0, 0.0, 1.0))
         z_tgt = quat_rotate(q_t, (0.0, 0.0, 1.0))
@@ -495,26 +504,22 @@ class FlightController:
 
     def _rate_loop(self, nav: NavState, gyro, rate_target, dt_s: float) -> tuple[float, float, float]:
         c = self._cfg
-        bias = nav.gyro_bias
-        w = (float(gyro[0]) - float(bias[0]), float(gyro[1]) - float(bias[1]), float(gyro[2]) - float(bias[2]))
+        g, bias = _floats(gyro), _floats(nav.gyro_bias)
+        w = (g[0] - bias[0], g[1] - bias[1], g[2] - bias[2])
         alpha = _lpf_alpha(c.rate_d_filter_hz, dt_s)
         prev = self._prev_rate if self._prev_rate is not None else w
         self._prev_rate = w
         lim = self._limits
         ix_ok = not lim.roll_pitch
         alpha_cmd = [0.0, 0.0, 0.0]
-        for i in range(3):
-            yaw_axis = i == 2
-            kp = c.rate_yaw_p_1_s if yaw_axis else c.rate_rp_p_1_s
-            ki = c.rate_yaw_i_1_s2 if yaw_axis else c.rate_rp_i_1_s2
-            kd = 0.0 if yaw_axis else c.rate_rp_d_unitless
-            imax = c.rate_yaw_imax_rad_s2 if yaw_axis else c.rate_rp_imax_rad_s2
+        rate_d, rate_i = self._rate_d, self._rate_i
+        for i, (kp, ki, kd, imax) in enumerate(self._rate_gains):
             err = rate_target[i] - w[i]
-            self._rate_d[i] += alpha * ((w[i] - prev[i]) / dt_s - self._rate_d[i])
-            frozen = (lim.yaw if yaw_axis else not ix_ok) and err * self._rate_i[i] > 0.0
+            rate_d[i] += alpha * ((w[i] - prev[i]) / dt_s - rate_d[i])
+            frozen = (lim.yaw if i == 2 else not ix_ok) and err * rate_i[i] > 0.0
             if not frozen:
-                self._rate_i[i] = min(max(self._rate_i[i] + ki * err * dt_s, -imax), imax)
-            alpha_cmd[i] = kp * err + self._rate_i[i] - kd * self._rate_d[i]
+                rate_i[i] = min(max(rate_i[i] + ki * err * dt_s, -imax), imax)
+            alpha_cmd[i] = kp * err + rate_i[i] - kd * rate_d[i]
         ixx, iyy, izz = self._inertia
         hx, hy, hz = ixx * w[0], iyy * w[1], izz * w[2]
         # tau = I alpha + w x (I w)

@@ -89,6 +89,16 @@ class GeofenceMixin:
 
     def fence_settings(self) -> FenceSettings:
         p = self.params
+        key = (p.generation, self._fences_enabled)
+        cached = self._settings_cache.get("fence")
+        if cached is not None and cached[0] == key:
+            return cached[1]
+        settings = self._build_fence_settings()
+        self._settings_cache["fence"] = (key, settings)
+        return settings
+
+    def _build_fence_settings(self) -> FenceSettings:
+        p = self.params
         on = self._fences_on()
         types = FenceType(p.get_int("FENCE_TYPE") & 0xF) & on
         enabled = bool(on)

@@ -68,6 +68,21 @@ class TelemetryMixin:
             self._tel = self._build_telemetry()
         return self._tel
 
+    def _ekf_variances(self) -> tuple[float, float, float]:
+        """EKF_STATUS_REPORT's velocity, horizontal position and compass variances, as
+        ``_build_telemetry`` computes them (the EKF failsafe checks them at 10 Hz: without
+        building the whole telemetry)."""
+        if not self.nav.aligned:
+            vstd = std = np.full(3, math.inf)
+        else:
+            est = self.nav.state()
+            std = np.asarray(est.position_std_m, dtype=float)
+            vstd = np.asarray(est.velocity_std_m_s, dtype=float)
+        cfg = self.nav.config
+        return (float(max(vstd[0], vstd[1]) / cfg.velocity_ok_max_std_m_s),
+                float(max(std[0], std[1]) / cfg.position_ok_max_std_m),
+                float(self.nav.attitude_std_rad()[2] / 0.2) if self.nav.aligned else 1.0)
+
     def _build_telemetry(self) -> VehicleTelemetry:
         aligned = self.nav.aligned
         if aligned:

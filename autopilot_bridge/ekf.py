@@ -22,6 +22,8 @@ ENU z is fixed at ``initialise``); compass heading -> yaw; GPS position -> p_xy 
 barometer, ArduPilot's EK3_SRC1_POSZ = baro); GPS velocity -> v (3-D); vision fix -> p_xy. After each
 update the error is injected into the nominal state and reset to zero; the covariance reset Jacobian
 (I - [dtheta/2]x) is taken as identity, which is accurate for the small corrections of a healthy filter.
+The covariance prediction and updates are compiled kernels (``autopilot_bridge.ekf_kernels``, numba): one
+call each instead of a dozen small numpy calls.
 
 Gating: with innovation nu and innovation covariance S, the normalised innovation squared NIS = nu' S^-1 nu
 is compared with gate^2 (gate in standard deviations, like ArduPilot's *_I_GATE / 100); the reported
@@ -57,6 +59,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from autopilot_bridge.config import EkfConfig, PositionSource
+from autopilot_bridge.ekf_kernels import predict_covariance, update_direct, update_scalar, warm_up
 from scenenav.core.frames import wrap_pi
 from scenenav.core.rotations import (
     heading_from_quat,
@@ -84,6 +87,22 @@ _TWO_PI = 2.0 * math.pi
 _BARO_STATES = np.array([2, 5, 14])
 _COMPASS_STATES = np.array([8, 11])
 _EXT_HEIGHT_STATES = np.array([2, 5])     # external-navigation height: height, vertical velocity
+
+
+def _mask(states: np.ndarray) -> np.ndarray:
+    m = np.zeros(NUM_ERROR_STATES)
+    m[states] = 1.0
+    return m
+
+
+_BARO_MASK = _mask(_BARO_STATES)
+_COMPASS_MASK = _mask(_COMPASS_STATES)
+_EXT_HEIGHT_MASK = _mask(_EXT_HEIGHT_STATES)
+_ALL_MASK = np.ones(NUM_ERROR_STATES)
+_XY_STATES = np.array([0, 1], dtype=np.int64)        # horizontal position fixes
+_VEL_STATES = np.array([3, 4, 5], dtype=np.int64)    # GPS velocity
+_H_HEIGHT = np.zeros(NUM_ERROR_STATES)     # height measurements: z
+_H_HEIGHT[2] = 1.0
 
 
 
@@ -134,12 +153,19 @@ class NavFilter:
         self._w_flu = (0.0, 0.0, 0.0)   # the last body rate, bias removed (rad/s, FLU)
         self._ba = [0.0, 0.0, 0.0]
         self._P = np.zeros((NUM_ERROR_STATES, NUM_ERROR_STATES))
-        self._F = np.eye(NUM_ERROR_STATES)
+        warm_up()           # the compiled kernels load now, not in the first control tick
+        # work arrays of the compiled kernels (ekf_kernels)
+        self._tmp = np.zeros((NUM_ERROR_STATES, NUM_ERROR_STATES))
+        self._qd = np.zeros(NUM_ERROR_STATES)
+        self._qd_dt = math.nan
+        self._h = np.zeros(NUM_ERROR_STATES)
+        self._u = np.zeros(NUM_ERROR_STATES)
+        self._dx = np.zeros(NUM_ERROR_STATES)
+        self._work: dict[int, tuple[np.ndarray, ...]] = {}
         self._q_density = np.array([0.0] * 3 + [c.accel_noise_m_s2_per_rt_hz ** 2] * 3
                                    + [c.gyro_noise_rad_s_per_rt_hz ** 2] * 3
                                    + [c.gyro_bias_noise_rad_s2_per_rt_hz ** 2] * 3
                                    + [c.accel_bias_noise_m_s3_per_rt_hz ** 2] * 3)
-        self._diag = np.arange(NUM_ERROR_STATES)
         self._max_pos_var = c.max_position_std_m ** 2
         self._max_vel_var = c.max_velocity_std_m_s ** 2
         self._baro_offset_m = 0.0
@@ -154,6 +180,11 @@ class NavFilter:
         self._last_position_reset_m = np.zeros(2)
         self._height_reset_count = 0
         self.aligned = False
+        # is_healthy() is kept until the state changes: _rev counts the changes (predict, updates,
+        # resets, initialise)
+        self._rev = 0
+        self._healthy_rev = -1
+        self._healthy = False
 
     # ------------------------------------------------------------------ setup
     @property
@@ -237,6 +268,7 @@ class NavFilter:
         self._hdg_last_ok_s = 0.0
         self._vel_last_ok_s = 0.0
         self.aligned = True
+        self._rev += 1
         logger.info("NavFilter aligned: roll %.2f deg, pitch %.2f deg, heading %.1f deg, position (%.1f, %.1f, %.1f) m"
                     " +- %.1f m, source %s", math.degrees(roll), math.degrees(-pitch),
                     math.degrees(heading_rad % _TWO_PI), px, py, pz, pos_std, self._source.name)
@@ -292,28 +324,18 @@ class NavFilter:
             p[i] += v[i] * dt + acc[i] * half_dt2
             v[i] += acc[i] * dt
 
-        F = self._F
-        F[0, 3] = F[1, 4] = F[2, 5] = dt
-        # d(dv)/d(dtheta) = -[f_world]x
-        F[3, 7] = fz * dt
-        F[3, 8] = -fy * dt
-        F[4, 6] = -fz * dt
-        F[4, 8] = fx * dt
-        F[5, 6] = fy * dt
-        F[5, 7] = -fx * dt
-        neg_rdt = rot * (-dt)
-        F[3:6, 12:15] = neg_rdt
-        F[6:9, 9:12] = neg_rdt
-        P = F @ self._P @ F.T
-        P[self._diag, self._diag] += self._q_density * dt
-        P += P.T
-        P *= 0.5
-        self._P = P
+        if dt != self._qd_dt:
+            self._qd_dt = dt
+            self._qd = self._q_density * dt
+        # P <- F P F' + Q: F = I + dt blocks, d(dv)/d(dtheta) = -[f_world]x dt, -R dt on the biases
+        P = self._P
+        predict_covariance(P, self._tmp, dt, fx, fy, fz, rot, self._qd)
         if P[0, 0] > self._max_pos_var or P[1, 1] > self._max_pos_var or P[2, 2] > self._max_pos_var:
             self._clamp_variance(range(0, 3), self._max_pos_var)
         if P[3, 3] > self._max_vel_var or P[4, 4] > self._max_vel_var or P[5, 5] > self._max_vel_var:
             self._clamp_variance(range(3, 6), self._max_vel_var)
         self._time_s += dt
+        self._rev += 1
 
     def _clamp_variance(self, indices, max_var: float) -> None:
         """Scale row/column i so that P[i, i] <= max_var (D P D keeps P positive semi-definite)."""
@@ -325,47 +347,47 @@ class NavFilter:
                 P[:, i] *= s
 
     # ------------------------------------------------------------------ fusion core
-    def _update(self, innovation: np.ndarray, H: np.ndarray, R: np.ndarray, gate_sd: float,
-                apply: bool = True, states: np.ndarray | None = None) -> FusionResult:
-        """Gated EKF update with measurement Jacobian H (m x 15) and noise covariance R (m x m).
-
-        ``states``: correct only these error states (a Schmidt "consider" update: the gain rows of the
-        other states are zero and the covariance is updated in Joseph form, so it stays consistent);
-        ``None`` corrects every state.
-        """
-        P = self._P
-        PHt = P @ H.T
-        S = H @ PHt + R
-        try:
-            S_inv = np.linalg.inv(S)
-        except np.linalg.LinAlgError:
+    def _update_scalar(self, innovation: float, h: np.ndarray, r: float, gate_sd: float,
+                       mask: np.ndarray | None) -> FusionResult:
+        """``_update`` for one measurement row ``h`` (15) with variance ``r``, compiled
+        (``ekf_kernels.update_scalar``); ``mask``: the corrected states (1.0) of a Schmidt update,
+        None = every state."""
+        innov = np.array([innovation])
+        if not math.isfinite(innovation):
+            return FusionResult(False, innov, float("nan"))
+        ratio = update_scalar(self._P, h, float(r), float(innovation), float(gate_sd),
+                              _ALL_MASK if mask is None else mask, mask is not None, True,
+                              self._u, self._dx)
+        if ratio == math.inf:
             logger.warning("NavFilter: singular innovation covariance; measurement skipped")
-            return FusionResult(False, innovation, float("inf"))
-        nis = float(innovation @ S_inv @ innovation)
-        ratio = nis / (gate_sd * gate_sd)
-        if not apply or not math.isfinite(ratio) or ratio > 1.0:
+            return FusionResult(False, innov, ratio)
+        if not ratio <= 1.0:
+            return FusionResult(False, innov, ratio)
+        self._inject(self._dx)
+        return FusionResult(True, innov, ratio)
+
+    def _update_direct(self, innovation: np.ndarray, states: np.ndarray, R: np.ndarray, gate_sd: float,
+                       apply: bool) -> FusionResult:
+        """``_update`` for a direct measurement of ``states`` (H = rows of the identity), every
+        state corrected, compiled (``ekf_kernels.update_direct``)."""
+        m = len(states)
+        work = self._work.get(m)
+        if work is None:
+            work = self._work[m] = (np.zeros((m, m)), np.zeros((m, m)), np.zeros((NUM_ERROR_STATES, m)),
+                                    np.zeros((NUM_ERROR_STATES, m)))
+        nu = np.ascontiguousarray(innovation, dtype=float)
+        ratio = update_direct(self._P, states, np.ascontiguousarray(R, dtype=float), nu, float(gate_sd),
+                              bool(apply), *work, self._dx)
+        if ratio == math.inf:
+            logger.warning("NavFilter: singular innovation covariance; measurement skipped")
             return FusionResult(False, innovation, ratio)
-        K = PHt @ S_inv
-        if states is None:
-            P = P - K @ PHt.T
-        else:
-            K_full = K
-            K = np.zeros_like(K_full)
-            K[states] = K_full[states]
-            A = np.eye(NUM_ERROR_STATES) - K @ H
-            P = A @ P @ A.T + K @ R @ K.T
-        dx = K @ innovation
-        P += P.T
-        P *= 0.5
-        # Guard against round-off driving a variance negative.
-        d = P[self._diag, self._diag]
-        if np.any(d < 1e-12):
-            P[self._diag, self._diag] = np.maximum(d, 1e-12)
-        self._P = P
-        self._inject(dx)
-        return FusionResult(True, innovation, ratio)
+        if apply and ratio <= 1.0:
+            self._inject(self._dx)
+            return FusionResult(True, innovation, ratio)
+        return FusionResult(False, innovation, ratio)
 
     def _inject(self, dx: np.ndarray) -> None:
+        self._rev += 1
         d = dx.tolist()
         for i in range(3):
             self._p[i] += d[i]
@@ -389,11 +411,11 @@ class NavFilter:
         """Barometric altitude (m, same reference as at initialise) -> z."""
         self._require_aligned("fuse_baro")
         c = self._cfg
-        innov = np.array([float(alt_m) - self._baro_offset_m - self._p[2]])
-        H = np.zeros((1, NUM_ERROR_STATES))
-        H[0, 2] = 1.0
-        R = np.array([[c.baro_noise_m ** 2]])
-        result = self._update(innov, H, R, c.height_gate_sd, states=_BARO_STATES)
+        r = c.baro_noise_m ** 2
+        result = self._update_scalar(float(alt_m) - self._baro_offset_m - self._p[2], _H_HEIGHT, r,
+                                     c.height_gate_sd, _BARO_MASK)
+        innov = result.innovation
+        R = np.array([[r]])
         if result.accepted:
             self._hgt_last_ok_s = self._time_s
         elif self._time_s - self._hgt_last_ok_s > c.height_reject_timeout_s and math.isfinite(float(innov[0])):
@@ -435,11 +457,10 @@ class NavFilter:
         if age_s > 0.0:
             z += self._v[2] * float(age_s)
             var += float(self._P[5, 5]) * float(age_s) ** 2
-        innov = np.array([z - self._p[2]])
-        H = np.zeros((1, NUM_ERROR_STATES))
-        H[0, 2] = 1.0
+        result = self._update_scalar(z - self._p[2], _H_HEIGHT, var, c.height_gate_sd,
+                                     _EXT_HEIGHT_MASK)
+        innov = result.innovation
         R = np.array([[var]])
-        result = self._update(innov, H, R, c.height_gate_sd, states=_EXT_HEIGHT_STATES)
         if result.accepted:
             self._hgt_last_ok_s = self._time_s
         elif self._time_s - self._hgt_last_ok_s > c.height_reject_timeout_s and math.isfinite(float(innov[0])):
@@ -452,17 +473,17 @@ class NavFilter:
 
     def _fuse_heading(self, heading_rad: float, std_rad: float, what: str) -> FusionResult:
         c = self._cfg
-        innov = np.array([wrap_pi(float(heading_rad) - heading_from_quat(self._q))])
         # Body x axis in the world (a, b, c); d(yaw) = dtheta_z - (a c dtheta_x + b c dtheta_y)/(a^2+b^2);
         # heading = pi/2 - yaw.
         a, b, cz = quat_rotate(self._q, (1.0, 0.0, 0.0))
         h2 = max(a * a + b * b, 1e-6)
-        H = np.zeros((1, NUM_ERROR_STATES))
-        H[0, 6] = a * cz / h2
-        H[0, 7] = b * cz / h2
-        H[0, 8] = -1.0
-        R = np.array([[std_rad ** 2]])
-        result = self._update(innov, H, R, c.heading_gate_sd, states=_COMPASS_STATES)
+        h = self._h
+        h[6] = a * cz / h2
+        h[7] = b * cz / h2
+        h[8] = -1.0
+        result = self._update_scalar(wrap_pi(float(heading_rad) - heading_from_quat(self._q)), h,
+                                     std_rad ** 2, c.heading_gate_sd, _COMPASS_MASK)
+        innov = result.innovation
         if result.accepted:
             self._hdg_last_ok_s = self._time_s
         elif self._time_s - self._hdg_last_ok_s > c.heading_reject_timeout_s and math.isfinite(float(innov[0])):
@@ -473,6 +494,7 @@ class NavFilter:
             P[8, :] = 0.0
             P[:, 8] = 0.0
             P[8, 8] = std_rad ** 2 + c.initial_heading_std_rad ** 2
+            self._rev += 1
             self._heading_reset_count += 1
             self._hdg_last_ok_s = self._time_s
             logger.warning("NavFilter: heading reset to %s (jump %.1f deg)", what, math.degrees(float(innov[0])))
@@ -502,10 +524,8 @@ class NavFilter:
         R = np.diag(np.maximum(std, c.gps_velocity_noise_min_m_s) ** 2)
         vel = np.asarray(vel_enu_m_s, dtype=float)[:3]
         innov = vel - np.array(self._v)
-        H = np.zeros((3, NUM_ERROR_STATES))
-        H[0, 3] = H[1, 4] = H[2, 5] = 1.0
         selected = self._source == PositionSource.GPS
-        result = self._update(innov, H, R, c.velocity_gate_sd, apply=selected)
+        result = self._update_direct(innov, _VEL_STATES, R, c.velocity_gate_sd, selected)
         if not selected:
             return result
         if result.accepted:
@@ -525,6 +545,7 @@ class NavFilter:
             P[6, 6] = P[7, 7] = 16.0 * (c.initial_tilt_std_rad ** 2
                                         + (c.initial_accel_bias_std_m_s2 / self._g) ** 2)
             self._velocity_reset_count += 1
+            self._rev += 1
             self._vel_last_ok_s = self._time_s
             logger.warning("NavFilter: velocity reset to GPS (jump %.2f, %.2f, %.2f m/s)", *innov.tolist())
             return FusionResult(True, innov, result.test_ratio, reset=True)
@@ -554,10 +575,8 @@ class NavFilter:
         innov = xy - np.array(self._p[:2])
         if not np.all(np.isfinite(innov)):
             return FusionResult(False, innov, float("inf"))
-        H = np.zeros((2, NUM_ERROR_STATES))
-        H[0, 0] = H[1, 1] = 1.0
         selected = self._source == source
-        result = self._update(innov, H, R, c.position_gate_sd, apply=selected)
+        result = self._update_direct(innov, _XY_STATES, R, c.position_gate_sd, selected)
         if not selected:
             return result
         if result.accepted:
@@ -585,6 +604,7 @@ class NavFilter:
 
     def _reset_axes(self, axes: list[int], values: np.ndarray, R: np.ndarray) -> None:
         """Set position axes to a measurement: decorrelate them and give them the measurement variance."""
+        self._rev += 1
         P = self._P
         for k, i in enumerate(axes):
             self._p[i] = float(values[k])
@@ -596,10 +616,11 @@ class NavFilter:
 
     # ------------------------------------------------------------------ outputs
     def state(self) -> NavState:
-        d = np.sqrt(np.maximum(self._P[self._diag, self._diag], 0.0))
+        sqrt = math.sqrt
+        d = [sqrt(x) if x > 0.0 else (x if x != x else 0.0) for x in self._P.diagonal()[:6].tolist()]
         return NavState(position_enu_m=np.array(self._p), velocity_enu_m_s=np.array(self._v),
                         q_wxyz=np.array(self._q), gyro_bias=np.array(self._bg), accel_bias=np.array(self._ba),
-                        position_std_m=d[0:3].copy(), velocity_std_m_s=d[3:6].copy(),
+                        position_std_m=np.array(d[0:3]), velocity_std_m_s=np.array(d[3:6]),
                         heading_rad=heading_from_quat(self._q))
 
     def position_std_m(self) -> np.ndarray:
@@ -619,8 +640,16 @@ class NavFilter:
         usable (STABILIZE / ALT_HOLD). Position and velocity quality: ``position_ok()``, ``velocity_ok()``."""
         if not self.aligned:
             return False
-        values = self._p + self._v + list(self._q)
-        if not all(math.isfinite(x) for x in values) or not np.all(np.isfinite(self._P)):
+        if self._healthy_rev == self._rev:
+            return self._healthy
+        self._healthy_rev = self._rev
+        self._healthy = self._compute_healthy()
+        return self._healthy
+
+    def _compute_healthy(self) -> bool:
+        isfinite = math.isfinite
+        if not (all(map(isfinite, self._p)) and all(map(isfinite, self._v)) and all(map(isfinite, self._q))
+                and np.isfinite(self._P).all()):
             return False
         tilt_std = math.sqrt(max(self._P[6, 6] + self._P[7, 7], 0.0))
         return tilt_std <= self._cfg.healthy_max_tilt_std_rad

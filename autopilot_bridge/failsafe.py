@@ -27,6 +27,7 @@ Vision failsafe (scenenav, GPS-denied flight with EK3_SRC1_POSXY = 6):
 
 from __future__ import annotations
 
+import functools
 import logging
 from dataclasses import dataclass
 from enum import Enum, IntEnum
@@ -109,6 +110,7 @@ class FailsafeInputs:
     last_vision_fix_s: float | None     # newest usable fix (None: none yet)
 
 
+@functools.lru_cache(maxsize=64)
 def gcs_action_of(value: int) -> FailsafeAction | None:
     """The action for an FS_GCS_ENABLE value (None: disabled or unknown)."""
     try:

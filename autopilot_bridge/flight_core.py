@@ -134,6 +134,8 @@ class FlightCore(SensorFusionMixin, ArmingMixin, GuidedMixin, AutoMissionMixin,
     def __init__(self, params: ParameterStore, cfg: FlightCoreConfig | None = None,
                  algorithms: AutopilotAlgorithmsConfig | None = None) -> None:
         self.params = params
+        # settings objects derived from parameters: name -> (params.generation, settings)
+        self._settings_cache: dict[str, tuple[int, object]] = {}
         self.cfg = cfg if cfg is not None else FlightCoreConfig()
         self._algo = algorithms if algorithms is not None else AutopilotAlgorithmsConfig()
         self.airframe = Airframe.from_params(params)
@@ -306,9 +308,10 @@ class FlightCore(SensorFusionMixin, ArmingMixin, GuidedMixin, AutoMissionMixin,
         self._tel = None
         accel = np.asarray(imu.accel_flu_m_s2, dtype=float)
         gyro = np.asarray(imu.gyro_flu_rad_s, dtype=float)
+        isfinite = math.isfinite
         if accel.shape != (3,) or gyro.shape != (3,) or not (
-                np.all(np.isfinite(accel)) and np.all(np.isfinite(gyro))
-                and math.isfinite(dt_s) and 0.0 < dt_s < 1.0):
+                all(map(isfinite, accel.tolist())) and all(map(isfinite, gyro.tolist()))
+                and isfinite(dt_s) and 0.0 < dt_s < 1.0):
             self.stats["imu_bad"] += 1
             return self._motors.copy()
         self._gyro = gyro
@@ -385,10 +388,7 @@ class FlightCore(SensorFusionMixin, ArmingMixin, GuidedMixin, AutoMissionMixin,
 
     def _run_failsafes(self, est: NavState) -> None:
         p = self.params
-        settings = FailsafeSettings(gcs_action=p.get_int("FS_GCS_ENABLE"),
-                                    gcs_timeout_s=p.get("FS_GCS_TIMEOUT"),
-                                    vision_timeout_s=p.get("SN_VIS_TIMEOUT"),
-                                    vision_land_after_s=p.get("SN_VIS_FS_LAND"))
+        settings = self._failsafe_settings()
         home_z = self._home[2] if self._home is not None else 0.0
         inputs = FailsafeInputs(
             now_s=self._now_s, armed=self._armed, flying=self._armed and not self.fc.landed,
@@ -404,14 +404,39 @@ class FlightCore(SensorFusionMixin, ArmingMixin, GuidedMixin, AutoMissionMixin,
         for ev in self._fence_events(inputs.flying, inputs.landing, est.position_enu_m):
             self._apply_failsafe(ev, est)
 
+    def _failsafe_settings(self) -> FailsafeSettings:
+        """The GCS / vision failsafe settings, rebuilt only after a parameter change."""
+        p = self.params
+        cached = self._settings_cache.get("failsafe")
+        if cached is not None and cached[0] == p.generation:
+            return cached[1]
+        settings = FailsafeSettings(gcs_action=p.get_int("FS_GCS_ENABLE"),
+                                    gcs_timeout_s=p.get("FS_GCS_TIMEOUT"),
+                                    vision_timeout_s=p.get("SN_VIS_TIMEOUT"),
+                                    vision_land_after_s=p.get("SN_VIS_FS_LAND"))
+        self._settings_cache["failsafe"] = (p.generation, settings)
+        return settings
+
+    def _battery_settings(self) -> BatterySettings:
+        """The battery failsafe settings, rebuilt only after a parameter change."""
+        p = self.params
+        cached = self._settings_cache.get("battery")
+        if cached is not None and cached[0] == p.generation:
+            return cached[1]
+        settings = BatterySettings(
+            low_volt_v=p.get("BATT_LOW_VOLT"), low_timer_s=p.get("BATT_LOW_TIMER"),
+            low_mah=p.get("BATT_LOW_MAH"), crt_volt_v=p.get("BATT_CRT_VOLT"),
+            crt_mah=p.get("BATT_CRT_MAH"), capacity_mah=p.get("BATT_CAPACITY"),
+            low_action=p.get_int("BATT_FS_LOW_ACT"), crt_action=p.get_int("BATT_FS_CRT_ACT"))
+        self._settings_cache["battery"] = (p.generation, settings)
+        return settings
+
     def _failsafe_checks(self, inputs: FailsafeInputs) -> list[FailsafeEvent]:
         """The EKF and battery failsafes (``failsafe_checks``)."""
         p = self.params
 
-        def variances() -> EkfVariances:    # EKF_STATUS_REPORT's, built only when a check is due
-            tel = self._build_telemetry()
-            return EkfVariances(tel.ekf_velocity_variance, tel.ekf_pos_horiz_variance,
-                                tel.ekf_compass_variance)
+        def variances() -> EkfVariances:    # EKF_STATUS_REPORT's, computed only when a check is due
+            return EkfVariances(*self._ekf_variances())
         # differs from ArduCopter: with external navigation as the position source the vision
         # failsafe (SN_VIS_*) owns position loss; dead reckoning between fixes is by design there
         thresh = 0.0 if inputs.vision_required else p.get("FS_EKF_THRESH")
@@ -421,11 +446,7 @@ class FlightCore(SensorFusionMixin, ArmingMixin, GuidedMixin, AutoMissionMixin,
             return events
         battery = self.battery.state(p.get("BATT_CAPACITY"))
         events += self.battery_failsafe.update(self._now_s, inputs.flying, battery.voltage_v,
-                                               battery.consumed_mah, BatterySettings(
-            low_volt_v=p.get("BATT_LOW_VOLT"), low_timer_s=p.get("BATT_LOW_TIMER"),
-            low_mah=p.get("BATT_LOW_MAH"), crt_volt_v=p.get("BATT_CRT_VOLT"),
-            crt_mah=p.get("BATT_CRT_MAH"), capacity_mah=p.get("BATT_CAPACITY"),
-            low_action=p.get_int("BATT_FS_LOW_ACT"), crt_action=p.get_int("BATT_FS_CRT_ACT")))
+                                               battery.consumed_mah, self._battery_settings())
         return events
 
     def _apply_failsafe(self, ev: FailsafeEvent, est: NavState) -> None:

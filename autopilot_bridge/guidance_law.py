@@ -170,7 +170,11 @@ class WaypointTracker(GuidanceLaw):
             self._setup_segment()
             self._v = min(v, self._v_max)
             self._s = min(excess, self._length)
-        return self._target(self._carrot(), self._v)
+        # the carrot (origin + u s) and its velocity (u v), element by element as numpy would
+        o, u, s, v = self._origin.tolist(), self._u.tolist(), self._s, self._v
+        return PositionTarget(position_enu_m=(o[0] + u[0] * s, o[1] + u[1] * s, o[2] + u[2] * s),
+                              velocity_enu_m_s=(u[0] * v, u[1] * v, u[2] * v),
+                              heading_rad=self._heading, vertical_mode=VerticalMode.POSITION)
 
     # ------------------------------------------------------------------ internals
     def _radius(self, i: int) -> float:

@@ -76,6 +76,9 @@ logger = logging.getLogger(__name__)
 
 MAV_COMP_ID_AUTOPILOT1 = 1
 MAV_COMP_ID_MISSIONPLANNER = 190
+# The tlog's buffer is written out at most this often (wall clock; closing writes the rest): a
+# write per poll cost a system call per control tick.
+TLOG_FLUSH_PERIOD_S = 0.5
 PARAM_FILE = "@PARAM/param.pck"     # ArduPilot's packed parameter file (autopilot_bridge.param_pack)
 
 
@@ -172,6 +175,7 @@ class MavlinkServer(LinkTransportMixin, ParamProtocolMixin):
         self._udp: socket.socket | None = None
         self._udp_target: Link | None = None
         self._tlog = TlogWriter(self.cfg.tlog_path, wallclock_s) if self.cfg.tlog_path else None
+        self._tlog_flush_due_s = -math.inf
         self.missions = MissionManager(vehicle, self,
                                        upload_timeout_s=self.cfg.mission_upload_timeout_s,
                                        request_retry_s=self.cfg.mission_request_retry_s)
@@ -252,7 +256,10 @@ class MavlinkServer(LinkTransportMixin, ParamProtocolMixin):
             self._signer.refresh_timestamp(link.mav)
             self._flush(link)
         if self._tlog is not None:
-            self._tlog.flush()
+            wall_s = self._monotonic_s()
+            if wall_s >= self._tlog_flush_due_s:
+                self._tlog_flush_due_s = wall_s + TLOG_FLUSH_PERIOD_S
+                self._tlog.flush()
 
     def _guarded(self, fn: Callable[..., object], *args: object) -> None:
         try:

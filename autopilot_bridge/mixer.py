@@ -34,6 +34,7 @@ The limit flags are fed back to the controllers for anti-windup.
 from __future__ import annotations
 
 import logging
+import math
 from dataclasses import dataclass
 
 import numpy as np
@@ -82,6 +83,8 @@ class QuadXMixer:
         # Rows: collective thrust, roll torque, pitch torque, yaw torque; columns: rotor thrusts.
         self._allocation = np.vstack([np.ones(NUM_ROTORS), ys, -xs, -dirs * a.moment_constant_m])
         self._inverse = np.linalg.inv(self._allocation)
+        self._alloc_rows = tuple(tuple(float(v) for v in row) for row in self._allocation)
+        self._inv_cols = tuple(tuple(float(v) for v in self._inverse[:, j]) for j in range(NUM_ROTORS))
         self._k = a.thrust_coefficient_n_per_rad2_s2
         self._w_max = a.max_rotor_speed_rad_s
         self._t_min = 0.0
@@ -119,24 +122,30 @@ class QuadXMixer:
 
     def mix(self, thrust_n: float, torque_flu_n_m) -> MixerOutput:
         """Collective thrust (N, along body +z) and body torques (N m, FLU) -> motor commands."""
+        # Scalar arithmetic on the four rotors (numpy calls on 4-vectors cost more than the
+        # arithmetic); the same operations in the same order as the vectorised form, so the same bits.
         tx, ty, tz = (float(torque_flu_n_m[0]), float(torque_flu_n_m[1]), float(torque_flu_n_m[2]))
-        inv = self._inverse
+        c0, c1, c2, c3 = self._inv_cols
         t_min, t_max = self._t_min, self._t_max
         span = t_max - t_min
-        base = inv[:, 0] * float(thrust_n)          # equal thrusts for a pure collective demand
-        base_level = float(np.mean(base))
-        rp = inv[:, 1] * tx + inv[:, 2] * ty
-        yaw = inv[:, 3] * tz
+        thrust = float(thrust_n)
+        base = [c * thrust for c in c0]             # equal thrusts for a pure collective demand
+        base_level = (base[0] + (base[1] + base[2] + base[3])) / NUM_ROTORS   # numpy's reduction order
+        rp = [a * tx + b * ty for a, b in zip(c1, c2, strict=True)]
+        yaw = [c * tz for c in c3]
 
         roll_pitch_limited = False
-        rp_range = float(rp.max() - rp.min())
+        rp_max, rp_min = max(rp), min(rp)
+        rp_range = rp_max - rp_min
         if rp_range > span:
-            rp = rp * (span / rp_range)
+            f = span / rp_range
+            rp = [r * f for r in rp]
+            rp_max, rp_min = max(rp), min(rp)
             roll_pitch_limited = True
 
         # Collective level that lets roll/pitch fit.
-        lo = t_min - float(rp.min())
-        hi = t_max - float(rp.max())
+        lo = t_min - rp_min
+        hi = t_max - rp_max
         thrust_upper = thrust_lower = False
         level = base_level
         if level > hi:
@@ -145,23 +154,39 @@ class QuadXMixer:
         if level < lo:
             level = lo
             thrust_lower = True
-        partial = level + rp
+        partial = [level + r for r in rp]
 
         # Largest yaw scale in [0, 1] that keeps every rotor within its limits.
         scale = 1.0
         for i in range(NUM_ROTORS):
-            y = float(yaw[i])
+            y = yaw[i]
             if y > 1e-12:
                 scale = min(scale, (t_max - partial[i]) / y)
             elif y < -1e-12:
                 scale = min(scale, (t_min - partial[i]) / y)
         scale = max(scale, 0.0)
         yaw_limited = scale < 1.0 - 1e-9
-        thrusts = np.clip(partial + scale * yaw, t_min, t_max)
-
-        commands = self._commands(thrusts)
-        achieved = self._allocation @ thrusts
+        thrust_list = [min(max(pa + scale * y, t_min), t_max) for pa, y in zip(partial, yaw, strict=True)]
+        commands = np.array(self._commands_list(thrust_list))
+        # what the thrusts achieve (allocation x thrusts, summed in rotor order; the flight uses only
+        # the commands and the limits)
+        t0, t1, t2, t3 = thrust_list
+        achieved = [r0 * t0 + r1 * t1 + r2 * t2 + r3 * t3 for r0, r1, r2, r3 in self._alloc_rows]
         limits = MixerLimits(roll_pitch=roll_pitch_limited, thrust_upper=thrust_upper,
                              thrust_lower=thrust_lower, yaw=yaw_limited)
-        return MixerOutput(commands=commands, rotor_thrusts_n=thrusts, thrust_n=float(achieved[0]),
-                           torque_flu_n_m=achieved[1:].copy(), limits=limits)
+        return MixerOutput(commands=commands, rotor_thrusts_n=np.array(thrust_list), thrust_n=achieved[0],
+                           torque_flu_n_m=np.array(achieved[1:]), limits=limits)
+
+    def _commands_list(self, thrusts: list[float]) -> list[float]:
+        """``_commands`` on a list of floats (the same arithmetic, element by element)."""
+        a = self._airframe
+        e = a.thrust_expo
+        lo, gain = a.spin_min, a.spin_max - a.spin_min
+        if e == 1.0:
+            k, w_max = self._k, self._w_max
+            return [lo + gain * (math.sqrt(t / k) / w_max) for t in thrusts]
+        t_max = self._t_max
+        if e == 0.0:
+            return [lo + gain * (t / t_max) for t in thrusts]
+        return [lo + gain * (((e - 1.0) + math.sqrt((1.0 - e) ** 2 + 4.0 * e * (t / t_max))) / (2.0 * e))
+                for t in thrusts]

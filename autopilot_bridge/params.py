@@ -257,6 +257,7 @@ class ParameterStore:
             self._index[spec.name] = i
         self._values: list[float] = [float(s.default) for s in self._specs]
         self._observers: list[ParamObserver] = []
+        self._generation = 0
         self._path = Path(path) if path is not None else None
         for name, value in (defaults or {}).items():
             self._apply_initial(name, value, "defaults")
@@ -288,6 +289,12 @@ class ParameterStore:
 
     def spec(self, name: str) -> ParamSpec:
         return self._specs[self._index[name]]
+
+    @property
+    def generation(self) -> int:
+        """Counts the changes made through :meth:`set`: a cache of values derived from parameters
+        is valid while this is unchanged."""
+        return self._generation
 
     def get(self, name: str) -> float:
         """The value (an integral float for integer types). KeyError for unknown names."""
@@ -332,6 +339,7 @@ class ParameterStore:
                 self._save_persisted()
             return SetResult(True, new, reason)
         self._values[i] = new
+        self._generation += 1
         logger.info("parameter %s = %g", name, new)
         self._persisted.add(name)
         self._save()

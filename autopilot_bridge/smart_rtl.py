@@ -20,6 +20,7 @@ Positions are world ENU metres.
 
 from __future__ import annotations
 
+import math
 from collections.abc import Sequence
 
 import numpy as np
@@ -103,7 +104,9 @@ class BreadcrumbPath:
         if not self.active:
             return None
         p = np.asarray(position_enu_m, dtype=float)[:3]
-        if float(np.linalg.norm(p - self._points[-1])) <= self._accuracy_m:
+        last = self._points[-1]
+        dx, dy, dz = (float(p[0] - last[0]), float(p[1] - last[1]), float(p[2] - last[2]))
+        if math.sqrt(dx * dx + dy * dy + dz * dz) <= self._accuracy_m:
             return None
         if len(self._points) >= self._max_points:
             self._points = simplify(self._points, self._accuracy_m * SIMPLIFY_EPSILON_FRACTION)

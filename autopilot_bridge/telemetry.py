@@ -142,6 +142,12 @@ class TelemetryScheduler:
         self._streamable = streamable if streamable is not None else STREAMABLE_MSG_IDS
         self._interval_s: dict[int, float] = {}
         self._next_due_s: dict[int, float | None] = {}
+        # Nothing is due before these (the caller's clock, the wall clock) while the schedule is
+        # unchanged: ``due`` returns at once without walking the schedule. ``_earliest_wall_given``
+        # is whether the last full walk timed the wall-clock messages by ``wall_s``.
+        self._earliest_s = -math.inf
+        self._earliest_wall_s = -math.inf
+        self._earliest_wall_given = False
         for msg_id, rate in self._defaults.items():
             self._set_rate(msg_id, rate)
 
@@ -192,19 +198,32 @@ class TelemetryScheduler:
     def due(self, now_s: float, wall_s: float | None = None) -> list[int]:
         """Message ids to send now; each scheduled message advances by its interval.
         ``wall_s`` (monotonic wall seconds) times the ``WALL_CLOCK_MSG_IDS``; None = ``now_s``."""
+        wall_given = wall_s is not None
+        if (wall_given == self._earliest_wall_given and now_s < self._earliest_s
+                and (wall_s if wall_given else now_s) < self._earliest_wall_s):
+            return []
         out = []
+        earliest = earliest_wall = math.inf
         for msg_id, interval in self._interval_s.items():
-            t = wall_s if wall_s is not None and msg_id in WALL_CLOCK_MSG_IDS else now_s
+            on_wall = wall_given and msg_id in WALL_CLOCK_MSG_IDS
+            t = wall_s if on_wall else now_s
             nxt = self._next_due_s.get(msg_id)
             if nxt is None:
                 out.append(msg_id)
-                self._next_due_s[msg_id] = t + interval
+                nxt = t + interval
+                self._next_due_s[msg_id] = nxt
             elif t >= nxt:
                 out.append(msg_id)
                 nxt += interval
                 if nxt <= t:  # fell behind (e.g. the clock jumped): restart the phase
                     nxt = t + interval
                 self._next_due_s[msg_id] = nxt
+            if on_wall:
+                earliest_wall = min(earliest_wall, nxt)
+            else:
+                earliest = min(earliest, nxt)
+        self._earliest_s, self._earliest_wall_s = earliest, earliest_wall
+        self._earliest_wall_given = wall_given
         return out
 
     def _set_rate(self, msg_id: int, rate_hz: float) -> None:
@@ -218,10 +237,12 @@ class TelemetryScheduler:
         if self._interval_s.get(msg_id) != interval_s:
             self._interval_s[msg_id] = interval_s
             self._next_due_s[msg_id] = None
+            self._earliest_s = self._earliest_wall_s = -math.inf
 
     def _disable(self, msg_id: int) -> None:
         self._interval_s.pop(msg_id, None)
         self._next_due_s.pop(msg_id, None)
+        self._earliest_s = self._earliest_wall_s = -math.inf
 
 
 # ----------------------------------------------------------------------------- encoding

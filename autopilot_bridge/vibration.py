@@ -30,24 +30,37 @@ class VibrationMonitor:
     """Feed every accelerometer sample; ``levels`` and ``clip_counts`` as in VIBRATION."""
 
     def __init__(self) -> None:
-        self._floor: np.ndarray | None = None
-        self._vibe_sq = np.zeros(3)
+        # per axis, Python floats (three-element numpy arithmetic costs more than the arithmetic)
+        self._floor: list[float] | None = None
+        self._vibe_sq = [0.0, 0.0, 0.0]
         self.clip_counts = [0, 0, 0]
+        self._alpha_dt = math.nan               # the dt the two coefficients below are for
+        self._alpha_floor = self._alpha_vibe = 0.0
 
     def add(self, accel_m_s2, dt_s: float) -> None:
         a = np.asarray(accel_m_s2, dtype=float)
-        if a.shape != (3,) or not (np.all(np.isfinite(a)) and dt_s > 0.0):
+        if a.shape != (3,):
+            return
+        acc = a.tolist()
+        if not (all(map(math.isfinite, acc)) and dt_s > 0.0):
             return
         if self._floor is None:
-            self._floor = a.copy()
-        self._floor += _alpha(VIBE_FLOOR_FILT_HZ, dt_s) * (a - self._floor)
-        diff_sq = (a - self._floor) ** 2
-        self._vibe_sq += _alpha(VIBE_FILT_HZ, dt_s) * (diff_sq - self._vibe_sq)
+            self._floor = list(acc)
+        if dt_s != self._alpha_dt:
+            self._alpha_dt = dt_s
+            self._alpha_floor = _alpha(VIBE_FLOOR_FILT_HZ, dt_s)
+            self._alpha_vibe = _alpha(VIBE_FILT_HZ, dt_s)
+        floor, vibe = self._floor, self._vibe_sq
+        k_floor, k_vibe = self._alpha_floor, self._alpha_vibe
         for i in range(3):
-            if abs(a[i]) >= CLIP_LIMIT_M_S2:
+            x = acc[i]
+            floor[i] += k_floor * (x - floor[i])
+            d = x - floor[i]
+            vibe[i] += k_vibe * (d * d - vibe[i])
+            if abs(x) >= CLIP_LIMIT_M_S2:
                 self.clip_counts[i] += 1
 
     @property
     def levels(self) -> tuple[float, float, float]:
-        v = np.sqrt(self._vibe_sq)
-        return float(v[0]), float(v[1]), float(v[2])
+        v = self._vibe_sq
+        return math.sqrt(v[0]), math.sqrt(v[1]), math.sqrt(v[2])
