@@ -40,7 +40,11 @@ import numpy as np
 from numba import njit
 
 from worlds.ground_window import FRAME_MARGIN_M, GroundWindow, WindowTracker
+from worlds.kernel_cache import drop_stale_kernels
 from worlds.raycast import FACE_LIGHT, NO_NRT, HeightField, cast_ray_from, lod_texture, shade_hit
+
+# The kernels below inline raycast.py's walk and shading: numba's cache would not see an edit there.
+drop_stale_kernels(__file__, ["raycast.py"])
 
 # Clip planes of the TinyRenderer camera (sitl.mesh_camera uses the same): the near plane stays below
 # the lowest camera, the far plane beyond the grey frame seen by a tilted FIXED camera.
