@@ -145,10 +145,30 @@ def peak_to_sidelobe_ratio(vals: np.ndarray, ix: int, iy: int, peak: float, excl
     v64 = vals.astype(np.float64, copy=False)
     inner = v64[y0:y1, x0:x1]
     s = float(v64.sum()) - float(inner.sum())
-    ss = float(np.vdot(v64, v64)) - float(np.vdot(inner, inner))
+    ss = _sum_of_squares(v64) - _sum_of_squares(inner)
     mean = s / n
     var = max(ss / n - mean * mean, 0.0)
     return float((peak - mean) / max(math.sqrt(var), _SIDELOBE_STD_FLOOR))
+
+
+#: np.vdot (OpenBLAS ddot) runs on one thread up to this many elements and splits a longer dot over
+#: its threads: the bits then depend on the thread count, and on a loaded 2-core machine the split
+#: cost ~5 ms CPU (40 ms wall) on a global surface instead of ~1 ms. Longer dots go in chunks.
+_DOT_CHUNK = 10000
+
+
+def _sum_of_squares(v: np.ndarray) -> float:
+    """Sum of squares of a float64 array: ``np.vdot(v, v)`` up to _DOT_CHUNK elements (the same
+    bits), chunks of it summed in order above (single-threaded whatever BLAS's thread count)."""
+    flat = v.ravel()
+    n = flat.size
+    if n <= _DOT_CHUNK:
+        return float(np.vdot(flat, flat))
+    total = 0.0
+    for i in range(0, n, _DOT_CHUNK):
+        chunk = flat[i:i + _DOT_CHUNK]
+        total += float(np.vdot(chunk, chunk))
+    return total
 
 
 def second_peak_ratio(vals: np.ndarray, ix: int, iy: int, peak: float, excl: int) -> float:
