@@ -70,6 +70,20 @@ class TemplateTooLarge(ValueError):
     """The aligned template would exceed ``max_template_px`` (e.g. flying too high for the map)."""
 
 
+class TemplateTooSmall(ValueError):
+    """The aligned template's smaller side would be below ``min_template_px`` (e.g. near the ground).
+
+    Raised before any resampling: near the ground the scale is tiny and the anti-aliasing blur's
+    sigma huge (seconds of work on the vehicle standing on the ground), for a template the pipeline
+    would discard. ``side_px`` is the side the template would have had.
+    """
+
+    def __init__(self, side_px: int, altitude_m: float) -> None:
+        super().__init__(f"template side {side_px} px at {altitude_m:.1f} m is too small")
+        self.side_px = side_px
+        self.altitude_m = altitude_m
+
+
 @dataclass(frozen=True)
 class AlignedCapture:
     """A capture rotated north-up and resampled to the reference map resolution.
@@ -219,9 +233,19 @@ def _inscribed_half_side(poly: np.ndarray) -> float:
     return best
 
 
+def _check_size(out_w: int, out_h: int, altitude: float, max_template_px: tuple[int, int] | None,
+                min_template_px: int | None) -> None:
+    if max_template_px is not None and (out_w > max_template_px[0] or out_h > max_template_px[1]):
+        raise TemplateTooLarge(f"template {out_w}x{out_h} px at {altitude:.1f} m exceeds "
+                               f"{max_template_px[0]}x{max_template_px[1]} px")
+    if min_template_px is not None and min(out_w, out_h) < min_template_px:
+        raise TemplateTooSmall(min(out_w, out_h), altitude)
+
+
 def _align_homography(gray: np.ndarray, heading: float, altitude: float, tilt: tuple[float, float],
                       fov: float, mpp: float, crop_mode: CropMode, max_template_px,
-                      intrinsics: tuple[float, float, float, float] | None) -> AlignedCapture:
+                      intrinsics: tuple[float, float, float, float] | None,
+                      min_template_px: int | None = None) -> AlignedCapture:
     h_src, w_src = gray.shape
     if intrinsics is None:
         f = focal_length_px(w_src, fov)
@@ -243,9 +267,7 @@ def _align_homography(gray: np.ndarray, heading: float, altitude: float, tilt: t
     else:
         out_w = max(1, int(math.ceil(2.0 * float(np.max(np.abs(poly[:, 0]))) - 1e-6)))
         out_h = max(1, int(math.ceil(2.0 * float(np.max(np.abs(poly[:, 1]))) - 1e-6)))
-    if max_template_px is not None and (out_w > max_template_px[0] or out_h > max_template_px[1]):
-        raise TemplateTooLarge(f"template {out_w}x{out_h} px at {altitude:.1f} m exceeds "
-                               f"{max_template_px[0]}x{max_template_px[1]} px")
+    _check_size(out_w, out_h, altitude, max_template_px, min_template_px)
     hm = ground_to_capture_homography(tilt, heading, altitude, intrinsics, mpp,
                                       ((out_w - 1) / 2.0 - off[0], (out_h - 1) / 2.0 - off[1]))
     src = gray
@@ -278,7 +300,8 @@ def align_capture(image: np.ndarray, heading_rad: float, altitude_m: float, fov_
                   max_template_px: tuple[int, int] | None = None, *,
                   tilt_rad: tuple[float, float] | None = None,
                   intrinsics_px: tuple[float, float, float, float] | None = None,
-                  distortion: Distortion = NO_DISTORTION) -> AlignedCapture:
+                  distortion: Distortion = NO_DISTORTION,
+                  min_template_px: int | None = None) -> AlignedCapture:
     """Grey, rotate north-up and scale a capture to the map resolution with one warpAffine.
 
     ``tilt_rad`` = (roll, pitch) of the body a FIXED camera is mounted on (the autopilot's estimate):
@@ -291,7 +314,8 @@ def align_capture(image: np.ndarray, heading_rad: float, altitude_m: float, fov_
     rotated image's bounding box with a mask of valid pixels (eroded by one pixel).
     Raises BadInput for a bad image, a non-finite heading, or an altitude that is not > 0, and
     TemplateTooLarge (before any resampling) when the template would be wider or taller than
-    ``max_template_px`` = (width, height), e.g. the reference map's size.
+    ``max_template_px`` = (width, height), e.g. the reference map's size, and TemplateTooSmall (also
+    before any resampling) when its smaller side would be below ``min_template_px`` (None: no limit).
     """
     heading = finite_number("heading_rad", heading_rad)
     altitude = finite_number("altitude_m", altitude_m)
@@ -313,7 +337,7 @@ def align_capture(image: np.ndarray, heading_rad: float, altitude_m: float, fov_
     if tilt_rad is not None:
         tilt = (finite_number("roll_rad", tilt_rad[0]), finite_number("pitch_rad", tilt_rad[1]))
         return _align_homography(gray, heading, altitude, tilt, fov, mpp, crop_mode, max_template_px,
-                                 intrinsics_px)
+                                 intrinsics_px, min_template_px)
     h_src, w_src = gray.shape
     foot = ground_footprint_m(altitude, fov)
     cam_mpp = foot / w_src
@@ -328,9 +352,7 @@ def align_capture(image: np.ndarray, heading_rad: float, altitude_m: float, fov_
         out_w = max(1, int(math.ceil(scale * (w_src * ac + h_src * as_) - 1e-6)))
         out_h = max(1, int(math.ceil(scale * (w_src * as_ + h_src * ac) - 1e-6)))
 
-    if max_template_px is not None and (out_w > max_template_px[0] or out_h > max_template_px[1]):
-        raise TemplateTooLarge(f"template {out_w}x{out_h} px at {altitude:.1f} m exceeds "
-                               f"{max_template_px[0]}x{max_template_px[1]} px")
+    _check_size(out_w, out_h, altitude, max_template_px, min_template_px)
 
     # dst = A (src - c_src) + c_dst in pixel-index coordinates (pixel centres on integers).
     a = np.array([[c, -s], [s, c]]) * scale

@@ -25,6 +25,7 @@ import math
 import numpy as np
 
 from perception.config import MatcherConfig
+from perception.linalg2 import det2, inv2
 
 #: Floor on 1 - peak^2 in the local term (a perfect match still has interpolation error).
 _MISMATCH_FLOOR = 1e-3
@@ -48,29 +49,44 @@ def ambiguity_weight(cfg: MatcherConfig, psr: float, spr: float, peak: float = 1
 def covariance_px(cfg: MatcherConfig, peak: float, curvature: np.ndarray | None,
                   edge_axes: tuple[bool, bool], psr: float, spr: float, rx: float, ry: float,
                   n_px: int) -> np.ndarray:
-    """Covariance in px^2 (see the module docstring)."""
-    uniform = np.diag([rx * rx / 3.0, ry * ry / 3.0])
+    """Covariance in px^2 (see the module docstring).
+
+    Scalar arithmetic on the four entries, in the order the matrix expressions of the formula
+    evaluate them (so the same bits); det and inverse by the LAPACK calls np.linalg makes.
+    """
+    ux, uy = rx * rx / 3.0, ry * ry / 3.0          # diag of the uniform (search-area) term
     if curvature is None or peak <= 0.0:
-        local = uniform.copy()
+        l00, l01, l10, l11 = ux, 0.0, 0.0, uy
     else:
         r = max(peak, _PEAK_FLOOR)
-        n_eff = max(1.0, n_px * math.sqrt(max(np.linalg.det(curvature / r), 0.0)) / (2.0 * math.pi))
+        n_eff = max(1.0, n_px * math.sqrt(max(det2(curvature / r), 0.0)) / (2.0 * math.pi))
         noise = max(1.0 - min(r, 1.0) ** 2, _MISMATCH_FLOOR) / (n_eff * r)
-        local = cfg.cov_local_scale * noise * np.linalg.inv(curvature)
-        for axis, edge in enumerate(edge_axes):
-            if edge:
-                local[axis, :] = 0.0
-                local[:, axis] = 0.0
-                local[axis, axis] = _EDGE_AXIS_VAR_PX2
+        k = cfg.cov_local_scale * noise
+        (i00, i01), (i10, i11) = inv2(curvature).tolist()
+        l00, l01, l10, l11 = k * i00, k * i01, k * i10, k * i11
+        if edge_axes[0]:
+            l00, l01, l10 = _EDGE_AXIS_VAR_PX2, 0.0, 0.0
+        if edge_axes[1]:
+            l11, l01, l10 = _EDGE_AXIS_VAR_PX2, 0.0, 0.0
     w = ambiguity_weight(cfg, psr, spr, peak)
-    cov = local + cfg.cov_floor_px ** 2 * np.eye(2) + w * uniform
+    f2 = cfg.cov_floor_px ** 2
+    # local + f2 I + w U, then 0.5 (C + C^T) (the diagonal unchanged by it), term by term
+    c00 = (l00 + f2) + w * ux
+    c11 = (l11 + f2) + w * uy
+    c01 = 0.5 * (((l01 + f2 * 0.0) + w * 0.0) + ((l10 + f2 * 0.0) + w * 0.0))
     # Never wider than "anywhere in the searched area" plus the floor, never asymmetric.
-    cov = 0.5 * (cov + cov.T)
-    cov[0, 0] = min(cov[0, 0], uniform[0, 0] * 2.0 + cfg.cov_floor_px ** 2)
-    cov[1, 1] = min(cov[1, 1], uniform[1, 1] * 2.0 + cfg.cov_floor_px ** 2)
-    lim = math.sqrt(cov[0, 0] * cov[1, 1]) * 0.999
-    cov[0, 1] = cov[1, 0] = float(np.clip(cov[0, 1], -lim, lim))
-    return cov
+    c00 = min(c00, ux * 2.0 + f2)
+    c11 = min(c11, uy * 2.0 + f2)
+    lim = math.sqrt(c00 * c11) * 0.999
+    c01 = _clip(c01, -lim, lim)
+    return np.array([[c00, c01], [c01, c11]])
+
+
+def _clip(x: float, lo: float, hi: float) -> float:
+    """``float(np.clip(x, lo, hi))`` for Python floats (NaN in any argument gives NaN)."""
+    if math.isnan(x) or math.isnan(lo) or math.isnan(hi):
+        return math.nan
+    return min(max(x, lo), hi)
 
 
 def coarse_to_fine_covariance_m2(cfg: MatcherConfig, best_covariance_m2: np.ndarray, best_peak: float,

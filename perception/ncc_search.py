@@ -13,7 +13,7 @@ from __future__ import annotations
 import logging
 import math
 import time
-from dataclasses import dataclass, field, replace
+from dataclasses import dataclass, field
 from enum import Enum
 
 import cv2
@@ -71,18 +71,14 @@ class MatchResult:
         return MatchMetrics(self.peak, self.psr, self.second_peak_ratio)
 
 
-@dataclass(frozen=True)
-class _Surface:
-    """Correlation surface over a window, with the window's origin in map pixels."""
-
-    values: np.ndarray
-    u0: int
-    v0: int
-    at_map_edge: tuple[bool, bool, bool, bool]   # left, right, top, bottom of the window is the map edge
-
-
 def _timer() -> float:
     return time.perf_counter()
+
+
+def _is_flat(template: np.ndarray) -> bool:
+    """Grey-level standard deviation below FLAT_TEMPLATE_STD (no correlation defined). One
+    cv2.meanStdDev pass (double accumulators) instead of numpy's float32 mean, difference and square."""
+    return float(cv2.meanStdDev(template)[1][0, 0]) < FLAT_TEMPLATE_STD
 
 
 class SceneMatcher:
@@ -140,15 +136,17 @@ class SceneMatcher:
         is searched; without it the whole map is searched. ``mask`` (bool, template shape) marks
         valid template pixels; None or all-True uses the fast unmasked NCC.
         """
+        t0 = _timer()
         template = self._check_template(template)
         mask_f = self._mask_or_none(mask, template.shape)
+        flat = _is_flat(template)
         if predicted_uv is None:
-            return self._global(template, mask_f)
+            return self._global(template, mask_f, flat, t0)
         radius = self.cfg.min_window_margin_px if search_radius_px is None else search_radius_px
         if not (math.isfinite(predicted_uv[0]) and math.isfinite(predicted_uv[1])
                 and math.isfinite(radius) and radius >= 0.0):
             raise ValueError(f"predicted_uv={predicted_uv}, search_radius_px={radius}: expected finite")
-        return self._windowed(template, mask_f, predicted_uv, radius)
+        return self._windowed(template, mask_f, predicted_uv, radius, flat, t0)
 
     # ------------------------------------------------------------------------------ checks
     def _check_template(self, template: np.ndarray) -> np.ndarray:
@@ -195,41 +193,35 @@ class SceneMatcher:
         return x0, y0, x1, y1
 
     def _windowed(self, template: np.ndarray, mask: np.ndarray | None,
-                  centre_uv: tuple[float, float], radius: float) -> MatchResult:
-        t0 = _timer()
+                  centre_uv: tuple[float, float], radius: float, flat: bool,
+                  t0: float | None = None) -> MatchResult:
+        if t0 is None:
+            t0 = _timer()
         th, tw = template.shape
         x0, y0, x1, y1 = self._window_bounds(centre_uv, radius, tw, th)
         window = self.reference[y0:y1, x0:x1]          # a view, never a copy
-        flat = float(template.std()) < FLAT_TEMPLATE_STD
         t1 = _timer()
         values = (np.zeros((y1 - y0 - th + 1, x1 - x0 - tw + 1), np.float32) if flat
                   else self._correlate(window, template, mask))
         t2 = _timer()
-        surface = _Surface(values, x0, y0, (x0 == 0, x1 == self.width_px, y0 == 0,
-                                            y1 == self.height_px))
         n_valid = None if mask is None else int(np.count_nonzero(mask))
-        result = self._finish(surface, tw, th, flat, SearchMode.WINDOW, (x0, y0, x1 - x0, y1 - y0),
-                              n_valid)
-        t3 = _timer()
-        return replace(result, timings=SearchTimes(crop_ms=(t1 - t0) * _MS, ncc_ms=(t2 - t1) * _MS,
-                                                   refine_ms=(t3 - t2) * _MS))
+        return self._finish(values, x0, y0, (x0 == 0, x1 == self.width_px, y0 == 0, y1 == self.height_px),
+                            tw, th, flat, SearchMode.WINDOW, (x0, y0, x1 - x0, y1 - y0), n_valid,
+                            (t1 - t0) * _MS, (t2 - t1) * _MS, t2)
 
-    def _global(self, template: np.ndarray, mask: np.ndarray | None) -> MatchResult:
+    def _global(self, template: np.ndarray, mask: np.ndarray | None, flat: bool,
+                t0: float) -> MatchResult:
         th, tw = template.shape
         level = self._pick_level(tw, th)
         if level is None:
             t0 = _timer()
-            flat = float(template.std()) < FLAT_TEMPLATE_STD
             values = (np.zeros((self.height_px - th + 1, self.width_px - tw + 1), np.float32) if flat
                       else self._correlate(self.reference, template, mask))
             t1 = _timer()
-            surface = _Surface(values, 0, 0, (True, True, True, True))
             n_valid = None if mask is None else int(np.count_nonzero(mask))
-            result = self._finish(surface, tw, th, flat, SearchMode.GLOBAL,
-                                  (0, 0, self.width_px, self.height_px), n_valid)
-            return replace(result, timings=SearchTimes(crop_ms=0.0, ncc_ms=(t1 - t0) * _MS,
-                                                       refine_ms=(_timer() - t1) * _MS))
-        return self._coarse_to_fine(template, mask, level)
+            return self._finish(values, 0, 0, (True, True, True, True), tw, th, flat, SearchMode.GLOBAL,
+                                (0, 0, self.width_px, self.height_px), n_valid, 0.0, (t1 - t0) * _MS, t1)
+        return self._coarse_to_fine(template, mask, level, flat, t0)
 
     def _pick_level(self, tw: int, th: int) -> tuple[int, np.ndarray] | None:
         best = None
@@ -242,9 +234,8 @@ class SceneMatcher:
         return best
 
     def _coarse_to_fine(self, template: np.ndarray, mask: np.ndarray | None,
-                        level: tuple[int, np.ndarray]) -> MatchResult:
+                        level: tuple[int, np.ndarray], flat: bool, t0: float) -> MatchResult:
         cfg = self.cfg
-        t0 = _timer()
         factor, img = level
         th, tw = template.shape
         fx = self.width_px / img.shape[1]
@@ -256,7 +247,6 @@ class SceneMatcher:
         if mask is not None:
             cmask = (cv2.resize(mask, (ctw, cth), interpolation=cv2.INTER_AREA) > 0.999).astype(
                 np.float32)
-        flat = float(template.std()) < FLAT_TEMPLATE_STD
         t1 = _timer()
         if flat:
             cvalues = np.zeros((img.shape[0] - cth + 1, img.shape[1] - ctw + 1), np.float32)
@@ -284,7 +274,7 @@ class SceneMatcher:
         radius = 2.0 * max(fx, fy) + cfg.exclusion_radius_px
         fine: list[MatchResult] = []
         for cand in candidates:
-            fine.append(self._windowed(template, mask, cand, radius))
+            fine.append(self._windowed(template, mask, cand, radius, flat))
         t4 = _timer()
         fine.sort(key=lambda r: r.peak, reverse=True)
         best = fine[0]
@@ -311,12 +301,15 @@ class SceneMatcher:
         return result
 
     # ------------------------------------------------------------------------------ metrics
-    def _finish(self, surface: _Surface, tw: int, th: int, flat: bool, search: SearchMode,
-                window: tuple[int, int, int, int], n_valid_px: int | None = None) -> MatchResult:
+    def _finish(self, vals: np.ndarray, u0: int, v0: int, at_map_edge: tuple[bool, bool, bool, bool],
+                tw: int, th: int, flat: bool, search: SearchMode, window: tuple[int, int, int, int],
+                n_valid_px: int | None, crop_ms: float, ncc_ms: float, t_refine: float) -> MatchResult:
+        """Peak, metrics and covariance of the surface ``vals`` whose (0, 0) is map pixel (u0, v0);
+        ``at_map_edge``: left, right, top, bottom of the window is the map edge. ``t_refine``: when
+        the correlation ended (the refinement time is measured from it)."""
         cfg = self.cfg
-        vals = surface.values
-        iy, ix = np.unravel_index(int(np.argmax(vals)), vals.shape)
-        pk = refine_peak(vals, int(ix), int(iy), surface.at_map_edge)
+        iy, ix = divmod(int(vals.argmax()), vals.shape[1])
+        pk = refine_peak(vals, ix, iy, at_map_edge)
         if flat:
             psr, spr = 0.0, 1.0
             peak = 0.0
@@ -325,19 +318,20 @@ class SceneMatcher:
             excl = exclusion_radius(vals, pk.ix, pk.iy, cfg.exclusion_radius_px)
             psr = peak_to_sidelobe_ratio(vals, pk.ix, pk.iy, peak, excl)
             spr = second_peak_ratio(vals, pk.ix, pk.iy, peak, excl)
-        u = surface.u0 + pk.ix + pk.dx + tw / 2.0
-        v = surface.v0 + pk.iy + pk.dy + th / 2.0
+        u = u0 + pk.ix + pk.dx + tw / 2.0
+        v = v0 + pk.iy + pk.dy + th / 2.0
         rx = max(0.5, (vals.shape[1]) / 2.0)
         ry = max(0.5, (vals.shape[0]) / 2.0)
         n_px = tw * th if n_valid_px is None else n_valid_px
         cov = covariance_px(cfg, peak, pk.curvature, pk.edge_axes, psr, spr, rx, ry, n_px)
         x, y = self.pixel_to_world(u, v)
+        cov_m2 = px_to_enu_cov(cov, self.m_per_px)
+        quality_ok = self._quality_ok(peak, psr, spr, pk.at_border, flat)
         return MatchResult(
             position_px=(float(u), float(v)), position_enu_m=(x, y), peak=float(peak), psr=float(psr),
-            second_peak_ratio=float(spr), covariance_m2=px_to_enu_cov(cov, self.m_per_px),
-            quality_ok=self._quality_ok(peak, psr, spr, pk.at_border, flat),
+            second_peak_ratio=float(spr), covariance_m2=cov_m2, quality_ok=quality_ok,
             peak_at_border=pk.at_border, flat_template=flat, search=search, window_px=window,
-            timings=SearchTimes())
+            timings=SearchTimes(crop_ms=crop_ms, ncc_ms=ncc_ms, refine_ms=(_timer() - t_refine) * _MS))
 
     def _quality_ok(self, peak: float, psr: float, spr: float, at_border: bool, flat: bool) -> bool:
         cfg = self.cfg

@@ -135,6 +135,12 @@ class PerceptionNode:
         self.out_dir = out_dir
         self.camera = camera if camera is not None else ExpectedCamera()
         self.keys = Keys(bus_cfg.namespace)
+        # One OpenCV thread, like the one torch thread below: a frame is a 200 px capture and a
+        # ~270 px window, too small to split, and a second thread's hand-offs and spin-waits take CPU
+        # the simulator and the autopilot need in lockstep. The results are the same bits (checked on
+        # the alignment, window and global correlation, dilation).
+        import cv2
+        cv2.setNumThreads(1)
         self.pipeline = make_pipeline(world, method, assistant_map_path, weights, self.camera.fov_deg,
                                       reference)
         self._diag = None

@@ -12,8 +12,12 @@ from dataclasses import dataclass
 import cv2
 import numpy as np
 
+from perception.linalg2 import det2, solve2
+
 #: Floor on the side-lobe standard deviation in the PSR denominator.
 _SIDELOBE_STD_FLOOR = 1e-6
+#: 3x3 structuring element of the local-maximum test (built once).
+_DILATE_KERNEL = np.ones((3, 3), np.uint8)
 
 
 def _paraboloid_pinv() -> np.ndarray:
@@ -53,15 +57,16 @@ def refine_peak(vals: np.ndarray, ix: int, iy: int,
     y_ok = not (top or bottom)
     if x_ok and y_ok:
         patch = vals[iy - 1:iy + 2, ix - 1:ix + 2].astype(np.float64).ravel()
-        a = _PARABOLOID_PINV @ patch
-        hess = np.array([[2.0 * a[3], a[4]], [a[4], 2.0 * a[5]]])
-        grad = np.array([a[1], a[2]])
-        curv = -hess
-        if curv[0, 0] > 0.0 and np.linalg.det(curv) > 0.0:
-            d = np.linalg.solve(curv, grad)
-            dx, dy = float(np.clip(d[0], -1.0, 1.0)), float(np.clip(d[1], -1.0, 1.0))
-            fitted = a[0] + a[1] * dx + a[2] * dy + a[3] * dx * dx + a[4] * dx * dy + a[5] * dy * dy
-            return Peak(ix, iy, dx, dy, max(value, float(fitted)), curv, (False, False), at_border)
+        a0, a1, a2, a3, a4, a5 = (_PARABOLOID_PINV @ patch).tolist()
+        # curvature = -Hessian of the fit; its entries as the former np.array(...) negation gave them
+        c00, c01, c11 = -(2.0 * a3), -a4, -(2.0 * a5)
+        if c00 > 0.0:
+            curv = np.array([[c00, c01], [c01, c11]])
+            if det2(curv) > 0.0:
+                d0, d1 = solve2(curv, np.array([a1, a2])).tolist()
+                dx, dy = min(max(d0, -1.0), 1.0), min(max(d1, -1.0), 1.0)
+                fitted = a0 + a1 * dx + a2 * dy + a3 * dx * dx + a4 * dx * dy + a5 * dy * dy
+                return Peak(ix, iy, dx, dy, max(value, fitted), curv, (False, False), at_border)
         # Not a proper maximum (saddle/flat): fall through to separable 1-D fits.
     dx, cx = _parabola_1d(vals, ix, iy, axis=1) if x_ok else (0.0, None)
     dy, cy = _parabola_1d(vals, ix, iy, axis=0) if y_ok else (0.0, None)
@@ -79,7 +84,7 @@ def _parabola_1d(vals: np.ndarray, ix: int, iy: int, axis: int) -> tuple[float, 
     curv = -(fm - 2.0 * f0 + fp)
     if curv <= 0.0:
         return 0.0, None
-    return float(np.clip(0.5 * (fp - fm) / curv, -0.5, 0.5)), curv
+    return min(max(0.5 * (fp - fm) / curv, -0.5), 0.5), curv
 
 
 def exclusion_radius(vals: np.ndarray, ix: int, iy: int, min_radius: int) -> int:
@@ -93,15 +98,37 @@ def exclusion_radius(vals: np.ndarray, ix: int, iy: int, min_radius: int) -> int
     h, w = vals.shape
     peak = float(vals[iy, ix])
     step = max(1, int(math.sqrt(vals.size / 4096.0)))       # median of a subsample on big surfaces
-    base = float(np.median(vals[::step, ::step]))
+    base = _median(vals[::step, ::step])
     half = 0.5 * (peak + base)
+    # Walk in Python over the peak's row and column (the lobe is a few pixels wide), comparing in
+    # the surface's dtype as numpy's `row < half` does (the Python float rounded to float32 first).
+    half_t = float(vals.dtype.type(half))
+    row, col = vals[iy].tolist(), vals[:, ix].tolist()
     hwhm = 0
-    for row in (vals[iy, ix + 1:], vals[iy, ix::-1][1:], vals[iy + 1:, ix], vals[iy::-1, ix][1:]):
-        below = np.nonzero(row < half)[0]
-        dist = int(below[0]) + 1 if below.size else max(h, w)
+    for seq in (row[ix + 1:], row[ix::-1][1:], col[iy + 1:], col[iy::-1][1:]):
+        dist = max(h, w)
+        for k, x in enumerate(seq):
+            if x < half_t:
+                dist = k + 1
+                break
         hwhm = max(hwhm, dist)
     cap = max(min_radius, min(h, w) // 4)
     return int(max(min_radius, min(2 * hwhm, cap)))
+
+
+def _median(a: np.ndarray) -> float:
+    """``float(np.median(a))`` (same selection, same mean of the middle pair, NaN if any NaN) without
+    np.median's generic-axis machinery, which costs more than the selection on a window surface."""
+    flat = a.ravel()
+    n = flat.size
+    if n == 0:
+        return math.nan
+    k = n // 2
+    kth = [k, n - 1] if n % 2 else [k - 1, k, n - 1]
+    part = np.partition(flat, kth)
+    if math.isnan(part[n - 1]):
+        return math.nan
+    return float(part[k]) if n % 2 else float(np.mean(part[k - 1:k + 1]))
 
 
 def peak_to_sidelobe_ratio(vals: np.ndarray, ix: int, iy: int, peak: float, excl: int) -> float:
@@ -118,10 +145,30 @@ def peak_to_sidelobe_ratio(vals: np.ndarray, ix: int, iy: int, peak: float, excl
     v64 = vals.astype(np.float64, copy=False)
     inner = v64[y0:y1, x0:x1]
     s = float(v64.sum()) - float(inner.sum())
-    ss = float(np.vdot(v64, v64)) - float(np.vdot(inner, inner))
+    ss = _sum_of_squares(v64) - _sum_of_squares(inner)
     mean = s / n
     var = max(ss / n - mean * mean, 0.0)
     return float((peak - mean) / max(math.sqrt(var), _SIDELOBE_STD_FLOOR))
+
+
+#: np.vdot (OpenBLAS ddot) runs on one thread up to this many elements and splits a longer dot over
+#: its threads: the bits then depend on the thread count, and on a loaded 2-core machine the split
+#: cost ~5 ms CPU (40 ms wall) on a global surface instead of ~1 ms. Longer dots go in chunks.
+_DOT_CHUNK = 10000
+
+
+def _sum_of_squares(v: np.ndarray) -> float:
+    """Sum of squares of a float64 array: ``np.vdot(v, v)`` up to _DOT_CHUNK elements (the same
+    bits), chunks of it summed in order above (single-threaded whatever BLAS's thread count)."""
+    flat = v.ravel()
+    n = flat.size
+    if n <= _DOT_CHUNK:
+        return float(np.vdot(flat, flat))
+    total = 0.0
+    for i in range(0, n, _DOT_CHUNK):
+        chunk = flat[i:i + _DOT_CHUNK]
+        total += float(np.vdot(chunk, chunk))
+    return total
 
 
 def second_peak_ratio(vals: np.ndarray, ix: int, iy: int, peak: float, excl: int) -> float:
@@ -135,12 +182,11 @@ def second_peak_ratio(vals: np.ndarray, ix: int, iy: int, peak: float, excl: int
     h, w = vals.shape
     if h < 3 or w < 3:
         return 0.0
-    dil = cv2.dilate(vals, np.ones((3, 3), np.uint8))
-    cand = vals >= dil
-    cand[0, :] = cand[-1, :] = False
-    cand[:, 0] = cand[:, -1] = False
-    cand[max(0, iy - excl):iy + excl + 1, max(0, ix - excl):ix + excl + 1] = False
-    if not cand.any():
+    dil = cv2.dilate(vals, _DILATE_KERNEL)
+    inner = vals[1:-1, 1:-1]                      # window-border pixels are never candidates
+    cand = inner >= dil[1:-1, 1:-1]
+    cand[max(0, iy - excl - 1):max(0, iy + excl), max(0, ix - excl - 1):max(0, ix + excl)] = False
+    second = float(inner.max(where=cand, initial=-np.inf))
+    if second == -math.inf:                       # no candidate (or only -inf ones: ratio 0 either way)
         return 0.0
-    second = float(vals[cand].max())
     return float(min(1.0, max(0.0, second) / peak))

@@ -37,6 +37,7 @@ from perception.alignment import (
     AlignedCapture,
     BadInput,
     TemplateTooLarge,
+    TemplateTooSmall,
     align_capture,
     finite_number,
     to_gray_float32,
@@ -223,19 +224,20 @@ class PerceptionPipeline:
             aligned = align_capture(image_rgb, heading_rad, altitude_m,
                                     cfg.fov_deg if fov_deg is None else fov_deg, self.m_per_px,
                                     cfg.crop_mode, (self.matcher.width_px, self.matcher.height_px),
-                                    tilt_rad=tilt_rad, intrinsics_px=intrinsics_px, distortion=distortion)
+                                    tilt_rad=tilt_rad, intrinsics_px=intrinsics_px, distortion=distortion,
+                                    min_template_px=cfg.matcher.min_template_px)
         except TemplateTooLarge as exc:
             log.debug("capture unusable: %s", exc)
             timings.total_ms = (time.perf_counter() - t_start) * _MS
             return self._invalid(t_s, Reason.TEMPLATE_TOO_LARGE, 0, timings)
+        except TemplateTooSmall as exc:
+            # checked before resampling: no blur and warp for a template that would be dropped
+            log.debug("capture at %.1f m gives a %d px template: too small", exc.altitude_m, exc.side_px)
+            timings.align_ms = timings.total_ms = (time.perf_counter() - t_start) * _MS
+            return self._invalid(t_s, Reason.TEMPLATE_TOO_SMALL, exc.side_px, timings)
         t_align = time.perf_counter()
         timings.align_ms = (t_align - t_start) * _MS
-
         side = aligned.side_px
-        if side < cfg.matcher.min_template_px:
-            log.debug("capture at %.1f m gives a %d px template: too small", aligned.altitude_m, side)
-            timings.total_ms = (time.perf_counter() - t_start) * _MS
-            return self._invalid(t_s, Reason.TEMPLATE_TOO_SMALL, side, timings)
 
         prior_uv = None
         if prior_enu_m is not None and all(math.isfinite(c) for c in prior_enu_m):

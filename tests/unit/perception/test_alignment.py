@@ -8,7 +8,7 @@ import cv2
 import numpy as np
 import pytest
 
-from perception.alignment import BadInput, align_capture, to_gray_float32
+from perception.alignment import BadInput, TemplateTooSmall, align_capture, to_gray_float32
 from perception.config import CropMode
 from perception.ncc_search import SceneMatcher
 from scenenav.core.camera_geometry import ground_footprint_m
@@ -149,3 +149,17 @@ def test_gray_conversion_uint8_rgb_and_mono():
 def test_bad_input(image, heading, alt):
     with pytest.raises(BadInput):
         align_capture(image, heading, alt, FOV, 0.5)
+
+
+@pytest.mark.parametrize("tilt", [None, (0.0, 0.0)])
+def test_too_small_template_is_refused_before_resampling(world, tilt, monkeypatch):
+    """Near the ground the scale is tiny and the anti-aliasing blur huge: the size is checked first."""
+    img = to_u8_rgb(world[100:300, 150:350])
+    mpp = 0.5
+    alt = altitude_for_scale(15.0 / CAM, mpp)           # 200 camera px -> 15 map px (< 16)
+    assert align_capture(img, 0.0, alt, FOV, mpp, tilt_rad=tilt).side_px == 15
+    assert align_capture(img, 0.0, alt, FOV, mpp, tilt_rad=tilt, min_template_px=15).side_px == 15
+    monkeypatch.setattr(cv2, "GaussianBlur", lambda *a, **k: pytest.fail("blurred a dropped capture"))
+    with pytest.raises(TemplateTooSmall) as exc:
+        align_capture(img, 0.0, alt, FOV, mpp, tilt_rad=tilt, min_template_px=16)
+    assert exc.value.side_px == 15

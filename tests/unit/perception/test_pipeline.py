@@ -210,8 +210,8 @@ def test_template_larger_than_map_is_invalid(world):
     assert all(math.isnan(c) for c in r.position_enu_m)
     # An absurd altitude is refused before any resampling (no giant allocation).
     assert pipe.process(render(day, 300.0, 200.0, 0.0), 0.0, 1e9, 0.1).reason is Reason.TEMPLATE_TOO_LARGE
-    low = pipe.process(render(day, 300.0, 200.0, 0.0), 0.0, 3.0, 0.2)      # 7 px template
-    assert not low.valid and low.reason is Reason.TEMPLATE_TOO_SMALL
+    low = pipe.process(render(day, 300.0, 200.0, 0.0), 0.0, 3.0, 0.2)      # 6 px template (3.46 m)
+    assert not low.valid and low.reason is Reason.TEMPLATE_TOO_SMALL and low.template_side_px == 6
 
 
 def test_uniform_capture_is_invalid(world):
