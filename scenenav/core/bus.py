@@ -26,6 +26,10 @@ from scenenav.core.contracts import DecodeError, decode, encode
 
 log = logging.getLogger(__name__)
 
+#: Zenoh transmit queue of the data priority, in batches of up to 64 kB per link (Zenoh's maximum, 16;
+#: its default, 2, is less than two camera frames).
+DATA_QUEUE_BATCHES = 16
+
 
 @dataclass(frozen=True)
 class BusConfig:
@@ -53,6 +57,14 @@ class BusConfig:
         # peers long gone and its resident memory grew with the pool pages it touched (``bench soak``:
         # recorder +4 to +10 % in 30 minutes, +2 fds over 14 perception swaps).
         cfg.insert_json5("transport/shared_memory/enabled", "false")
+        # Room for a burst on every link: Zenoh's default is 2 batches (2 x 64 kB) per priority, and
+        # a camera frame (120 kB, two fragments) published with congestion control DROP found them
+        # still taken by the tick's sensors whenever the link's transmit thread had not run for
+        # 50 ms (2 loaded cores), and was dropped: perception never saw it, the simulator waited
+        # clock.member_timeout_s for its answer and the run's fixes changed (2 frames in a 40 s
+        # gps_denied flight under load). 16 batches (allocated only when used) hold several
+        # frames, so only a subscriber that stopped reading loses messages.
+        cfg.insert_json5("transport/link/tx/queue/size/data", str(DATA_QUEUE_BATCHES))
         if not self.listen_hub:
             # Keep retrying the hub until it is up (nodes may start before the simulator).
             cfg.insert_json5("connect/timeout_ms", "-1")
