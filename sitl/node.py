@@ -18,9 +18,10 @@ A thin shell: the physics, sensors, battery and camera scheduling are ``sitl.cor
 this node adds the bus, the lockstep/realtime clock, the camera render pipeline and the end of the run.
 Its configuration (``sitl.config.SimNodeConfig``) is resolved by the app layer (``scenenav node sim``).
 
-Lockstep (default): per tick the simulator publishes sensors and the clock, waits for every live
-``tick`` member (the autopilot) and, on camera ticks, every ``camera`` member (perception), then
-applies the newest motor command for the tick's physics sub-steps. Realtime: the same, paced so that
+Lockstep (default): per tick the simulator publishes sensors and the clock, then (while the members
+compute) the truth and a due camera frame, waits for every live ``tick`` member (the autopilot) and,
+``clock.camera_answer_ticks`` ticks after a camera frame (default 0: at once), every ``camera``
+member (perception), then applies the newest motor command for the tick's physics sub-steps. Realtime: the same, paced so that
 simulated time runs at ``speed_factor`` times the wall clock; ``tick`` members are still waited for
 (physics never runs on a stale motor command, as in ArduPilot's SITL), ``camera`` members at most one
 tick period.
@@ -32,6 +33,7 @@ import logging
 import math
 import threading
 import time
+from collections import deque
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -225,6 +227,9 @@ class SimulatorNode:
         camera_timeout = clock.member_timeout_s if lockstep else 1.0 / clock.tick_rate_hz
         duration_ticks = round(self.cfg.duration_s * self.tick_rate_hz)
         camera_acked = -1
+        # frames published and not yet waited for: (tick at which to wait, seq), oldest first
+        camera_due: deque[tuple[int, int]] = deque()
+        answer_ticks = clock.camera_answer_ticks
         wall0 = pace0 = time.perf_counter()
         reason = "duration reached"
         tick = 0
@@ -245,13 +250,19 @@ class SimulatorNode:
             t_s = t_us * 1e-6
             tp = time.perf_counter()
             out = core.sense()
-            self._publish_sensors(out)
+            # First what the tick members (the autopilot) step on: the tick's sensors, then the
+            # clock. Everything else goes out while they compute (their answer is what the loop
+            # waits for next), so it costs the tick no wall time when a core is free.
+            self._publish_tick_inputs(out)
+            self.barrier.published(LockstepRole.TICK, tick)
+            self.bus.publish(self.keys.clock, ClockTick(
+                t_us, tick, self.tick_us, camera_acked, clock.mode.value, RunState.RUNNING.value))
+            self.bus.publish(self.keys.truth_pose, out.truth)
             if out.camera_request is not None:
                 req = out.camera_request
                 self.camera.request(req.seq, req.position_enu_m, req.q_wxyz, capture_s=req.capture_us * 1e-6,
                                     velocity_enu_m_s=req.velocity_enu_m_s,
                                     body_rates_flu_rad_s=req.body_rates_flu_rad_s)
-            frame_out = out.camera_release is not None
             render_s = 0.0
             if out.camera_release is not None:
                 camera_seq = out.camera_release.seq
@@ -262,16 +273,15 @@ class SimulatorNode:
                 self.barrier.published(LockstepRole.CAMERA, camera_seq)
                 self.bus.publish(self.keys.camera, frame)
                 self.stats.camera_frames += 1
-            self.barrier.published(LockstepRole.TICK, tick)
-            self.bus.publish(self.keys.clock, ClockTick(
-                t_us, tick, self.tick_us, camera_acked, clock.mode.value, RunState.RUNNING.value))
+                camera_due.append((tick + answer_ticks, camera_seq))
             self.stats.time_publish_s += time.perf_counter() - tp - render_s
 
             tw = time.perf_counter()
             late = self.barrier.wait(LockstepRole.TICK, tick, tick_timeout)
             if late:
                 self._report_late(late, tick_timeout, t_s, t_us)
-            if frame_out:
+            while camera_due and camera_due[0][0] <= tick:
+                camera_seq = camera_due.popleft()[1]
                 late = self.barrier.wait(LockstepRole.CAMERA, camera_seq, camera_timeout)
                 camera_acked = camera_seq
                 if late and lockstep:
@@ -325,18 +335,19 @@ class SimulatorNode:
                                      f"within {timeout_s:.1f} s; going on without it until it "
                                      f"answers again", t_us)
 
-    def _publish_sensors(self, out: TickOutput) -> None:
+    def _publish_tick_inputs(self, out: TickOutput) -> None:
+        """The sensor samples of the tick (not the truth, not the camera), in their documented order."""
         keys = self.keys
-        self.bus.publish(keys.truth_pose, out.truth)
-        self.bus.publish(keys.imu, out.imu)
+        publish = self.bus.publish
+        publish(keys.imu, out.imu)
         if out.baro is not None:
-            self.bus.publish(keys.baro, out.baro)
+            publish(keys.baro, out.baro)
         if out.compass is not None:
-            self.bus.publish(keys.compass, out.compass)
+            publish(keys.compass, out.compass)
         if out.gps is not None:
-            self.bus.publish(keys.gps, out.gps)
+            publish(keys.gps, out.gps)
         if out.power is not None:
-            self.bus.publish(keys.power, out.power)
+            publish(keys.power, out.power)
 
     def close(self) -> None:
         self.bus.close()
