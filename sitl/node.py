@@ -1,8 +1,9 @@
 """Simulator node: pybullet physics, sensors and the lockstep clock.
 
 Inputs
-  ``actuators/motors``            MotorCommand   (autopilot flights; zero thrust until one arrives)
-  ``lockstep/ack/*``              LockstepAck    (answers of lockstep members)
+  ``actuators/motors``            MotorCommand   (autopilot flights; zero thrust until one arrives;
+                                                  also the tick answer of its sender ``node_id``)
+  ``lockstep/ack/*``              LockstepAck    (answers of the other lockstep members)
   ``lockstep/member/**``          liveliness     (who must answer)
   ``autopilot/status``            AutopilotStatus (ends the run when the mission is done and landed)
 Outputs
@@ -157,11 +158,14 @@ class SimulatorNode:
     # --------------------------------------------------------------------------- callbacks
     def _on_motor(self, msg: MotorCommand, _key: str) -> None:
         cmd = np.asarray(msg.command, dtype=float)
-        if not np.all(np.isfinite(cmd)):
+        if np.all(np.isfinite(cmd)):
+            with self._motor_lock:
+                self._motor = np.clip(cmd, 0.0, 1.0) if msg.armed else np.zeros(4)
+        else:
             self.bus.dropped["motors: non-finite command"] += 1
-            return
-        with self._motor_lock:
-            self._motor = np.clip(cmd, 0.0, 1.0) if msg.armed else np.zeros(4)
+        # the command is its sender's answer to the tick (after it is applied, so the loop woken
+        # by the answer steps on it)
+        self.barrier.ack(msg.node_id, LockstepRole.TICK, msg.tick)
 
     def _on_ack(self, msg: LockstepAck, _key: str) -> None:
         try:

@@ -53,8 +53,7 @@ def _fly(answer_ticks: int) -> tuple[dict[int, int], list[str]]:
             if m.state == "running":
                 for seq in range(m.camera_seq_acked + 1):
                     covered.setdefault(seq, m.tick)
-        member.publish(keys.motors, MotorCommand(m.timestamp_us, m.tick, (hover,) * 4, True))
-        member.publish(keys.lockstep_ack("ap"), LockstepAck(m.timestamp_us, "ap", "tick", m.tick))
+        member.publish(keys.motors, MotorCommand(m.timestamp_us, m.tick, (hover,) * 4, True, "ap"))
 
     def on_frame(m: CameraFrame, _k: str) -> None:
         with lock:

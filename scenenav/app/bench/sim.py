@@ -56,8 +56,8 @@ def responder(namespace: str, hub_port: int, hover: float) -> None:
     bus = Bus(BusConfig(namespace, hub_port))
 
     def on_tick(m: ClockTick, _k: str) -> None:
-        bus.publish(keys.motors, MotorCommand(m.timestamp_us, m.tick, (hover,) * 4, True))
-        bus.publish(keys.lockstep_ack("bench-ap"), LockstepAck(m.timestamp_us, "bench-ap", "tick", m.tick))
+        # the motor command is the tick's answer (MotorCommand.node_id), as the autopilot's is
+        bus.publish(keys.motors, MotorCommand(m.timestamp_us, m.tick, (hover,) * 4, True, "bench-ap"))
 
     def on_frame(m: CameraFrame, _k: str) -> None:
         bus.publish(keys.lockstep_ack("bench-cam"), LockstepAck(m.timestamp_us, "bench-cam", "camera", m.seq))
