@@ -14,8 +14,8 @@ Inputs (``scenenav/<ns>/...``)
   MAVLink (TCP 127.0.0.1:5760, UDP out 127.0.0.1:14550 by default): commands, missions,
   parameters, GUIDED targets, VISION_POSITION_ESTIMATE / ODOMETRY (external navigation)
 Outputs
-  ``actuators/motors``               MotorCommand  every tick, then
-  ``lockstep/ack/autopilot``         LockstepAck   role tick, seq = the tick
+  ``actuators/motors``               MotorCommand  every tick; with ``node_id`` "autopilot" it is also
+                                                   the tick's lockstep answer (no LockstepAck)
   ``autopilot/estimate``             NavEstimate   20 Hz (simulated time; the autopilot's own estimate)
   ``autopilot/status``               AutopilotStatus 1 Hz and on change
   ``events/autopilot``               Event         every STATUSTEXT and other notable changes
@@ -422,10 +422,9 @@ class AutopilotNode:
             self._motor = tuple(float(m) for m in motors)
         else:
             self.stats["ticks_without_imu"] += 1
+        # the motor command is also the tick's lockstep answer (MotorCommand.node_id): no LockstepAck
         self.bus.publish(k.motors, MotorCommand(tick.timestamp_us, tick.tick, self._motor,
-                                                self.core.armed))
-        self.bus.publish(k.lockstep_ack(NODE_ID), LockstepAck(
-            tick.timestamp_us, NODE_ID, LockstepRole.TICK.value, tick.tick))
+                                                self.core.armed, NODE_ID))
         self.stats["ticks"] += 1
         self._fly_own_mission(tick.timestamp_us)
         self._publish_outputs(tick.timestamp_us)

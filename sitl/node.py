@@ -1,8 +1,9 @@
 """Simulator node: pybullet physics, sensors and the lockstep clock.
 
 Inputs
-  ``actuators/motors``            MotorCommand   (autopilot flights; zero thrust until one arrives)
-  ``lockstep/ack/*``              LockstepAck    (answers of lockstep members)
+  ``actuators/motors``            MotorCommand   (autopilot flights; zero thrust until one arrives;
+                                                  also the tick answer of its sender ``node_id``)
+  ``lockstep/ack/*``              LockstepAck    (answers of the other lockstep members)
   ``lockstep/member/**``          liveliness     (who must answer)
   ``autopilot/status``            AutopilotStatus (ends the run when the mission is done and landed)
 Outputs
@@ -18,9 +19,10 @@ A thin shell: the physics, sensors, battery and camera scheduling are ``sitl.cor
 this node adds the bus, the lockstep/realtime clock, the camera render pipeline and the end of the run.
 Its configuration (``sitl.config.SimNodeConfig``) is resolved by the app layer (``scenenav node sim``).
 
-Lockstep (default): per tick the simulator publishes sensors and the clock, waits for every live
-``tick`` member (the autopilot) and, on camera ticks, every ``camera`` member (perception), then
-applies the newest motor command for the tick's physics sub-steps. Realtime: the same, paced so that
+Lockstep (default): per tick the simulator publishes sensors and the clock, then (while the members
+compute) the truth and a due camera frame, waits for every live ``tick`` member (the autopilot) and,
+``clock.camera_answer_ticks`` ticks after a camera frame (default 0: at once), every ``camera``
+member (perception), then applies the newest motor command for the tick's physics sub-steps. Realtime: the same, paced so that
 simulated time runs at ``speed_factor`` times the wall clock; ``tick`` members are still waited for
 (physics never runs on a stale motor command, as in ArduPilot's SITL), ``camera`` members at most one
 tick period.
@@ -32,6 +34,7 @@ import logging
 import math
 import threading
 import time
+from collections import deque
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -152,11 +155,14 @@ class SimulatorNode:
     # --------------------------------------------------------------------------- callbacks
     def _on_motor(self, msg: MotorCommand, _key: str) -> None:
         cmd = np.asarray(msg.command, dtype=float)
-        if not np.all(np.isfinite(cmd)):
+        if np.all(np.isfinite(cmd)):
+            with self._motor_lock:
+                self._motor = np.clip(cmd, 0.0, 1.0) if msg.armed else np.zeros(4)
+        else:
             self.bus.dropped["motors: non-finite command"] += 1
-            return
-        with self._motor_lock:
-            self._motor = np.clip(cmd, 0.0, 1.0) if msg.armed else np.zeros(4)
+        # the command is its sender's answer to the tick (after it is applied, so the loop woken
+        # by the answer steps on it)
+        self.barrier.ack(msg.node_id, LockstepRole.TICK, msg.tick)
 
     def _on_ack(self, msg: LockstepAck, _key: str) -> None:
         try:
@@ -222,6 +228,9 @@ class SimulatorNode:
         camera_timeout = clock.member_timeout_s if lockstep else 1.0 / clock.tick_rate_hz
         duration_ticks = round(self.cfg.duration_s * self.tick_rate_hz)
         camera_acked = -1
+        # frames published and not yet waited for: (tick at which to wait, seq), oldest first
+        camera_due: deque[tuple[int, int]] = deque()
+        answer_ticks = clock.camera_answer_ticks
         last_probe = 0.0
         wall0 = pace0 = time.perf_counter()
         reason = "duration reached"
@@ -243,13 +252,19 @@ class SimulatorNode:
             t_s = t_us * 1e-6
             tp = time.perf_counter()
             out = core.sense()
-            self._publish_sensors(out)
+            # First what the tick members (the autopilot) step on: the tick's sensors, then the
+            # clock. Everything else goes out while they compute (their answer is what the loop
+            # waits for next), so it costs the tick no wall time when a core is free.
+            self._publish_tick_inputs(out)
+            self.barrier.published(LockstepRole.TICK, tick)
+            self.bus.publish(self.keys.clock, ClockTick(
+                t_us, tick, self.tick_us, camera_acked, clock.mode.value, RunState.RUNNING.value))
+            self.bus.publish(self.keys.truth_pose, out.truth)
             if out.camera_request is not None:
                 req = out.camera_request
                 self.camera.request(req.seq, req.position_enu_m, req.q_wxyz, capture_s=req.capture_us * 1e-6,
                                     velocity_enu_m_s=req.velocity_enu_m_s,
                                     body_rates_flu_rad_s=req.body_rates_flu_rad_s)
-            frame_out = out.camera_release is not None
             render_s = 0.0
             if out.camera_release is not None:
                 camera_seq = out.camera_release.seq
@@ -264,23 +279,21 @@ class SimulatorNode:
                     # next put blocks until Zenoh closes the link (seconds: the clock would stand
                     # still). One frame a wall second still goes out: a member that wakes answers
                     # it (a later frame than the one it timed out on) and rejoins.
-                    frame_out = False
                     self.stats.camera_frames_withheld += 1
                 else:
                     last_probe = time.monotonic()
                     self.barrier.published(LockstepRole.CAMERA, camera_seq)
                     self.bus.publish(self.keys.camera, frame)
                     self.stats.camera_frames += 1
-            self.barrier.published(LockstepRole.TICK, tick)
-            self.bus.publish(self.keys.clock, ClockTick(
-                t_us, tick, self.tick_us, camera_acked, clock.mode.value, RunState.RUNNING.value))
+                    camera_due.append((tick + answer_ticks, camera_seq))
             self.stats.time_publish_s += time.perf_counter() - tp - render_s
 
             tw = time.perf_counter()
             late = self.barrier.wait(LockstepRole.TICK, tick, tick_timeout)
             if late:
                 self._report_late(late, tick_timeout, t_s, t_us)
-            if frame_out:
+            while camera_due and camera_due[0][0] <= tick:
+                camera_seq = camera_due.popleft()[1]
                 late = self.barrier.wait(LockstepRole.CAMERA, camera_seq, camera_timeout)
                 camera_acked = camera_seq
                 if late and lockstep:
@@ -334,18 +347,19 @@ class SimulatorNode:
                                      f"within {timeout_s:.1f} s; going on without it until it "
                                      f"answers again", t_us)
 
-    def _publish_sensors(self, out: TickOutput) -> None:
+    def _publish_tick_inputs(self, out: TickOutput) -> None:
+        """The sensor samples of the tick (not the truth, not the camera), in their documented order."""
         keys = self.keys
-        self.bus.publish(keys.truth_pose, out.truth)
-        self.bus.publish(keys.imu, out.imu)
+        publish = self.bus.publish
+        publish(keys.imu, out.imu)
         if out.baro is not None:
-            self.bus.publish(keys.baro, out.baro)
+            publish(keys.baro, out.baro)
         if out.compass is not None:
-            self.bus.publish(keys.compass, out.compass)
+            publish(keys.compass, out.compass)
         if out.gps is not None:
-            self.bus.publish(keys.gps, out.gps)
+            publish(keys.gps, out.gps)
         if out.power is not None:
-            self.bus.publish(keys.power, out.power)
+            publish(keys.power, out.power)
 
     def close(self) -> None:
         self.bus.close()

@@ -26,6 +26,10 @@ from scenenav.core.contracts import DecodeError, decode, encode
 
 log = logging.getLogger(__name__)
 
+#: Zenoh transmit queue of the data priority, in batches of up to 64 kB per link (Zenoh's maximum, 16;
+#: its default, 2, is less than two camera frames).
+DATA_QUEUE_BATCHES = 16
+
 
 @dataclass(frozen=True)
 class BusConfig:
@@ -53,6 +57,14 @@ class BusConfig:
         # peers long gone and its resident memory grew with the pool pages it touched (``bench soak``:
         # recorder +4 to +10 % in 30 minutes, +2 fds over 14 perception swaps).
         cfg.insert_json5("transport/shared_memory/enabled", "false")
+        # Room for a burst on every link: Zenoh's default is 2 batches (2 x 64 kB) per priority, so
+        # a camera frame (120 kB, two fragments) found them still taken by the tick's sensors
+        # whenever the link's transmit thread had not run for 50 ms (2 loaded cores): published
+        # with congestion control DROP (tried on 2026-12-04) it was lost and the run's fixes
+        # changed; with BLOCK the publisher waits. 16 batches (allocated only when used) hold
+        # several frames, so the simulator rarely waits, and a frozen subscriber's link takes
+        # longer to fill (docs/faults.md).
+        cfg.insert_json5("transport/link/tx/queue/size/data", str(DATA_QUEUE_BATCHES))
         if not self.listen_hub:
             # Keep retrying the hub until it is up (nodes may start before the simulator).
             cfg.insert_json5("connect/timeout_ms", "-1")

@@ -19,6 +19,10 @@ class ClockConfig:
     tick_rate_hz: float = 100.0        # control tick (IMU, motor commands); physics sub-steps within
     member_timeout_s: float = 30.0     # wall seconds to wait for one lockstep answer before going on
     startup_timeout_s: float = 120.0   # wall seconds to wait for the expected nodes to appear
+    # Lockstep: 0 waits for the camera members' answer at the tick a frame is published (its fix is
+    # fused at the next tick); N waits N ticks later, so their work overlaps N ticks of flight and
+    # the fix is fused N ticks later (still deterministic). Fewer than the ticks between two frames.
+    camera_answer_ticks: int = 0       # control ticks a camera member may take to answer a frame
 
     def __post_init__(self) -> None:
         check(self.speed_factor > 0, "speed_factor", self.speed_factor, "a positive number")
@@ -26,3 +30,6 @@ class ClockConfig:
               "10 to 1000 Hz")
         check(self.member_timeout_s > 0, "member_timeout_s", self.member_timeout_s, "> 0 s")
         check(self.startup_timeout_s > 0, "startup_timeout_s", self.startup_timeout_s, "> 0 s")
+        check(isinstance(self.camera_answer_ticks, int) and not isinstance(self.camera_answer_ticks, bool)
+              and self.camera_answer_ticks >= 0, "camera_answer_ticks", self.camera_answer_ticks,
+              "an integer >= 0 (and fewer than the control ticks between two camera frames)")

@@ -202,13 +202,18 @@ class MotorCommand:
 
     ``command[i]`` drives rotor ``QuadXRotor(i)``: ArduPilot's quad-X motor order (MOT 1-4), front
     right CCW, back left CCW, front left CW, back right CW, seen from above.
+
+    It is also the sender's lockstep answer to ``tick``: the simulator counts it as the
+    ``LockstepAck`` (role tick, seq ``tick``) of the tick member ``node_id``, which then sends no
+    separate ack (version 2; one bus message per tick fewer each way).
     """
 
-    VERSION: ClassVar[int] = 1
+    VERSION: ClassVar[int] = 2
     timestamp_us: int
     tick: int
     command: tuple[float, float, float, float]
     armed: bool
+    node_id: str                 # the tick member that answers the tick with it
 
 
 @dataclass(frozen=True)

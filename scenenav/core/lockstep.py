@@ -3,12 +3,13 @@
 Members announce themselves with a Zenoh liveliness token
 ``scenenav/<ns>/lockstep/member/<role>/<node_id>`` (role ``tick`` or ``camera``) *after* their
 subscribers are up, and answer with ``LockstepAck`` on ``lockstep/ack/<node_id>`` after publishing
-their outputs. A member is waited for only for ticks/frames published after its token was seen; a
-member whose token disappears (stopped, crashed, swapped out) is no longer waited for. A member that
-does not answer within ``timeout_s`` wall seconds is reported and *suspended*: it is not waited for
-again (so one hung member costs the run one timeout, not one per tick) until it answers any later
-sequence number, when it rejoins (``take_rejoined()`` names it once) and is waited for again.
-Pure threading, no Zenoh: the node feeds it liveliness changes and acks.
+their outputs (a ``tick`` member that drives the motors answers with its ``MotorCommand`` instead,
+which the simulator node feeds in as that member's ack). A member is waited for only for
+ticks/frames published after its token was seen; a member whose token disappears (stopped,
+crashed, swapped out) is no longer waited for. A member that does not answer within ``timeout_s``
+wall seconds is reported and *suspended*: it is not waited for again (so one hung member costs the
+run one timeout, not one per tick) until it answers any later sequence number, when it rejoins
+(``take_rejoined()`` names it once) and is waited for again. Pure threading, no Zenoh: the node feeds it liveliness changes and acks.
 
 ``answer_times()`` reports, per member, how long its answers took: wall seconds from ``published``
 of a sequence number to that member's ack of it (round trip plus the member's work), summed over the

@@ -58,7 +58,7 @@ def test_realtime_waits_for_a_slow_autopilot_and_reports_falling_behind():
                     return
                 m = pending.pop(0)
             time.sleep(ANSWER_DELAY_S)
-            member.publish(keys.motors, MotorCommand(m.timestamp_us, m.tick, (hover,) * 4, True))
+            member.publish(keys.motors, MotorCommand(m.timestamp_us, m.tick, (hover,) * 4, True, "other"))
             with lock:
                 acked.append(m.tick)
             member.publish(keys.lockstep_ack("slow-ap"),

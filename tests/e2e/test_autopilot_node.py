@@ -31,7 +31,6 @@ from scenenav.core.contracts import (
     ClockTick,
     CompassSample,
     ImuSample,
-    LockstepAck,
     MotorCommand,
     PowerSample,
     RunState,
@@ -178,9 +177,10 @@ def test_node_survives_garbage_and_nan(tmp_path):
     acks: list[int] = []
     motors: list[MotorCommand] = []
     got = threading.Event()
-    hub.subscribe(keys.lockstep_ack("autopilot"), LockstepAck,
-                  lambda m, _k: (acks.append(m.seq), got.set()))
-    hub.subscribe(keys.motors, MotorCommand, lambda m, _k: motors.append(m))
+    # the motor command is the autopilot's answer to the tick (MotorCommand.node_id)
+    hub.subscribe(keys.motors, MotorCommand,
+                  lambda m, _k: (motors.append(m), acks.append(m.tick) if m.node_id == "autopilot" else None,
+                                 got.set()))
     member = threading.Event()
     hub.watch_liveliness(keys.lockstep_member_all, lambda _k, alive: alive and member.set())
     node = AutopilotNode(autopilot_setup(cfg, (48.0, 11.0)), BusConfig("aptest", port), run_dir=tmp_path)
@@ -235,7 +235,7 @@ def test_node_follows_the_newest_perception_node_and_logs_the_gap(tmp_path):
     events: list[str] = []
     hub.subscribe(keys.events("autopilot"), Event, lambda m, _k: events.append(m.text))
     acked = threading.Event()
-    hub.subscribe(keys.lockstep_ack("autopilot"), LockstepAck, lambda m, _k: acked.set())
+    hub.subscribe(keys.motors, MotorCommand, lambda m, _k: acked.set())   # its answer to the tick
     node = AutopilotNode(autopilot_setup(cfg, (48.0, 11.0)), BusConfig("apswap", port), run_dir=tmp_path)
 
     def fix(node_id: str, seq: int, t_us: int) -> VisionFix:

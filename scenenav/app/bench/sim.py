@@ -4,13 +4,17 @@ The simulator node runs in this process with its real bus; a second process join
 members an autopilot and a perception node would be (it answers every tick with a hover motor
 command and every camera frame with an ack, doing no work of its own), so the figure includes the
 real bus round trips but not the cost of the other nodes' algorithms. Reported per world size: the
-real-time factor and the share of wall time in physics, rendering, publishing and waiting on the bus.
+real-time factor and the share of wall time in physics, rendering, publishing and waiting on the bus,
+and the CPU milliseconds per tick of the simulator process (all its threads, Zenoh's included), its
+render worker and the stand-in (``cpu_ms_per_tick``): on a loaded machine the wall figures follow
+the load, the CPU figures much less.
 """
 
 from __future__ import annotations
 
 import dataclasses
 import logging
+import os
 import subprocess
 import sys
 import time
@@ -52,8 +56,8 @@ def responder(namespace: str, hub_port: int, hover: float) -> None:
     bus = Bus(BusConfig(namespace, hub_port))
 
     def on_tick(m: ClockTick, _k: str) -> None:
-        bus.publish(keys.motors, MotorCommand(m.timestamp_us, m.tick, (hover,) * 4, True))
-        bus.publish(keys.lockstep_ack("bench-ap"), LockstepAck(m.timestamp_us, "bench-ap", "tick", m.tick))
+        # the motor command is the tick's answer (MotorCommand.node_id), as the autopilot's is
+        bus.publish(keys.motors, MotorCommand(m.timestamp_us, m.tick, (hover,) * 4, True, "bench-ap"))
 
     def on_frame(m: CameraFrame, _k: str) -> None:
         bus.publish(keys.lockstep_ack("bench-cam"), LockstepAck(m.timestamp_us, "bench-cam", "camera", m.seq))
@@ -71,6 +75,18 @@ def responder(namespace: str, hub_port: int, hover: float) -> None:
         bus.close()
 
 
+def _cpu_s(pid: int | None) -> float | None:
+    """CPU seconds (user + system, all threads) a live process has used, from /proc; None if unknown."""
+    if pid is None:
+        return None
+    try:
+        with open(f"/proc/{pid}/stat", encoding="ascii", errors="replace") as f:
+            fields = f.read().rsplit(")", 1)[1].split()
+    except (OSError, IndexError):
+        return None
+    return (int(fields[11]) + int(fields[12])) / os.sysconf("SC_CLK_TCK")
+
+
 def measure(width_px: int, height_px: int, seconds: float) -> dict:
     from sitl.config import SimNodeConfig
     from sitl.node import SimulatorNode
@@ -86,12 +102,20 @@ def measure(width_px: int, height_px: int, seconds: float) -> dict:
     node.core.start_at(np.array([0.0, 0.0, 100.0]), 0.0)
     proc = subprocess.Popen([sys.executable, "-m", "scenenav.app.bench.sim", ns, str(port), repr(hover)],
                             stdin=subprocess.DEVNULL)
+    # the stand-in's start-up (imports, joining) is not the loop's: wait for it before counting CPU
+    node.barrier.wait_members({LockstepRole.TICK: 1, LockstepRole.CAMERA: 1}, cfg.clock.startup_timeout_s)
+    render_pid = node.camera._proc.pid if node.camera._proc is not None else None
+    cpu0 = {"sim": time.process_time(), "responder": _cpu_s(proc.pid), "render_worker": _cpu_s(render_pid)}
     try:
         stats = node.run()
+        cpu1 = {"sim": time.process_time(), "responder": _cpu_s(proc.pid), "render_worker": _cpu_s(render_pid)}
     finally:
         proc.terminate()
         proc.wait(10)
         node.close()
+    ticks = max(1, stats.ticks)
+    cpu_ms = {k: round(1e3 * (cpu1[k] - cpu0[k]) / ticks, 3) for k in cpu0
+              if cpu0[k] is not None and cpu1[k] is not None}
     wall = stats.wall_time_s
     share = {"physics": stats.time_physics_s / wall, "render": stats.time_render_s / wall,
              "publish": stats.time_publish_s / wall, "bus_wait": stats.time_bus_wait_s / wall}
@@ -105,6 +129,7 @@ def measure(width_px: int, height_px: int, seconds: float) -> dict:
         "us_per_physics_step": round(1e6 * stats.time_physics_s / max(1, stats.ticks * node.core.substeps), 1),
         "share": {k: round(v, 3) for k, v in share.items()},
         "ack_timeouts": stats.ack_timeouts,
+        "cpu_ms_per_tick": cpu_ms,
     }
 
 
@@ -129,12 +154,13 @@ def run_sim_bench(seconds: float = 20.0, sizes: str = "900x1000,2000x2000,8000x8
 def format_table(result: dict) -> str:
     """The figures of ``run_sim_bench`` as a table (text, newline-terminated)."""
     lines = [f"{'world px':>12} {'RTF':>6} {'ms wait/frame':>10} {'us/step':>8} "
-             f"{'physics':>8} {'render':>7} {'publish':>8} {'bus wait':>9}"]
+             f"{'physics':>8} {'render':>7} {'publish':>8} {'bus wait':>9} {'CPU ms/tick sim+render+stand-in':>32}"]
     for r in result["sizes"]:
         s = r["share"]
         lines.append(f"{r['world_px']:>12} {r['real_time_factor']:>6.1f} {r['ms_render_wait_per_frame']:>10.2f} "
                      f"{r['us_per_physics_step']:>8.1f} {s['physics']:>8.0%} {s['render']:>7.0%} "
-                     f"{s['publish']:>8.0%} {s['bus_wait']:>9.0%}")
+                     f"{s['publish']:>8.0%} {s['bus_wait']:>9.0%} "
+                     f"{' + '.join(f'{c:.3f}' for c in r['cpu_ms_per_tick'].values()):>32}")
     lines.append("lockstep, control tick 100 Hz, physics 400 Hz, camera 200x200 at 10 Hz, flat world; "
                  "target >= 10x real time (gym-pybullet-drones: 1.3x with TinyRenderer, 10.8x with OpenGL)")
     return "\n".join(lines) + "\n"
