@@ -66,9 +66,9 @@ NODE_ID = "sim"
 #: Realtime mode: wall seconds the loop may fall behind the paced clock and catch up (a short stall);
 #: further behind, it paces on from where it is instead of running flat out to catch up.
 MAX_PACE_LAG_S = 0.25
-#: Lockstep: while every camera member is suspended (frozen), at most one camera frame per this many
-#: wall seconds is published (the others are withheld): enough for a member that wakes to rejoin.
-SUSPENDED_PROBE_S = 1.0
+#: Lockstep: camera frames a suspended camera member may hold unanswered (about 0.5 MB at 200 x 200);
+#: while every camera member is suspended that far behind (frozen), further frames are withheld.
+SUSPENDED_BACKLOG_FRAMES = 4
 
 
 @dataclass
@@ -231,7 +231,6 @@ class SimulatorNode:
         # frames published and not yet waited for: (tick at which to wait, seq), oldest first
         camera_due: deque[tuple[int, int]] = deque()
         answer_ticks = clock.camera_answer_ticks
-        last_probe = 0.0
         wall0 = pace0 = time.perf_counter()
         reason = "duration reached"
         tick = 0
@@ -272,16 +271,15 @@ class SimulatorNode:
                 frame = core.camera_frame(out.camera_release, self.camera.result(camera_seq))
                 render_s = time.perf_counter() - tr
                 self.stats.time_render_s += render_s
-                if (lockstep and self.barrier.all_suspended(LockstepRole.CAMERA)
-                        and time.monotonic() - last_probe < SUSPENDED_PROBE_S):
-                    # Every camera member is frozen (SIGSTOP, a debugger): frames at the clock's
-                    # pace would only fill its link's queue, and once that is full the simulator's
-                    # next put blocks until Zenoh closes the link (seconds: the clock would stand
-                    # still). One frame a wall second still goes out: a member that wakes answers
-                    # it (a later frame than the one it timed out on) and rejoins.
+                if lockstep and self.barrier.all_suspended_and_behind(LockstepRole.CAMERA,
+                                                                       SUSPENDED_BACKLOG_FRAMES):
+                    # Every camera member is suspended and has not answered the last frames either
+                    # (frozen: SIGSTOP, a debugger): more frames would only fill its link's queue,
+                    # and once that is full the simulator's next put blocks until Zenoh closes the
+                    # link (seconds: the clock would stand still). The frames it holds are later
+                    # than the one it timed out on: answering them when it wakes brings it back.
                     self.stats.camera_frames_withheld += 1
                 else:
-                    last_probe = time.monotonic()
                     self.barrier.published(LockstepRole.CAMERA, camera_seq)
                     self.bus.publish(self.keys.camera, frame)
                     self.stats.camera_frames += 1

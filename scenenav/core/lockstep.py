@@ -99,11 +99,14 @@ class LockstepBarrier:
         with self._cond:
             return sorted(n for n, m in self._members.items() if m.suspended)
 
-    def all_suspended(self, role: LockstepRole) -> bool:
-        """True when ``role`` has members and every one of them is suspended."""
+    def all_suspended_and_behind(self, role: LockstepRole, limit: int) -> bool:
+        """True when ``role`` has members and every one of them is suspended with at least ``limit``
+        published sequence numbers after the last it answered (or timed out on): a frozen member,
+        whose link would fill if more were sent. A slow member that still answers stays below."""
         with self._cond:
             ms = [m for m in self._members.values() if m.role == role]
-            return bool(ms) and all(m.suspended for m in ms)
+            pub = self._published[role]
+            return bool(ms) and all(m.suspended and pub - m.last_ack >= limit for m in ms)
 
     def members(self, role: LockstepRole | None = None) -> list[str]:
         with self._cond:

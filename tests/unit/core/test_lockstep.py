@@ -102,3 +102,30 @@ def test_a_member_that_times_out_is_suspended_until_it_answers_again():
     b.ack("cam", C, 5)
     b.published(C, 5)
     assert b.wait(C, 5, 0.05) == []
+
+
+def test_a_suspended_member_is_behind_only_once_it_holds_the_backlog_unanswered():
+    b = LockstepBarrier()
+    cam = LockstepRole.CAMERA
+    assert not b.all_suspended_and_behind(cam, 4)              # no members: nothing to hold back
+    b.member_changed(cam, "p", True)
+    b.published(cam, 0)
+    assert b.wait(cam, 0, 0.01) == ["p"]                        # timed out on frame 0: suspended
+    for seq in (1, 2, 3):
+        b.published(cam, seq)
+        assert not b.all_suspended_and_behind(cam, 4)           # it may still hold these
+    b.published(cam, 4)
+    assert b.all_suspended_and_behind(cam, 4)                   # four unanswered since: frozen
+    b.ack("p", cam, 2)                                          # it woke and answers its backlog
+    assert not b.all_suspended_and_behind(cam, 4) and b.take_rejoined() == ["p"]
+    # a slow member that still answers is never held back, however long it stays suspended
+    b.published(cam, 5)
+    assert b.wait(cam, 5, 0.01) == ["p"]
+    for seq in range(6, 20):
+        b.published(cam, seq)
+        b.ack("p", cam, seq - 2)
+        assert not b.all_suspended_and_behind(cam, 4)
+    # with a second member that answers, frames always go out
+    b.member_changed(cam, "q", True)
+    b.published(cam, 30)
+    assert not b.all_suspended_and_behind(cam, 4)
