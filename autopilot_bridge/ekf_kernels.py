@@ -32,6 +32,18 @@ N = 15
 VARIANCE_FLOOR = 1e-12
 
 
+@njit(inline="always", **NO_NRT)
+def _symmetrise_and_floor(P, N):  # pragma: no cover - compiled
+    """P = (P + P') / 2 above the diagonal, variances at least ``VARIANCE_FLOOR`` (in place)."""
+    for i in range(N):
+        for j in range(i + 1, N):
+            s = 0.5 * (P[i, j] + P[j, i])
+            P[i, j] = s
+            P[j, i] = s
+        if P[i, i] < VARIANCE_FLOOR:
+            P[i, i] = VARIANCE_FLOOR
+
+
 @njit(**NO_NRT)
 def predict_covariance(P, tmp, dt, fx, fy, fz, rot, qd):  # pragma: no cover - compiled
     """In place: ``P <- F P F' + diag(qd)``, symmetrised; ``tmp`` is a 15x15 work array.
@@ -129,13 +141,7 @@ def update_scalar(P, h, r, innov, gate_sd, mask, joseph, apply, u, dx):  # pragm
             ki = dx[i]
             for j in range(N):
                 P[i, j] -= ki * u[j]
-    for i in range(N):
-        for j in range(i + 1, N):
-            s = 0.5 * (P[i, j] + P[j, i])
-            P[i, j] = s
-            P[j, i] = s
-        if P[i, i] < VARIANCE_FLOOR:
-            P[i, i] = VARIANCE_FLOOR
+    _symmetrise_and_floor(P, N)
     for i in range(N):
         dx[i] *= innov
     return ratio
@@ -208,13 +214,7 @@ def update_direct(P, idx, R, nu, gate_sd, apply, S, Sinv, U, K, dx):  # pragma: 
             for a in range(m):
                 s += K[i, a] * U[j, a]
             P[i, j] -= s
-    for i in range(N):
-        for j in range(i + 1, N):
-            s = 0.5 * (P[i, j] + P[j, i])
-            P[i, j] = s
-            P[j, i] = s
-        if P[i, i] < VARIANCE_FLOOR:
-            P[i, i] = VARIANCE_FLOOR
+    _symmetrise_and_floor(P, N)
     return ratio
 
 

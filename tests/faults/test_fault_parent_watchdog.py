@@ -10,6 +10,8 @@ import sys
 import textwrap
 import time
 
+from support.fault_run import alive as _alive
+
 # The grandchild: PDEATHSIG set to a signal it ignores (as if the handler never ran: a main thread
 # blocked in native code runs no Python signal handler), then blocked forever in the main thread.
 NODE = textwrap.dedent("""
@@ -32,14 +34,6 @@ LAUNCHER = textwrap.dedent("""
     print(p.pid, flush=True)
     time.sleep(600)
 """)
-
-
-def _alive(pid: int) -> bool:
-    try:
-        with open(f"/proc/{pid}/stat") as f:
-            return f.read().rsplit(")", 1)[1].split()[0] != "Z"
-    except OSError:
-        return False
 
 
 def test_a_node_whose_parent_died_exits_within_the_deadline():
