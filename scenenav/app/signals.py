@@ -55,22 +55,24 @@ def stop_event(watch_parent: bool | None = None) -> threading.Event:
 
     ``watch_parent`` (default: when a parent-death signal is set, i.e. the launcher started this node
     to die with it; a node a user started by hand may outlive its shell): a daemon thread also sets
-    the event (and starts the same deadline) when the process's parent is gone (it was re-parented). PDEATHSIG's SIGTERM alone is not enough: Python runs a signal
-    handler only in the main thread between bytecodes, so a main thread blocked in native code (a bus
-    call whose peer is gone, a long kernel) never starts the deadline, and the node would outlive its
-    run. The watchdog does not depend on the main thread."""
+    the event (and starts the same deadline) when the process's parent is gone (it was re-parented).
+    PDEATHSIG's SIGTERM alone is not enough: Python runs a signal handler only in the main thread
+    between bytecodes, so a main thread blocked in native code (a bus call whose peer is gone, a long
+    kernel) never starts the deadline, and the node would outlive its run. The watchdog does not
+    depend on the main thread."""
     ev = threading.Event()
-    deadline_started = threading.Lock()
-    started: list[threading.Timer] = []
+    # Re-entrant: a second signal can interrupt the handler's own call in the main thread.
+    deadline_lock = threading.RLock()
+    deadline_armed = threading.Event()
 
     def stop(why: str) -> None:
-        with deadline_started:
-            if not started:
+        with deadline_lock:
+            if not deadline_armed.is_set():
+                deadline_armed.set()
                 log.info("%s: stopping", why)
                 timer = threading.Timer(STOP_DEADLINE_S, _exit_late)
                 timer.daemon = True
                 timer.start()
-                started.append(timer)
         ev.set()
 
     def handler(signum, _frame) -> None:
