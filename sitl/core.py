@@ -12,7 +12,7 @@ is two calls, in this order:
   sub-steps and move to the next tick (scripted flights ignore it: the pose follows the route).
 
 Physics shell: the rigid body lives in ``sitl.physics.PhysicsWorld`` (pybullet, DIRECT client, one
-per core). The core calls ``PhysicsWorld.step`` once per physics sub-step, ``reset`` to start a flight
+per core). The core calls ``PhysicsWorld.step_many`` once per tick for its physics sub-steps, ``reset`` to start a flight
 and ``set_pose`` for scripted (kinematic) flights; the motor lag, rotor wrench and wind inside a step
 are the pure models of ``sitl.dynamics`` and ``sitl.wind``. The core renders nothing: the node hands
 each ``CameraRequest`` to the render pipeline (``sitl.render_worker``/``sitl.camera``, the other
@@ -254,13 +254,9 @@ class SimulatorCore:
     def advance(self, motor_command) -> VehicleState:
         """Run the tick's physics sub-steps with ``motor_command`` and move to the next tick."""
         if self.trajectory is None:
-            state = self._state
-            self._accel_sum[:] = 0.0
-            self._gyro_sum[:] = 0.0
-            for _ in range(self.substeps):
-                state = self.physics.step(motor_command)
-                self._accel_sum += state.specific_force_flu_m_s2
-                self._gyro_sum += state.angular_velocity_flu_rad_s
+            state, accel_sum, gyro_sum = self.physics.step_many(motor_command, self.substeps)
+            self._accel_sum[:] = accel_sum
+            self._gyro_sum[:] = gyro_sum
             self._n_sum = self.substeps
             self._state = state
         self._power = self.battery.step(self._state.rotor_speeds_rad_s, 1.0 / self.tick_rate_hz)

@@ -34,7 +34,8 @@ def rotation_rows(q_wxyz) -> tuple[tuple[float, float, float], ...]:
 
     The quaternion is normalised; a zero or non-finite quaternion raises ValueError.
     """
-    w, x, y, z = (float(c) for c in q_wxyz)
+    w, x, y, z = q_wxyz
+    w, x, y, z = float(w), float(x), float(y), float(z)
     n = w * w + x * x + y * y + z * z
     if not (n > 0.0 and math.isfinite(n)):
         raise ValueError(f"quaternion {q_wxyz!r} has no direction")
@@ -76,7 +77,16 @@ class QuadrotorDynamics:
         self._cache_dt_s = -1.0
         self._alpha_up = 0.0
         self._alpha_down = 0.0
-        self.rotor_speeds_rad_s = np.zeros(n)
+        self._speeds = [0.0] * n
+
+    @property
+    def rotor_speeds_rad_s(self) -> np.ndarray:
+        """(n,) current rotor speeds, rad/s (a fresh array)."""
+        return np.array(self._speeds)
+
+    @rotor_speeds_rad_s.setter
+    def rotor_speeds_rad_s(self, speeds: np.ndarray) -> None:
+        self._speeds = [float(w) for w in np.asarray(speeds, dtype=float).reshape(self.rotor_count)]
 
     @property
     def hover_command(self) -> float:
@@ -85,7 +95,7 @@ class QuadrotorDynamics:
 
     def reset(self) -> None:
         """Stop the rotors."""
-        self.rotor_speeds_rad_s = np.zeros(self.rotor_count)
+        self._speeds = [0.0] * self.rotor_count
 
     def set_rotor_speeds(self, rotor_speeds_rad_s: np.ndarray) -> None:
         """Set the rotor speeds directly (clipped to [0, max]); for scripted starts in the air."""
@@ -99,18 +109,24 @@ class QuadrotorDynamics:
         command * max_rotor_speed. Each motor follows the exact discretisation of a first-order lag,
         with the rise time constant when speeding up and the fall one when slowing down.
         """
+        cmd = command.tolist() if isinstance(command, np.ndarray) else list(command)
+        self.advance_motors(cmd, dt_s)
+        return np.array(self._speeds)
+
+    def advance_motors(self, command: list[float], dt_s: float) -> None:
+        """``step_motors`` without the arrays (the physics loop's hot path): ``command`` a list of
+        n normalised commands; the new speeds are ``rotor_speeds_rad_s``."""
         if dt_s != self._cache_dt_s:
             if not dt_s >= 0.0:
                 raise ValueError(f"dt_s = {dt_s}: expected a number >= 0")
             self._cache_dt_s = dt_s
             self._alpha_up = -math.expm1(-dt_s / self._tau_up)
             self._alpha_down = -math.expm1(-dt_s / self._tau_down)
-        cmd = command.tolist() if isinstance(command, np.ndarray) else list(command)
-        if len(cmd) != self.rotor_count:
-            raise ValueError(f"command has {len(cmd)} values: expected {self.rotor_count}")
-        speeds = self.rotor_speeds_rad_s.tolist()
+        if len(command) != self.rotor_count:
+            raise ValueError(f"command has {len(command)} values: expected {self.rotor_count}")
+        speeds = self._speeds
         max_speed, up, down = self._max_speed, self._alpha_up, self._alpha_down
-        for i, c in enumerate(cmd):
+        for i, c in enumerate(command):
             c = float(c)
             if not c > 0.0:          # NaN and negative commands stop the motor
                 c = 0.0
@@ -118,8 +134,6 @@ class QuadrotorDynamics:
                 c = 1.0
             error = c * max_speed - speeds[i]
             speeds[i] += (up if error > 0.0 else down) * error
-        self.rotor_speeds_rad_s = np.array(speeds)
-        return self.rotor_speeds_rad_s
 
     def thrusts_n(self) -> np.ndarray:
         """(n,) rotor thrusts, N."""
@@ -131,7 +145,7 @@ class QuadrotorDynamics:
         k_m = self._k_moment
         fz = tx = ty = tz = 0.0
         w_sum = w_dir = lever_x = lever_y = 0.0
-        for w, (rx, ry, _), d in zip(self.rotor_speeds_rad_s.tolist(), self._positions_list,
+        for w, (rx, ry, _), d in zip(self._speeds, self._positions_list,
                                      self._directions_list, strict=True):
             thrust = k_t * w * w
             fz += thrust
@@ -173,12 +187,15 @@ class QuadrotorDynamics:
 
     def wrench(self, q_wxyz: np.ndarray, velocity_enu_m_s: np.ndarray,
                wind_enu_m_s: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """(force_enu_n, torque_enu_nm) acting at the centre of mass, in the WORLD frame. No gravity.
+        """(force_enu_n, torque_enu_nm) acting at the centre of mass, in the WORLD frame. No gravity."""
+        fx, fy, fz, tx, ty, tz = self.wrench_world(rotation_rows(q_wxyz), velocity_enu_m_s, wind_enu_m_s)
+        return np.array([fx, fy, fz]), np.array([tx, ty, tz])
 
-        Hot path of the physics loop: plain-float arithmetic, two small arrays allocated.
-        """
-        r = rotation_rows(q_wxyz)
-        (r00, r01, r02), (r10, r11, r12), (r20, r21, r22) = r
+    def wrench_world(self, rows, velocity_enu_m_s, wind_enu_m_s) -> tuple[float, ...]:
+        """``wrench`` as six plain floats (fx, fy, fz, tx, ty, tz), world frame, for the attitude
+        given by its ``rotation_rows``: the physics loop's hot path (sequences of floats in, no
+        arrays allocated)."""
+        (r00, r01, r02), (r10, r11, r12), (r20, r21, r22) = rows
         ax = float(velocity_enu_m_s[0]) - float(wind_enu_m_s[0])
         ay = float(velocity_enu_m_s[1]) - float(wind_enu_m_s[1])
         az = float(velocity_enu_m_s[2]) - float(wind_enu_m_s[2])
@@ -187,10 +204,9 @@ class QuadrotorDynamics:
         by = r01 * ax + r11 * ay + r21 * az
         bz = r02 * ax + r12 * ay + r22 * az
         fx, fy, fz, tx, ty, tz = self._wrench_body_tuple(bx, by, bz)
-        force = np.array([r00 * fx + r01 * fy + r02 * fz,
-                          r10 * fx + r11 * fy + r12 * fz,
-                          r20 * fx + r21 * fy + r22 * fz])
-        torque = np.array([r00 * tx + r01 * ty + r02 * tz,
-                           r10 * tx + r11 * ty + r12 * tz,
-                           r20 * tx + r21 * ty + r22 * tz])
-        return force, torque
+        return (r00 * fx + r01 * fy + r02 * fz,
+                r10 * fx + r11 * fy + r12 * fz,
+                r20 * fx + r21 * fy + r22 * fz,
+                r00 * tx + r01 * ty + r02 * tz,
+                r10 * tx + r11 * ty + r12 * tz,
+                r20 * tx + r21 * ty + r22 * tz)

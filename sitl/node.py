@@ -139,7 +139,7 @@ class SimulatorNode:
         self.bus = Bus(bus_cfg)
         self.barrier = LockstepBarrier()
         self._motor_lock = threading.Lock()
-        self._motor = np.zeros(4)
+        self._motor: tuple[float, ...] = (0.0, 0.0, 0.0, 0.0)
         self._stop = threading.Event()
         self._mission_done = threading.Event()
         self._landed_early = threading.Event()
@@ -154,10 +154,12 @@ class SimulatorNode:
 
     # --------------------------------------------------------------------------- callbacks
     def _on_motor(self, msg: MotorCommand, _key: str) -> None:
-        cmd = np.asarray(msg.command, dtype=float)
-        if np.all(np.isfinite(cmd)):
+        # plain floats: this runs on the lockstep's critical path, between the answer and the step
+        cmd = msg.command
+        if all(math.isfinite(c) for c in cmd):
+            motor = tuple(min(1.0, max(0.0, c)) for c in cmd) if msg.armed else (0.0,) * len(cmd)
             with self._motor_lock:
-                self._motor = np.clip(cmd, 0.0, 1.0) if msg.armed else np.zeros(4)
+                self._motor = motor
         else:
             self.bus.dropped["motors: non-finite command"] += 1
         # the command is its sender's answer to the tick (after it is applied, so the loop woken
@@ -307,7 +309,7 @@ class SimulatorNode:
 
             tphys = time.perf_counter()
             with self._motor_lock:
-                motor = self._motor.copy()
+                motor = self._motor
             core.advance(motor)
             self.stats.time_physics_s += time.perf_counter() - tphys
             self.stats.ticks = tick + 1

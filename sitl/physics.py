@@ -145,39 +145,72 @@ class PhysicsWorld:
 
     def step(self, motor_command: np.ndarray) -> VehicleState:
         """One physics step of 1/physics_rate_hz with ``motor_command`` ((4,) normalised, [0, 1])."""
-        cid = self.client_id
-        dt = self.dt_s
-        self.dynamics.step_motors(motor_command, dt)
-        self._wind = self.wind.velocity_enu_m_s(dt)
-        force, torque = self.dynamics.wrench(self._q, self._vel, self._wind)
-        p.applyExternalForce(self.body_id, -1, force, self._pos_com, p.WORLD_FRAME, physicsClientId=cid)
-        p.applyExternalTorque(self.body_id, -1, torque, p.WORLD_FRAME, physicsClientId=cid)
-        p.stepSimulation(physicsClientId=cid)
-        self._steps += 1
+        return self.step_many(motor_command, 1)[0]
 
-        pos, orn = p.getBasePositionAndOrientation(self.body_id, physicsClientId=cid)
-        lin, ang = p.getBaseVelocity(self.body_id, physicsClientId=cid)
-        # Specific force = R^T (dv/dt - g): exact for pybullet's semi-implicit Euler step, and it
-        # includes contact reactions. Plain floats: this is the hot path.
+    def step_many(self, motor_command, steps: int) -> tuple[VehicleState, tuple[float, float, float],
+                                                             tuple[float, float, float]]:
+        """``steps`` physics steps with one ``motor_command``: the state after the last, and the sums
+        over the steps of the specific force and of the body rates (FLU), for the IMU's average.
+
+        The simulator's hot path (a control tick's sub-steps): plain floats between the pybullet
+        calls, arrays only for the returned state; the same arithmetic, in the same order, as
+        ``steps`` calls of ``step``.
+        """
+        cid = self.client_id
+        body = self.body_id
+        dt = self.dt_s
+        dynamics = self.dynamics
+        wind_model = self.wind
         inv_dt = self.cfg.physics_rate_hz
-        v_old = self._vel
-        ax = (lin[0] - v_old[0]) * inv_dt
-        ay = (lin[1] - v_old[1]) * inv_dt
-        az = (lin[2] - v_old[2]) * inv_dt + self.params.gravity_m_s2
-        q = (orn[3], orn[0], orn[1], orn[2])
-        (r00, r01, r02), (r10, r11, r12), (r20, r21, r22) = rotation_rows(q)
+        gravity = self.params.gravity_m_s2
+        world = p.WORLD_FRAME
+        command = np.asarray(motor_command, dtype=float).tolist()
+        q = self._q.tolist()
+        rows = rotation_rows(q)
+        v_old = self._vel.tolist()
+        pos = self._pos_com
+        wind = self._wind
+        fx = fy = fz = wx = wy = wz = 0.0
+        sum_f = [0.0, 0.0, 0.0]
+        sum_w = [0.0, 0.0, 0.0]
+        for _ in range(steps):
+            dynamics.advance_motors(command, dt)
+            wind = wind_model.velocity_enu_m_s(dt)
+            f0, f1, f2, t0, t1, t2 = dynamics.wrench_world(rows, v_old, wind.tolist())
+            p.applyExternalForce(body, -1, (f0, f1, f2), pos, world, physicsClientId=cid)
+            p.applyExternalTorque(body, -1, (t0, t1, t2), world, physicsClientId=cid)
+            p.stepSimulation(physicsClientId=cid)
+            pos, orn = p.getBasePositionAndOrientation(body, physicsClientId=cid)
+            lin, ang = p.getBaseVelocity(body, physicsClientId=cid)
+            # Specific force = R^T (dv/dt - g): exact for pybullet's semi-implicit Euler step, and
+            # it includes contact reactions.
+            ax = (lin[0] - v_old[0]) * inv_dt
+            ay = (lin[1] - v_old[1]) * inv_dt
+            az = (lin[2] - v_old[2]) * inv_dt + gravity
+            q = (orn[3], orn[0], orn[1], orn[2])
+            rows = rotation_rows(q)
+            (r00, r01, r02), (r10, r11, r12), (r20, r21, r22) = rows
+            v_old = lin
+            fx = r00 * ax + r10 * ay + r20 * az
+            fy = r01 * ax + r11 * ay + r21 * az
+            fz = r02 * ax + r12 * ay + r22 * az
+            ox, oy, oz = ang
+            wx = r00 * ox + r10 * oy + r20 * oz
+            wy = r01 * ox + r11 * oy + r21 * oz
+            wz = r02 * ox + r12 * oy + r22 * oz
+            sum_f[0] += fx
+            sum_f[1] += fy
+            sum_f[2] += fz
+            sum_w[0] += wx
+            sum_w[1] += wy
+            sum_w[2] += wz
+        self._steps += steps
         self._pos_com = pos
         self._q = np.array(q)
-        self._vel = np.array(lin)
-        f_b = np.array([r00 * ax + r10 * ay + r20 * az,
-                        r01 * ax + r11 * ay + r21 * az,
-                        r02 * ax + r12 * ay + r22 * az])
-        wx, wy, wz = ang
-        w_b = np.array([r00 * wx + r10 * wy + r20 * wz,
-                        r01 * wx + r11 * wy + r21 * wz,
-                        r02 * wx + r12 * wy + r22 * wz])
-        self._state = self._make_state(f_b, w_b)
-        return self._state
+        self._vel = np.array(v_old)
+        self._wind = wind
+        self._state = self._make_state(np.array([fx, fy, fz]), np.array([wx, wy, wz]))
+        return self._state, (sum_f[0], sum_f[1], sum_f[2]), (sum_w[0], sum_w[1], sum_w[2])
 
     def state(self) -> VehicleState:
         """The state after the last reset, set_pose or step."""

@@ -10,12 +10,21 @@ With ``render_in_worker`` the renderer lives in a forked child process; otherwis
 even one killed by SIGKILL: it closes its inherited copy of the simulator's end of the pipe (so the
 simulator's death closes the pipe and the child sees EOF), and it asks the kernel for SIGKILL when
 its parent dies (``PR_SET_PDEATHSIG``, which ``fork()`` does not inherit from the simulator).
+
+Images come back through shared memory: a ring of ``IMAGE_SLOTS`` image-sized slots mapped before
+the fork; the simulator hands a free slot with each request, the worker writes the image there and
+answers with a few bytes (frame, slot, shape). Through the pipe itself a 120 kB image does not fit
+its 64 kB buffer: the worker stalled in ``send`` until the simulator collected the frame
+``latency_s`` later, and the transfer then cost the simulator's loop about 0.4 ms a frame in
+wake-ups between the two processes (``scenenav bench sim``, 2026-12-04). A request with no free
+slot (more frames in flight than slots) gets its image through the pipe as before.
 """
 
 from __future__ import annotations
 
 import ctypes
 import logging
+import mmap
 import multiprocessing as mp
 import os
 import signal
@@ -28,6 +37,8 @@ from sitl.config import CameraConfig
 log = logging.getLogger(__name__)
 
 _PR_SET_PDEATHSIG = 1   # linux/prctl.h
+#: image slots in the shared ring (frames in flight at once; beyond that, images go through the pipe)
+IMAGE_SLOTS = 8
 
 
 def die_with_parent(parent_pid: int, sig: int = signal.SIGKILL) -> None:
@@ -45,9 +56,14 @@ def _optics_rng(seed: np.random.SeedSequence | None) -> np.random.Generator | No
     return np.random.default_rng(seed) if seed is not None else None
 
 
+def _slot_view(ring: mmap.mmap, slot: int, slot_bytes: int) -> np.ndarray:
+    """The bytes of one image slot of the shared ring, as a flat uint8 array (no copy)."""
+    return np.frombuffer(ring, dtype=np.uint8, count=slot_bytes, offset=slot * slot_bytes)
+
+
 def _serve(conn, parent_conn, parent_pid: int, orthophoto: np.ndarray, m_per_px: float,
            cfg: CameraConfig, heights_m: np.ndarray | None, facade_rgb: np.ndarray | None,
-           optics_seed: np.random.SeedSequence | None) -> None:
+           optics_seed: np.random.SeedSequence | None, ring: mmap.mmap, slot_bytes: int) -> None:
     from sitl.camera import GroundCamera, warm_up
     die_with_parent(parent_pid)
     parent_conn.close()   # else this copy keeps the pipe open after the simulator died: no EOF
@@ -62,10 +78,20 @@ def _serve(conn, parent_conn, parent_pid: int, orthophoto: np.ndarray, m_per_px:
                 return
             if msg is None:
                 return
-            seq, capture_s, pos, q, vel, rates = msg
-            conn.send((seq, camera.render_capture(capture_s, pos, q, vel, rates)))
+            seq, slot, capture_s, pos, q, vel, rates = msg
+            image = np.ascontiguousarray(camera.render_capture(capture_s, np.array(pos), np.array(q),
+                                                               np.array(vel), np.array(rates)))
+            if slot >= 0 and image.dtype == np.uint8 and image.nbytes <= slot_bytes:
+                _slot_view(ring, slot, slot_bytes)[:image.nbytes] = image.reshape(-1)
+                conn.send((seq, slot, image.shape))
+            else:
+                conn.send((seq, -1, image))
     finally:
         camera.close()
+
+
+def _floats(values) -> tuple[float, ...]:
+    return tuple(float(v) for v in np.asarray(values, dtype=float).reshape(-1))
 
 
 class CameraPipeline:
@@ -82,12 +108,18 @@ class CameraPipeline:
         self._in_flight: list[int] = []
         self._proc = None
         self._camera = None
+        self._ring: mmap.mmap | None = None
+        self._slot_bytes = cfg.width_px * cfg.height_px * 3
+        self._free_slots = list(range(IMAGE_SLOTS))
         if cfg.render_in_worker:
             ctx = mp.get_context("fork")   # the child inherits the orthophoto without a copy
             self._conn, child = ctx.Pipe()
+            # anonymous and shared (MAP_SHARED): the forked worker writes, this process reads
+            self._ring = mmap.mmap(-1, IMAGE_SLOTS * self._slot_bytes)
             self._proc = ctx.Process(target=_serve,
                                      args=(child, self._conn, os.getpid(), orthophoto, m_per_px, cfg,
-                                           heights_m, facade_rgb, optics_seed),
+                                           heights_m, facade_rgb, optics_seed, self._ring,
+                                           self._slot_bytes),
                                      name="camera-render", daemon=True)
             self._proc.start()
             child.close()
@@ -100,14 +132,16 @@ class CameraPipeline:
                 velocity_enu_m_s=(0.0, 0.0, 0.0), body_rates_flu_rad_s=(0.0, 0.0, 0.0)) -> None:
         """Render the capture ``seq`` at this truth pose (``capture_s``, velocity and body rates: for
         the jitter, gimbal lag and motion blur of ``sitl.camera_model``)."""
-        pos = np.asarray(position_enu_m, dtype=float).copy()
-        q = np.asarray(q_wxyz, dtype=float).copy()
-        vel = np.asarray(velocity_enu_m_s, dtype=float).copy()
-        rates = np.asarray(body_rates_flu_rad_s, dtype=float).copy()
         if self._camera is not None:
-            self._done[seq] = self._camera.render_capture(capture_s, pos, q, vel, rates)
+            self._done[seq] = self._camera.render_capture(
+                capture_s, np.asarray(position_enu_m, dtype=float).copy(),
+                np.asarray(q_wxyz, dtype=float).copy(), np.asarray(velocity_enu_m_s, dtype=float).copy(),
+                np.asarray(body_rates_flu_rad_s, dtype=float).copy())
             return
-        self._conn.send((seq, float(capture_s), pos, q, vel, rates))
+        slot = self._free_slots.pop() if self._free_slots else -1
+        # plain floats pickle in a few microseconds; numpy arrays take several times that
+        self._conn.send((seq, slot, float(capture_s), _floats(position_enu_m), _floats(q_wxyz),
+                         _floats(velocity_enu_m_s), _floats(body_rates_flu_rad_s)))
         self._in_flight.append(seq)
 
     def result(self, seq: int) -> np.ndarray:
@@ -115,10 +149,16 @@ class CameraPipeline:
             if not self._in_flight:
                 raise KeyError(f"camera frame {seq} was never requested")
             try:
-                got_seq, image = self._conn.recv()
+                got_seq, slot, image = self._conn.recv()
             except (EOFError, OSError) as exc:
                 raise RuntimeError("the camera render process died (see the simulator log)") from exc
             self._in_flight.remove(got_seq)
+            if slot >= 0:
+                assert self._ring is not None
+                shape = tuple(image)
+                n = int(np.prod(shape))
+                image = _slot_view(self._ring, slot, self._slot_bytes)[:n].reshape(shape).copy()
+                self._free_slots.append(slot)
             self._done[got_seq] = image
         return self._done.pop(seq)
 
@@ -133,6 +173,9 @@ class CameraPipeline:
                 self._proc.terminate()
             self._conn.close()
             self._proc = None
+        if self._ring is not None:
+            self._ring.close()
+            self._ring = None
         if self._camera is not None:
             self._camera.close()
             self._camera = None
