@@ -273,3 +273,28 @@ def test_render_worker_applies_the_effects_as_in_process():
     with GroundCamera(-1, top, 0.5, dataclasses.replace(base, render_in_worker=False)) as ideal:
         plain = ideal.render(np.array([0.0, 0.0, 30.0]), np.array([1.0, 0.0, 0.0, 0.0]))
     assert not np.array_equal(images[0][0], plain)
+
+
+def test_render_worker_more_frames_in_flight_than_image_slots():
+    """Images come back through the shared ring while it has free slots and through the pipe
+    beyond; either way each frame is the in-process render of its own pose."""
+    from sitl.render_worker import IMAGE_SLOTS, CameraPipeline
+    top = np.random.default_rng(6).integers(0, 255, (128, 128, 3), dtype=np.uint8)
+    n = IMAGE_SLOTS + 3
+    images = []
+    for in_worker in (True, False):
+        cfg = CameraConfig(width_px=40, height_px=32, ground_window_px=256, render_in_worker=in_worker)
+        pipe = CameraPipeline(top, 0.5, cfg)
+        try:
+            for seq in range(n):
+                pipe.request(seq, np.array([seq * 0.7, -seq * 0.3, 30.0]), np.array([1.0, 0.0, 0.0, 0.0]))
+            got = [pipe.result(seq) for seq in reversed(range(n))]   # out of order as well
+            pipe.request(n, np.array([1.0, 1.0, 30.0]), np.array([1.0, 0.0, 0.0, 0.0]))   # slots reused
+            got.append(pipe.result(n))
+        finally:
+            pipe.close()
+        images.append(got)
+    assert images[0][0].shape == (32, 40, 3)
+    for a, b in zip(*images, strict=True):
+        np.testing.assert_array_equal(a, b)
+    assert len({img.tobytes() for img in images[0]}) == n + 1
