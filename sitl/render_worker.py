@@ -22,7 +22,6 @@ slot (more frames in flight than slots) gets its image through the pipe as befor
 
 from __future__ import annotations
 
-import ctypes
 import logging
 import mmap
 import multiprocessing as mp
@@ -32,11 +31,11 @@ from collections import OrderedDict
 
 import numpy as np
 
+from scenenav.core.parent_death import set_parent_death_signal
 from sitl.config import CameraConfig
 
 log = logging.getLogger(__name__)
 
-_PR_SET_PDEATHSIG = 1   # linux/prctl.h
 #: image slots in the shared ring (frames in flight at once; beyond that, images go through the pipe)
 IMAGE_SLOTS = 8
 
@@ -44,10 +43,7 @@ IMAGE_SLOTS = 8
 def die_with_parent(parent_pid: int, sig: int = signal.SIGKILL) -> None:
     """In a forked child: get ``sig`` when the parent dies (Linux ``prctl(PR_SET_PDEATHSIG)``), and
     exit at once if the parent already died before the call (the race prctl's man page names)."""
-    try:
-        ctypes.CDLL(None, use_errno=True).prctl(_PR_SET_PDEATHSIG, int(sig))
-    except (OSError, AttributeError):
-        pass   # not Linux: the closed pipe still ends the child
+    set_parent_death_signal(sig)   # not Linux: the closed pipe still ends the child
     if os.getppid() != parent_pid:
         os._exit(0)
 

@@ -44,6 +44,7 @@ from scenenav.app.signals import interrupt_on_stop_signals, stop_signals_deferre
 from scenenav.core.bus import EXIT_HUB_PORT_TAKEN, free_port
 from scenenav.core.contracts import ClockMode, LockstepRole
 from scenenav.core.errors import UserError
+from scenenav.core.parent_death import set_parent_death_signal
 
 log = logging.getLogger(__name__)
 
@@ -54,18 +55,13 @@ DISK_RESERVE_MB = 8.0
 #: Free space below which the launcher ends the run (the disk is full: nothing more is recorded).
 DISK_LOW_WATER_MB = 1.0
 RESERVE_FILE = ".disk_reserve"
-_PR_SET_PDEATHSIG = 1   # linux/prctl.h
 
 
 def die_with_parent() -> None:
     """In the child, before exec: get SIGTERM if the parent (its thread) dies, even by SIGKILL (Linux);
     the stop signals the launcher blocked while spawning are unblocked."""
     unblock_stop_signals()
-    try:
-        import ctypes
-        ctypes.CDLL("libc.so.6", use_errno=True).prctl(_PR_SET_PDEATHSIG, signal.SIGTERM)
-    except OSError:
-        pass   # not Linux: rely on the launcher's own shutdown
+    set_parent_death_signal(signal.SIGTERM)   # not Linux: the launcher's own shutdown stops them
 
 
 @dataclass

@@ -15,6 +15,8 @@ import signal
 import threading
 from collections.abc import Iterator
 
+from scenenav.core.parent_death import parent_death_signal
+
 log = logging.getLogger(__name__)
 
 STOP_SIGNALS = (signal.SIGINT, signal.SIGTERM)
@@ -31,22 +33,8 @@ def _exit_late() -> None:
     os._exit(3)
 
 
-_PR_GET_PDEATHSIG = 2   # linux/prctl.h
 #: How often a node looks whether its parent (the launcher) is still there (``stop_event``).
 PARENT_POLL_S = 0.5
-
-
-def _parent_death_signal() -> int:
-    """The signal this process gets when its parent dies (Linux ``prctl(PR_GET_PDEATHSIG)``), 0 if none."""
-    try:
-        import ctypes
-        sig = ctypes.c_int(0)
-        libc = ctypes.CDLL(None, use_errno=True)
-        if libc.prctl(_PR_GET_PDEATHSIG, ctypes.byref(sig)) != 0:
-            return 0
-        return int(sig.value)
-    except (OSError, AttributeError):
-        return 0
 
 
 def stop_event(watch_parent: bool | None = None) -> threading.Event:
@@ -80,7 +68,7 @@ def stop_event(watch_parent: bool | None = None) -> threading.Event:
     for sig in STOP_SIGNALS:
         signal.signal(sig, handler)
     if watch_parent is None:
-        watch_parent = _parent_death_signal() != 0
+        watch_parent = parent_death_signal() != 0
     if watch_parent:
         parent = os.getppid()
 
