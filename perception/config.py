@@ -135,6 +135,14 @@ class PerceptionConfig:
     assistant_patch_max_px: int = 32           # cap on the written patch side (2 x last movement)
     quality_gate: bool = False                 # also reject what the matcher flags low quality
     true_match_tolerance_m: float = 5.0        # evaluation: a fix this close to the truth is true
+    # The area rating of the cnn and assistant-map methods (the CNN's training captures, the
+    # assistant map's cells) is made for the camera footprint at rated_altitude_m (paper 6.1: 100 m;
+    # DatasetConfig.altitude_m, build_assistant_map's altitude_m). A capture from lower down covers
+    # (altitude / rated_altitude_m)^2 of that footprint's area; below min_rated_footprint_share the
+    # rating does not describe it and its fix is rejected (reason below-rated-height). 0 = off (the
+    # library default; the perception node turns it on: PerceptionNodeConfig.min_rated_footprint_share).
+    rated_altitude_m: float = 100.0
+    min_rated_footprint_share: float = 0.0
     matcher: MatcherConfig = field(default_factory=MatcherConfig)
 
     def __post_init__(self) -> None:
@@ -151,6 +159,10 @@ class PerceptionConfig:
               self.assistant_patch_max_px, "an integer >= 1")
         check(self.true_match_tolerance_m > 0.0, "perception.true_match_tolerance_m",
               self.true_match_tolerance_m, "a positive number")
+        check(self.rated_altitude_m > 0.0 and math.isfinite(self.rated_altitude_m),
+              "perception.rated_altitude_m", self.rated_altitude_m, "a positive number of metres")
+        check(0.0 <= self.min_rated_footprint_share <= 1.0, "perception.min_rated_footprint_share",
+              self.min_rated_footprint_share, "a number in [0, 1] (0 = off)")
 
 
 #: ``PerceptionNodeConfig.alignment`` values: how a FIXED-mount capture is aligned with the map.
@@ -176,6 +188,9 @@ class PerceptionNodeConfig:
                                        # back and forth between the two nodes and their methods
     alignment: str = "rotation-scale"  # FIXED-mount frames: rotation-scale (as if nadir) or homography
                                        # (from the autopilot's estimated roll and pitch; docs/perception.md)
+    # the footprint the area rating was made for is PerceptionConfig.rated_altitude_m's (100 m);
+    # docs/perception.md, "Rated height"
+    min_rated_footprint_share: float = 0.0  # cnn, assistant-map: reject fixes of captures covering less of the rated footprint's area (0.5: below 70.7 m; 0 = off)
 
     def __post_init__(self) -> None:
         methods = ("cnn", "assistant-map", "statistical", "none")
@@ -190,6 +205,8 @@ class PerceptionNodeConfig:
         check(self.swap_at_s >= 0, "swap_at_s", self.swap_at_s, ">= 0 s (0 = no swap)")
         check(self.swap_method in methods, "swap_method", self.swap_method,
               "one of cnn, assistant-map, statistical, none")
+        check(0.0 <= self.min_rated_footprint_share <= 1.0, "min_rated_footprint_share",
+              self.min_rated_footprint_share, "a number in [0, 1] (0 = off)")
         check(self.alignment in ALIGNMENTS, "alignment", self.alignment, "one of " + ", ".join(ALIGNMENTS))
         check(self.swap_every_s == 0 or (self.swap_every_s >= 10.0 and self.swap_at_s > 0),
               "swap_every_s", self.swap_every_s,

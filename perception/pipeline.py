@@ -88,6 +88,7 @@ class Reason(str, Enum):
     FLAT_CAPTURE = "flat-capture"            # uniform capture: NCC undefined, no match computed
     CAMERA_MISMATCH = "camera-mismatch"      # the frame's FOV or size is not the configured camera's
     BAD_INPUT = "bad-input"                  # the frame or its heading / height cannot be used
+    BELOW_RATED_HEIGHT = "below-rated-height"  # cnn / assistant-map: captured too low for the area rating
 
 
 @dataclass(frozen=True)
@@ -147,6 +148,7 @@ class PerceptionPipeline:
                  world_name: str = "", model_id: str = "",
                  decision_model: CombinedDecisionModel | None = None) -> None:
         self.cfg = cfg if cfg is not None else PerceptionConfig()
+        self._told_below_rated = False
         try:
             self.method = FalseMatchMethod(method) if method is not None else self.cfg.method
         except ValueError:
@@ -265,9 +267,20 @@ class PerceptionPipeline:
         run, dr_innovation_px, dr_age_s, reach_excess_px = self.track_evidence.observe(
             t_s, match.position_px, match.quality_ok, match.search is not SearchMode.WINDOW)
         innovation_m = innovation_px * self.m_per_px
-        decision, reason, p_true, p_classes, variance, p_false, drone = self._decide(
-            aligned, match, t_s, timings, innovation_m, run,
-            dr_innovation_px * self.m_per_px, dr_age_s, reach_excess_px * self.m_per_px)
+        if self._rated_at(altitude_m):
+            decision, reason, p_true, p_classes, variance, p_false, drone = self._decide(
+                aligned, match, t_s, timings, innovation_m, run,
+                dr_innovation_px * self.m_per_px, dr_age_s, reach_excess_px * self.m_per_px)
+        else:   # no classification either: a low capture's rating would be written into the map
+            if not self._told_below_rated:
+                self._told_below_rated = True
+                log.info("capture at %.1f m: fixes from below %.1f m are rejected (below-rated-height): "
+                         "the area rating is made for %.0f m captures (PerceptionConfig.rated_altitude_m, "
+                         "min_rated_footprint_share)", altitude_m,
+                         self.cfg.rated_altitude_m * math.sqrt(self.cfg.min_rated_footprint_share),
+                         self.cfg.rated_altitude_m)
+            decision, reason, p_true, p_classes, variance, p_false, drone = (
+                Decision.REJECT, Reason.BELOW_RATED_HEIGHT, _NAN, _NAN_CLASSES, _NAN, _NAN, (_NAN, _NAN))
         if cfg.quality_gate and not match.quality_ok and decision is Decision.ACCEPT:
             decision, reason = Decision.REJECT, Reason.LOW_QUALITY
         timings.total_ms = (time.perf_counter() - t_start) * _MS
@@ -290,6 +303,15 @@ class PerceptionPipeline:
         return DecisionRule.COMBINED if self.decision_model is not None else DecisionRule.PAPER
 
     # ------------------------------------------------------------------------------ decisions
+    def _rated_at(self, altitude_m: float) -> bool:
+        """Whether the area rating applies to a capture from ``altitude_m``: always for the methods
+        without one (none, statistical); for cnn and assistant-map when the capture covers at least
+        ``min_rated_footprint_share`` of the rated footprint's area (``PerceptionConfig``)."""
+        if self.method not in (FalseMatchMethod.CNN, FalseMatchMethod.ASSISTANT_MAP):
+            return True
+        share = self.cfg.min_rated_footprint_share
+        return share <= 0.0 or (altitude_m / self.cfg.rated_altitude_m) ** 2 >= share
+
     def _decide(self, aligned: AlignedCapture, match: MatchResult, t_s: float,
                 timings: StageTimes, innovation_m: float, run: int,
                 dr_innovation_m: float, dr_age_s: float, reach_excess_m: float) -> tuple[Decision, Reason, float, tuple, float, float, tuple[float, float]]:

@@ -284,3 +284,38 @@ def test_capture_scaled_with_the_fov_it_was_taken_with(world):
     pipe.reset()
     wrong = pipe.process(img, 0.4, alt, 0.2)                     # 60 degrees assumed at alt: too big
     assert not wrong.valid or wrong.metrics.peak < right.metrics.peak - 0.2
+
+
+@pytest.mark.parametrize("method", [FalseMatchMethod.CNN, FalseMatchMethod.ASSISTANT_MAP,
+                                    FalseMatchMethod.STATISTICAL, FalseMatchMethod.NONE])
+def test_fixes_below_the_rated_height_are_rejected_unrated(world, method):
+    """cnn / assistant-map: a capture covering less than min_rated_footprint_share of the rated
+    footprint is matched (valid) but rejected without classification; other methods, and the gate
+    off, decide as before."""
+    ref, day = world
+    calls = []
+
+    def clf(batch):
+        calls.append(len(batch))
+        return cnn_fake(batch)
+
+    def pipeline(share):
+        cfg = dataclasses.replace(PerceptionConfig(), rated_altitude_m=ALT, min_rated_footprint_share=share)
+        return PerceptionPipeline(ref, MPP, method, cfg, classify=clf)
+
+    low_alt = ALT * 0.69        # 0.48 of the rated footprint's area
+    img = render(day, 300.0, 200.0, 0.4)
+    gated = method in (FalseMatchMethod.CNN, FalseMatchMethod.ASSISTANT_MAP)
+    low = pipeline(0.5).process(img, 0.4, low_alt, 0.0)
+    assert low.valid
+    if gated:
+        assert not low.accepted and low.reason is Reason.BELOW_RATED_HEIGHT and not calls
+        assert math.isnan(low.p_true)
+    else:
+        assert low.reason is not Reason.BELOW_RATED_HEIGHT
+    calls.clear()
+    at_rated = pipeline(0.5).process(img, 0.4, ALT * 0.72, 0.0)     # 0.52 of the area: rated
+    off = pipeline(0.0).process(img, 0.4, low_alt, 0.0)
+    for r in (at_rated, off):
+        assert r.valid and r.reason is not Reason.BELOW_RATED_HEIGHT
+    assert calls == ([1, 1] if gated else [])
