@@ -1,0 +1,252 @@
+"""The window NCC surface (``cv2.TM_CCOEFF_NORMED``) by our own DFT correlation, for tracking.
+
+``cv2.matchTemplate`` (TM_CCOEFF_NORMED) on a tracking window (a 188 px template in a 240 px window:
+a 53 x 53 surface) converts both images to float64 and runs its DFTs in double precision, takes the
+window's sums from a fresh float64 integral image (two 241 x 241 arrays) and allocates all of it per
+call. ``FftNcc`` computes the same surface with
+
+* the template minus its mean written into a zero-padded float32 buffer (``_template_into_pad``),
+  and the window minus that same mean into another, both buffers kept between fixes; the window
+  sums of every template placement (of the window minus the mean, and of its square) by running
+  sums in float64 in the same pass (``_window_into_pad``);
+* three float32 ``cv2.dft`` calls of the optimal DFT size (template, window, inverse) and the
+  conjugate product of the packed spectra in between (``_mul_conj_ccs``);
+* one pass that normalises the correlation with those sums and finds the maximum
+  (``_normalise``), with OpenCV's rules for a flat window patch (0) and for a ratio at or beyond
+  +-1 (+-1 up to 1.125, else 0).
+
+The numerator is the correlation of the zero-mean template with the window (the window's own mean
+cancels against the zero-mean template), so no large sums are subtracted. The values agree with
+``cv2.matchTemplate``'s to a few 1e-6 (its own float32 rounding of the correlation before it subtracts
+the means is of that order); the arg-max is the same on textured surfaces. Single-threaded (one
+OpenCV thread is the caller's choice, as for ``cv2.matchTemplate``) and deterministic: the same
+inputs give the same bits. Pure: numpy, OpenCV and numba.
+"""
+
+from __future__ import annotations
+
+import math
+from collections import OrderedDict
+from typing import Any
+
+import cv2
+import numpy as np
+from numba import njit
+
+#: numba options of every kernel here: cached on disk, no allocation inside (no runtime).
+NO_NRT: dict[str, Any] = {"cache": True, "_nrt": False}
+_FLT_EPSILON = float(np.finfo(np.float32).eps)
+#: DFT buffer sets kept per (rows, cols) of the DFT: template and window sizes vary little in a flight.
+_MAX_BUFFER_SETS = 8
+
+
+@njit(**NO_NRT)
+def _template_into_pad(template, tpad, acc):  # pragma: no cover - compiled
+    """``tpad`` <- the template minus its mean, zero outside; returns (mean, sum of squares of the
+    zero-mean template), both in float64. ``acc``: float64 work row (template width): per-column
+    partial sums, so the inner loops run across the row (vectorised) and the order is fixed."""
+    th, tw = template.shape
+    for x in range(tw):
+        acc[x] = 0.0
+    for y in range(th):
+        row = template[y]
+        for x in range(tw):
+            acc[x] += row[x]
+    total = 0.0
+    for x in range(tw):
+        total += acc[x]
+        acc[x] = 0.0
+    mean = total / (th * tw)
+    for y in range(th):
+        row = template[y]
+        out = tpad[y]
+        for x in range(tw):
+            d = np.float64(row[x]) - mean
+            acc[x] += d * d
+            out[x] = d
+        for x in range(tw, out.shape[0]):
+            out[x] = 0.0
+    for y in range(th, tpad.shape[0]):
+        for x in range(tpad.shape[1]):
+            tpad[y, x] = 0.0
+    ss = 0.0
+    for x in range(tw):
+        ss += acc[x]
+    return mean, ss
+
+
+@njit(**NO_NRT)
+def _window_into_pad(ref, y0, x0, wh, ww, c, th, tw, wpad, acc1, acc2, cs1, cs2,
+                     s1, s2):  # pragma: no cover - compiled
+    """``wpad`` <- the window ``ref[y0:y0 + wh, x0:x0 + ww] - c`` (zero outside); ``s1[u, v]``,
+    ``s2[u, v]`` (transposed: placement column first) <- the sums of ``window - c`` and of its
+    square over the template (``th`` x ``tw``) placed at (u, v), float64.
+
+    Column sums over ``th`` rows are kept per window column in ``acc1``/``acc2`` and slid down one
+    row per placement row into ``cs1[x, v]``/``cs2[x, v]``; a second pass slides along the columns,
+    every placement row at once (the inner loops run across independent sums: vectorised)."""
+    rw, rh = s1.shape
+    for x in range(ww):
+        acc1[x] = 0.0
+        acc2[x] = 0.0
+    for y in range(wh):
+        row = ref[y0 + y, x0:x0 + ww]           # contiguous rows: the inner loops vectorise
+        out = wpad[y]
+        for x in range(ww):
+            d = np.float64(row[x]) - c
+            out[x] = d
+            acc1[x] += d
+            acc2[x] += d * d
+        for x in range(ww, out.shape[0]):
+            out[x] = 0.0
+        if y >= th:                 # drop the row that left the template's reach
+            old = ref[y0 + y - th, x0:x0 + ww]
+            for x in range(ww):
+                o = np.float64(old[x]) - c
+                acc1[x] -= o
+                acc2[x] -= o * o
+        v = y - th + 1              # the placement row whose column sums are complete now
+        if v >= 0:
+            for x in range(ww):
+                cs1[x, v] = acc1[x]
+                cs2[x, v] = acc2[x]
+    for y in range(wh, wpad.shape[0]):
+        for x in range(wpad.shape[1]):
+            wpad[y, x] = 0.0
+    for v in range(rh):
+        s1[0, v] = 0.0
+        s2[0, v] = 0.0
+    for x in range(tw):
+        for v in range(rh):
+            s1[0, v] += cs1[x, v]
+            s2[0, v] += cs2[x, v]
+    for u in range(1, rw):
+        for v in range(rh):
+            s1[u, v] = s1[u - 1, v] + (cs1[u + tw - 1, v] - cs1[u - 1, v])
+            s2[u, v] = s2[u - 1, v] + (cs2[u + tw - 1, v] - cs2[u - 1, v])
+
+
+@njit(**NO_NRT)
+def _mul_conj_ccs(a, b, out):  # pragma: no cover - compiled
+    """``cv2.mulSpectrums(a, b, 0, conjB=True)`` for 2-D CCS-packed spectra of a real array (float32)."""
+    n, m = a.shape
+    # column 0 (and m - 1 when m is even) holds a 1-D CCS spectrum down the rows
+    for j in range(0, m, max(m - 1, 1)):
+        if j > 0 and m % 2 == 1:
+            break
+        out[0, j] = a[0, j] * b[0, j]
+        if n % 2 == 0:
+            out[n - 1, j] = a[n - 1, j] * b[n - 1, j]
+        for i in range(1, n - 1 + (n % 2), 2):
+            ar, ai, br, bi = a[i, j], a[i + 1, j], b[i, j], b[i + 1, j]
+            out[i, j] = ar * br + ai * bi
+            out[i + 1, j] = ai * br - ar * bi
+    # the other columns in (re, im) pairs along every row
+    half = (m - 1) // 2
+    for i in range(n):
+        ra = a[i]
+        rb = b[i]
+        ro = out[i]
+        for p in range(half):
+            j = 2 * p + 1
+            ar, ai, br, bi = ra[j], ra[j + 1], rb[j], rb[j + 1]
+            ro[j] = ar * br + ai * bi
+            ro[j + 1] = ai * br - ar * bi
+
+
+@njit(**NO_NRT)
+def _normalise(corr, scale, s1, s2, n_px, c, t_ss, out):  # pragma: no cover - compiled
+    """``out`` <- NCC from ``corr`` (the correlation of the zero-mean template with ``window - c``,
+    times ``scale``) and the window sums ``s1[u, v]``, ``s2[u, v]`` (of ``window - c`` over
+    ``n_px`` pixels);
+    returns the flat index of the first maximum (row-major, as ``ndarray.argmax``; a NaN wins).
+
+    OpenCV's rules (``common_matchTemplate``): a window patch whose variance sum is at most
+    min(0.5, 10 FLT_EPSILON x its sum of squares) gives 0; a ratio of magnitude at or above 1 gives
+    +-1 below 1.125, else 0. ``t_ss``: the zero-mean template's sum of squares; at 0 (a flat
+    template) the surface is 1, as OpenCV's."""
+    rh, rw = out.shape
+    t_norm = math.sqrt(t_ss)
+    best = -math.inf
+    best_k = -1
+    for v in range(rh):
+        for u in range(rw):
+            a = s1[u, v]
+            b = s2[u, v]
+            diff2 = b - a * a / n_px
+            if diff2 < 0.0:
+                diff2 = 0.0
+            raw2 = b + 2.0 * c * a + n_px * c * c      # the patch's own sum of squares
+            num = corr[v, u] * scale
+            if not (math.isfinite(num) and math.isfinite(diff2)):
+                r = -1.0                                # what the matcher makes of a non-finite value
+            elif t_ss <= 0.0:
+                r = 1.0
+            else:
+                t = 0.0 if diff2 <= min(0.5, 10.0 * _FLT_EPSILON * raw2) else math.sqrt(diff2) * t_norm
+                if abs(num) < t:
+                    r = num / t
+                elif abs(num) < t * 1.125:
+                    r = 1.0 if num > 0.0 else -1.0
+                else:
+                    r = 0.0
+            f = np.float32(r)
+            out[v, u] = f
+            if best_k < 0 or f > best or (f != f and best == best):
+                best = f
+                best_k = v * rw + u
+    return best_k
+
+
+class FftNcc:
+    """TM_CCOEFF_NORMED surfaces of templates in windows of one map (see the module docstring).
+
+    ``surface(ref, x0, y0, x1, y1, template)`` returns the float32 surface of ``template`` (C-contiguous
+    float32) over the window ``ref[y0:y1, x0:x1]`` of the C-contiguous float32 map ``ref``, shape
+    (window - template + 1), a new array, and the flat index of its first maximum. The DFT buffers
+    are kept between calls (per DFT size, the last few).
+    """
+
+    def __init__(self) -> None:
+        self._buffers: OrderedDict[tuple[int, int], dict[str, np.ndarray]] = OrderedDict()
+
+    def _buffers_for(self, wh: int, ww: int) -> dict[str, np.ndarray]:
+        key = (cv2.getOptimalDFTSize(wh), cv2.getOptimalDFTSize(ww))
+        bufs = self._buffers.get(key)
+        if bufs is None:
+            bufs = {name: np.empty(key, np.float32) for name in ("tpad", "wpad", "ft", "fw", "prod", "corr")}
+            bufs["acc"] = np.empty((3, key[1]), np.float64)
+            bufs["scratch"] = np.empty(0, np.float64)
+            self._buffers[key] = bufs
+            if len(self._buffers) > _MAX_BUFFER_SETS:
+                self._buffers.popitem(last=False)
+        else:
+            self._buffers.move_to_end(key)
+        return bufs
+
+    def surface(self, ref: np.ndarray, x0: int, y0: int, x1: int, y1: int,
+                template: np.ndarray) -> tuple[np.ndarray, int]:
+        """NCC surface of ``template`` over ``ref[y0:y1, x0:x1]`` and the flat index of its first maximum."""
+        wh, ww = y1 - y0, x1 - x0
+        th, tw = template.shape
+        rh, rw = wh - th + 1, ww - tw + 1
+        if rh < 1 or rw < 1:
+            raise ValueError(f"template {tw}x{th} px is larger than the window {ww}x{wh} px")
+        b = self._buffers_for(wh, ww)
+        n, m = b["tpad"].shape
+        scratch = b["scratch"]
+        if scratch.size < 2 * (ww + rw) * rh:
+            scratch = b["scratch"] = np.empty(2 * (ww + rw) * rh, np.float64)
+        cols = scratch[:2 * ww * rh].reshape(2, ww, rh)   # column sums per window column, placement row
+        sums = scratch[2 * ww * rh:2 * (ww + rw) * rh].reshape(2, rw, rh)   # per placement, transposed
+        out = np.empty((rh, rw), np.float32)
+        acc = b["acc"]
+        mean, t_ss = _template_into_pad(template, b["tpad"], acc[0])
+        _window_into_pad(ref, y0, x0, wh, ww, mean, th, tw, b["wpad"], acc[1], acc[2], cols[0], cols[1],
+                         sums[0], sums[1])
+        cv2.dft(b["tpad"], b["ft"])
+        cv2.dft(b["wpad"], b["fw"])
+        _mul_conj_ccs(b["fw"], b["ft"], b["prod"])
+        cv2.dft(b["prod"], b["corr"], cv2.DFT_INVERSE | cv2.DFT_REAL_OUTPUT)
+        k = _normalise(b["corr"], 1.0 / (n * m), sums[0], sums[1], float(th * tw), mean, t_ss, out)
+        return out, int(k)
