@@ -29,7 +29,7 @@ from perception.peak_metrics import (
     second_peak_ratio,
     surface_peak_metrics,
 )
-from scenenav.core.frames import pixel_to_world, world_to_pixel
+from scenenav.core.frames import world_to_pixel
 
 log = logging.getLogger(__name__)
 
@@ -116,8 +116,10 @@ class SceneMatcher:
 
     # ------------------------------------------------------------------------------ geometry
     def pixel_to_world(self, u: float, v: float) -> tuple[float, float]:
-        """Continuous map pixel -> world ENU metres."""
-        return pixel_to_world(u, v, self.width_px, self.height_px, self.m_per_px)
+        """Continuous map pixel -> world ENU metres (``scenenav.core.frames.pixel_to_world``'s
+        arithmetic on Python floats: the same bits without its array conversions)."""
+        return ((float(u) - self.width_px / 2.0) * self.m_per_px,
+                (self.height_px / 2.0 - float(v)) * self.m_per_px)
 
     def world_to_pixel(self, x_m: float, y_m: float) -> tuple[float, float]:
         """World ENU metres -> continuous map pixel."""

@@ -244,20 +244,21 @@ def _median_subsampled(vals, step, scratch):  # pragma: no cover - compiled
     k = n // 2
     hi = _select(scratch, n, k)
     if n % 2:
-        return float(hi)
+        return np.float64(hi)
     lo = scratch[0]
     for i in range(1, k):
         if scratch[i] > lo:
             lo = scratch[i]
-    return float((lo + hi) / np.float32(2.0))
+    return np.float64((lo + hi) / np.float32(2.0))
 
 
 @njit(**NO_NRT)
 def surface_metrics(vals, ix, iy, edge_l, edge_r, edge_t, edge_b, min_radius, pinv,
                     scratch):  # pragma: no cover - compiled
     """Sub-pixel peak, exclusion radius, PSR and second-peak ratio of one float32 surface in one
-    call: ``refine_peak``, ``exclusion_radius``, ``peak_to_sidelobe_ratio`` and
-    ``second_peak_ratio`` above, the same definitions (float64 sums in their own order: last bits).
+    call: ``refine_peak``, ``exclusion_radius``, ``peak_to_sidelobe_ratio`` and ``second_peak_ratio``
+    above, the same definitions; float64 sums in their own order (the last bits differ), every
+    value widened with ``np.float64`` (numba's ``float()`` leaves a float32 a float32).
 
     ``(ix, iy)``: the integer maximum (-1, -1: found here, the first one row-major); ``edge_*``: the
     window's left/right/top/bottom side is the map edge; ``pinv``: ``_PARABOLOID_PINV``;
@@ -273,7 +274,7 @@ def surface_metrics(vals, ix, iy, edge_l, edge_r, edge_t, edge_b, min_radius, pi
                 if vals[y, x] > best:
                     best = vals[y, x]
                     ix, iy = x, y
-    value = float(vals[iy, ix])
+    value = np.float64(vals[iy, ix])
     # --- sub-pixel peak (refine_peak)
     left, right, top, bottom = ix == 0, ix == w - 1, iy == 0, iy == h - 1
     at_border = (left and not edge_l) or (right and not edge_r) or (top and not edge_t) or (bottom and not edge_b)
@@ -288,7 +289,7 @@ def surface_metrics(vals, ix, iy, edge_l, edge_r, edge_t, edge_b, min_radius, pi
         a0 = a1 = a2 = a3 = a4 = a5 = 0.0
         for r in range(3):
             for c in range(3):
-                f = float(vals[iy - 1 + r, ix - 1 + c])
+                f = np.float64(vals[iy - 1 + r, ix - 1 + c])
                 m = 3 * r + c
                 a0 += pinv[0, m] * f
                 a1 += pinv[1, m] * f
@@ -309,12 +310,12 @@ def surface_metrics(vals, ix, iy, edge_l, edge_r, edge_t, edge_b, min_radius, pi
     if not done:                                 # separable 1-D fits (edges, saddles, flat tops)
         cx = cy = -1.0
         if x_ok:
-            fm, fp = float(vals[iy, ix - 1]), float(vals[iy, ix + 1])
+            fm, fp = np.float64(vals[iy, ix - 1]), np.float64(vals[iy, ix + 1])
             cx = -(fm - 2.0 * value + fp)
             if cx > 0.0:
                 dx = min(max(0.5 * (fp - fm) / cx, -0.5), 0.5)
         if y_ok:
-            fm, fp = float(vals[iy - 1, ix]), float(vals[iy + 1, ix])
+            fm, fp = np.float64(vals[iy - 1, ix]), np.float64(vals[iy + 1, ix])
             cy = -(fm - 2.0 * value + fp)
             if cy > 0.0:
                 dy = min(max(0.5 * (fp - fm) / cy, -0.5), 0.5)
@@ -356,7 +357,7 @@ def surface_metrics(vals, ix, iy, edge_l, edge_r, edge_t, edge_b, min_radius, pi
         for x in range(w):
             if inside and x0 <= x < x1:
                 continue
-            f = float(vals[y, x])
+            f = np.float64(vals[y, x])
             s += f
             ss += f * f
     psr = math.nan
@@ -382,7 +383,7 @@ def surface_metrics(vals, ix, iy, edge_l, edge_r, edge_t, edge_b, min_radius, pi
                         and f >= vals[y, x - 1] and f >= vals[y, x + 1] and f >= vals[y + 1, x - 1]
                         and f >= vals[y + 1, x] and f >= vals[y + 1, x + 1]):
                     second = f
-        spr = 0.0 if second == -math.inf else min(1.0, max(0.0, float(second)) / refined)
+        spr = 0.0 if second == -math.inf else min(1.0, max(0.0, np.float64(second)) / refined)
     return (ix, iy, dx, dy, refined, kind, c00, c01, c11, not x_ok, not y_ok, at_border, excl, psr, spr)
 
 
