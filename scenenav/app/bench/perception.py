@@ -105,6 +105,7 @@ def _run_method(world, frames, method: str, classifier, amap, rounds: int = 3) -
         record.append((pipe.last_match.window_px, pipe.last_aligned.template.copy()) if window else None)
     stages = {k: [] for k in ("align", "ncc", "cnn", "lookup", "total")}
     raw, raw_cpu, cpu, wall = [], [], [], []
+    split = {k: [] for k in ("crop", "correlate", "refine", "rest")}   # the window fixes' matcher stages
     for rnd in range(rounds):
         pipe = _pipeline(world, method, classifier, amap)
         reference = pipe.matcher.reference          # the very map (and window memory) the fix reads
@@ -129,6 +130,12 @@ def _run_method(world, frames, method: str, classifier, amap, rounds: int = 3) -
                                        f"recording pass {rec[0]}: the pipeline is not deterministic")
                 wall.append(r.timings.total_ms)
                 cpu.append((c1 - c0) * 1000.0)
+                mt = pipe.last_match.timings
+                split["crop"].append(mt.crop_ms)
+                split["correlate"].append(mt.ncc_ms)
+                split["refine"].append(mt.refine_ms)
+                split["rest"].append(r.timings.total_ms - r.timings.align_ms - mt.crop_ms - mt.ncc_ms
+                                     - mt.refine_ms - r.timings.cnn_ms)
                 raw.append(wall_ms)
                 raw_cpu.append(cpu_ms)
     med = {k: round(statistics.median(v), 3) if v else None for k, v in stages.items()}
@@ -139,6 +146,7 @@ def _run_method(world, frames, method: str, classifier, amap, rounds: int = 3) -
     return {"method": method, "fixes": len(stages["total"]) // rounds, "rounds": rounds,
             "fix_time_ms_median": med["total"], "stages_ms_median": med,
             "window_fixes": len(wall) // rounds, "window_fix_ms_median": fix_w,
+            "window_split_ms_median": {k: median(v) for k, v in split.items()},
             "match_template_ms_median": raw_w, "fix_cpu_ms_median": fix_c,
             "match_template_cpu_ms_median": raw_c,
             "x_raw_wall": round(fix_w / raw_w, 3) if fix_w and raw_w else None,
@@ -218,5 +226,10 @@ def format_table(result: dict) -> str:
         for s in result["scaling"]))
     lines.append("total: every valid fix; window: the window-search fixes the raw call is compared with "
                  f"(x raw), {rows[0]['rounds']} interleaved rounds")
+    lines.append("window fixes' matcher stages (median ms: crop / correlate / refine / rest of the fix "
+                 "without align and cnn): " + ", ".join(
+                     f"{r['method']} " + " / ".join(_ms(r["window_split_ms_median"][k], 3)
+                                                    for k in ("crop", "correlate", "refine", "rest"))
+                     for r in rows))
     lines.append("targets: assistant-map <= 1.5x raw matchTemplate; online CNN <= 5 ms; flat with map size")
     return "\n".join(lines) + "\n"
