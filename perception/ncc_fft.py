@@ -9,8 +9,9 @@ call. ``FftNcc`` computes the same surface with
   and the window minus that same mean into another, both buffers kept between fixes; the window
   sums of every template placement (of the window minus the mean, and of its square) by running
   sums in float64 in the same pass (``_window_into_pad``);
-* three float32 ``cv2.dft`` calls of the optimal DFT size (template, window, inverse) and the
-  conjugate product of the packed spectra in between (``_mul_conj_ccs``);
+* three float32 ``cv2.dft`` calls of the optimal DFT size (template, window, inverse), each in
+  place in those two buffers, and the conjugate product of the packed spectra in between
+  (``_mul_conj_ccs``);
 * one pass that normalises the correlation with those sums and finds the maximum
   (``_normalise``), with OpenCV's rules for a flat window patch (0) and for a ratio at or beyond
   +-1 (+-1 up to 1.125, else 0).
@@ -75,17 +76,46 @@ def _template_into_pad(template, tpad, acc):  # pragma: no cover - compiled
     return mean, ss
 
 
-@njit(**NO_NRT)
-def _window_into_pad(ref, y0, x0, wh, ww, c, th, tw, wpad, acc1, acc2, cs1, cs2,
-                     s1, s2):  # pragma: no cover - compiled
-    """``wpad`` <- the window ``ref[y0:y0 + wh, x0:x0 + ww] - c`` (zero outside); ``s1[u, v]``,
-    ``s2[u, v]`` (transposed: placement column first) <- the sums of ``window - c`` and of its
-    square over the template (``th`` x ``tw``) placed at (u, v), float64.
+@njit(inline="always", **NO_NRT)
+def _row_box_sums(acc1, acc2, tw, s1, s2, v):  # pragma: no cover - compiled
+    """``s1[v, u]``, ``s2[v, u]`` <- the sums of ``acc1``/``acc2`` over ``tw`` entries from ``u`` on,
+    for every ``u`` of the row (the first by four interleaved partial sums, then sliding)."""
+    rw = s1.shape[1]
+    a0 = a1 = a2 = a3 = 0.0
+    b0 = b1 = b2 = b3 = 0.0
+    n4 = tw - tw % 4
+    for x in range(0, n4, 4):
+        a0 += acc1[x]
+        a1 += acc1[x + 1]
+        a2 += acc1[x + 2]
+        a3 += acc1[x + 3]
+        b0 += acc2[x]
+        b1 += acc2[x + 1]
+        b2 += acc2[x + 2]
+        b3 += acc2[x + 3]
+    for x in range(n4, tw):
+        a0 += acc1[x]
+        b0 += acc2[x]
+    a = (a0 + a1) + (a2 + a3)
+    b = (b0 + b1) + (b2 + b3)
+    s1[v, 0] = a
+    s2[v, 0] = b
+    for u in range(1, rw):
+        a += acc1[u + tw - 1] - acc1[u - 1]
+        b += acc2[u + tw - 1] - acc2[u - 1]
+        s1[v, u] = a
+        s2[v, u] = b
 
-    Column sums over ``th`` rows are kept per window column in ``acc1``/``acc2`` and slid down one
-    row per placement row into ``cs1[x, v]``/``cs2[x, v]``; a second pass slides along the columns,
-    every placement row at once (the inner loops run across independent sums: vectorised)."""
-    rw, rh = s1.shape
+
+@njit(**NO_NRT)
+def _window_into_pad(ref, y0, x0, wh, ww, c, th, tw, wpad, acc1, acc2, s1, s2):  # pragma: no cover - compiled
+    """``wpad`` <- the window ``ref[y0:y0 + wh, x0:x0 + ww] - c`` (zero outside); ``s1[v, u]``,
+    ``s2[v, u]`` <- the sums of ``window - c`` and of its square over the template (``th`` x
+    ``tw``) placed at (u, v), float64.
+
+    Column sums over ``th`` rows are kept per window column in ``acc1``/``acc2`` (the inner loops run
+    across the row: vectorised) and slid down one row at a time; as soon as a placement row's
+    column sums are complete, they are summed along the row (``_row_box_sums``)."""
     for x in range(ww):
         acc1[x] = 0.0
         acc2[x] = 0.0
@@ -107,28 +137,16 @@ def _window_into_pad(ref, y0, x0, wh, ww, c, th, tw, wpad, acc1, acc2, cs1, cs2,
                 acc2[x] -= o * o
         v = y - th + 1              # the placement row whose column sums are complete now
         if v >= 0:
-            for x in range(ww):
-                cs1[x, v] = acc1[x]
-                cs2[x, v] = acc2[x]
+            _row_box_sums(acc1, acc2, tw, s1, s2, v)
     for y in range(wh, wpad.shape[0]):
         for x in range(wpad.shape[1]):
             wpad[y, x] = 0.0
-    for v in range(rh):
-        s1[0, v] = 0.0
-        s2[0, v] = 0.0
-    for x in range(tw):
-        for v in range(rh):
-            s1[0, v] += cs1[x, v]
-            s2[0, v] += cs2[x, v]
-    for u in range(1, rw):
-        for v in range(rh):
-            s1[u, v] = s1[u - 1, v] + (cs1[u + tw - 1, v] - cs1[u - 1, v])
-            s2[u, v] = s2[u - 1, v] + (cs2[u + tw - 1, v] - cs2[u - 1, v])
 
 
 @njit(**NO_NRT)
 def _mul_conj_ccs(a, b, out):  # pragma: no cover - compiled
-    """``cv2.mulSpectrums(a, b, 0, conjB=True)`` for 2-D CCS-packed spectra of a real array (float32)."""
+    """``cv2.mulSpectrums(a, b, 0, conjB=True)`` for 2-D CCS-packed spectra of a real array (float32);
+    ``out`` may be ``a`` (each value pair is read before it is written)."""
     n, m = a.shape
     # column 0 (and m - 1 when m is even) holds a 1-D CCS spectrum down the rows
     for j in range(0, m, max(m - 1, 1)):
@@ -157,7 +175,7 @@ def _mul_conj_ccs(a, b, out):  # pragma: no cover - compiled
 @njit(**NO_NRT)
 def _normalise(corr, scale, s1, s2, n_px, c, t_ss, out):  # pragma: no cover - compiled
     """``out`` <- NCC from ``corr`` (the correlation of the zero-mean template with ``window - c``,
-    times ``scale``) and the window sums ``s1[u, v]``, ``s2[u, v]`` (of ``window - c`` over
+    times ``scale``) and the window sums ``s1[v, u]``, ``s2[v, u]`` (of ``window - c`` over
     ``n_px`` pixels);
     returns the flat index of the first maximum (row-major, as ``ndarray.argmax``; a NaN wins).
 
@@ -171,8 +189,8 @@ def _normalise(corr, scale, s1, s2, n_px, c, t_ss, out):  # pragma: no cover - c
     best_k = -1
     for v in range(rh):
         for u in range(rw):
-            a = s1[u, v]
-            b = s2[u, v]
+            a = s1[v, u]
+            b = s2[v, u]
             diff2 = b - a * a / n_px
             if diff2 < 0.0:
                 diff2 = 0.0
@@ -214,9 +232,8 @@ class FftNcc:
         key = (cv2.getOptimalDFTSize(wh), cv2.getOptimalDFTSize(ww))
         bufs = self._buffers.get(key)
         if bufs is None:
-            bufs = {name: np.empty(key, np.float32) for name in ("tpad", "wpad", "ft", "fw", "prod", "corr")}
-            bufs["acc"] = np.empty((3, key[1]), np.float64)
-            bufs["scratch"] = np.empty(0, np.float64)
+            bufs = {"t": np.empty(key, np.float32), "w": np.empty(key, np.float32),
+                    "acc": np.empty((3, key[1]), np.float64)}
             self._buffers[key] = bufs
             if len(self._buffers) > _MAX_BUFFER_SETS:
                 self._buffers.popitem(last=False)
@@ -233,20 +250,17 @@ class FftNcc:
         if rh < 1 or rw < 1:
             raise ValueError(f"template {tw}x{th} px is larger than the window {ww}x{wh} px")
         b = self._buffers_for(wh, ww)
-        n, m = b["tpad"].shape
-        scratch = b["scratch"]
-        if scratch.size < 2 * (ww + rw) * rh:
-            scratch = b["scratch"] = np.empty(2 * (ww + rw) * rh, np.float64)
-        cols = scratch[:2 * ww * rh].reshape(2, ww, rh)   # column sums per window column, placement row
-        sums = scratch[2 * ww * rh:2 * (ww + rw) * rh].reshape(2, rw, rh)   # per placement, transposed
+        t, w, acc = b["t"], b["w"], b["acc"]
+        n, m = t.shape
+        sums = np.empty((2, rh, rw), np.float64)      # per placement: sum of window - c, of its square
         out = np.empty((rh, rw), np.float32)
-        acc = b["acc"]
-        mean, t_ss = _template_into_pad(template, b["tpad"], acc[0])
-        _window_into_pad(ref, y0, x0, wh, ww, mean, th, tw, b["wpad"], acc[1], acc[2], cols[0], cols[1],
-                         sums[0], sums[1])
-        cv2.dft(b["tpad"], b["ft"])
-        cv2.dft(b["wpad"], b["fw"])
-        _mul_conj_ccs(b["fw"], b["ft"], b["prod"])
-        cv2.dft(b["prod"], b["corr"], cv2.DFT_INVERSE | cv2.DFT_REAL_OUTPUT)
-        k = _normalise(b["corr"], 1.0 / (n * m), sums[0], sums[1], float(th * tw), mean, t_ss, out)
+        mean, t_ss = _template_into_pad(template, t, acc[0])
+        _window_into_pad(ref, y0, x0, wh, ww, mean, th, tw, w, acc[1], acc[2], sums[0], sums[1])
+        # two buffers, every transform in place (the same bits as into fresh arrays; a third of the
+        # memory the caches have to hold)
+        cv2.dft(t, t)
+        cv2.dft(w, w)
+        _mul_conj_ccs(w, t, w)
+        cv2.dft(w, w, cv2.DFT_INVERSE | cv2.DFT_REAL_OUTPUT)
+        k = _normalise(w, 1.0 / (n * m), sums[0], sums[1], float(th * tw), mean, t_ss, out)
         return out, int(k)
