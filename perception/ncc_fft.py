@@ -216,6 +216,13 @@ def _normalise(corr, scale, s1, s2, n_px, c, t_ss, out):  # pragma: no cover - c
     return best_k
 
 
+def warm_up() -> None:
+    """Load (or compile once) this module's kernels on a tiny window, so that a matcher's first fix
+    costs what any fix does (a cold compile takes seconds; a node does this before it joins)."""
+    ref = np.arange(64, dtype=np.float32).reshape(8, 8) % 5.0
+    FftNcc().surface(ref, 0, 0, 8, 8, np.ascontiguousarray(ref[2:6, 1:5]))
+
+
 class FftNcc:
     """TM_CCOEFF_NORMED surfaces of templates in windows of one map (see the module docstring).
 

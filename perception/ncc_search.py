@@ -23,12 +23,14 @@ from perception.config import MatcherConfig, NccMethod
 from perception.fix_covariance import coarse_to_fine_covariance_m2, covariance_px, px_to_enu_cov
 from perception.match_metrics import MatchMetrics, SearchTimes
 from perception.ncc_fft import FftNcc
+from perception.ncc_fft import warm_up as ncc_fft_warm_up
 from perception.peak_metrics import (
     exclusion_radius,
     peak_to_sidelobe_ratio,
     second_peak_ratio,
     surface_peak_metrics,
 )
+from perception.peak_metrics import warm_up as peak_metrics_warm_up
 from scenenav.core.frames import world_to_pixel
 
 log = logging.getLogger(__name__)
@@ -110,6 +112,11 @@ class SceneMatcher:
         self._method = _CV_METHOD[self.cfg.ncc_method]
         # window searches with the unmasked zero-mean NCC: our DFT correlation (perception.ncc_fft)
         self._fft = FftNcc() if self.cfg.ncc_method is NccMethod.CCOEFF_NORMED else None
+        # numba kernels loaded now (once per process), not at the first fix: in lockstep a first fix
+        # seconds late would time the node out
+        peak_metrics_warm_up()
+        if self._fft is not None:
+            ncc_fft_warm_up()
         self._levels: list[tuple[int, np.ndarray]] = []   # (factor, level image), factor ascending
         if max(ref.shape) > self.cfg.coarse_above_px:
             self._build_pyramid()
