@@ -94,6 +94,12 @@ class AssistantMap:
         """An all-unvisited map (keyword metadata: world_name, method, stride_px, model_id)."""
         return cls(width_px, height_px, m_per_px, **metadata)
 
+    def copy(self) -> AssistantMap:
+        """An independent copy (probabilities and metadata), e.g. to fly the same map twice."""
+        return AssistantMap(self.width_px, self.height_px, self.m_per_px, world_name=self.world_name,
+                            method=self.method, stride_px=self.stride_px, model_id=self.model_id,
+                            probability=self.probability.copy(), created_utc=self.created_utc)
+
     # ------------------------------------------------------------------------------ access
     def _index(self, u: float, v: float) -> tuple[int, int] | None:
         if not (math.isfinite(u) and math.isfinite(v)):

@@ -25,7 +25,6 @@ import math
 import numpy as np
 
 from perception.config import MatcherConfig
-from perception.linalg2 import det2, inv2
 
 #: Floor on 1 - peak^2 in the local term (a perfect match still has interpolation error).
 _MISMATCH_FLOOR = 1e-3
@@ -46,24 +45,26 @@ def ambiguity_weight(cfg: MatcherConfig, psr: float, spr: float, peak: float = 1
     return float(min(1.0, max(0.0, w_psr, w_spr, w_peak)))
 
 
-def covariance_px(cfg: MatcherConfig, peak: float, curvature: np.ndarray | None,
+def covariance_px(cfg: MatcherConfig, peak: float, curvature: tuple[float, float, float] | None,
                   edge_axes: tuple[bool, bool], psr: float, spr: float, rx: float, ry: float,
                   n_px: int) -> np.ndarray:
-    """Covariance in px^2 (see the module docstring).
+    """Covariance in px^2 (see the module docstring). ``curvature``: (c00, c01, c11) of the
+    symmetric A = -Hessian (positive definite), None without a usable one.
 
-    Scalar arithmetic on the four entries, in the order the matrix expressions of the formula
-    evaluate them (so the same bits); det and inverse by the LAPACK calls np.linalg makes.
+    Scalar arithmetic on the four entries; det(A / r) and A^-1 by the 2x2 closed forms.
     """
     ux, uy = rx * rx / 3.0, ry * ry / 3.0          # diag of the uniform (search-area) term
     if curvature is None or peak <= 0.0:
         l00, l01, l10, l11 = ux, 0.0, 0.0, uy
     else:
+        c00, c01, c11 = curvature
         r = max(peak, _PEAK_FLOOR)
-        n_eff = max(1.0, n_px * math.sqrt(max(det2(curvature / r), 0.0)) / (2.0 * math.pi))
+        det_r = (c00 / r) * (c11 / r) - (c01 / r) * (c01 / r)
+        n_eff = max(1.0, n_px * math.sqrt(max(det_r, 0.0)) / (2.0 * math.pi))
         noise = max(1.0 - min(r, 1.0) ** 2, _MISMATCH_FLOOR) / (n_eff * r)
         k = cfg.cov_local_scale * noise
-        (i00, i01), (i10, i11) = inv2(curvature).tolist()
-        l00, l01, l10, l11 = k * i00, k * i01, k * i10, k * i11
+        det = c00 * c11 - c01 * c01
+        l00, l01, l10, l11 = k * (c11 / det), k * (-c01 / det), k * (-c01 / det), k * (c00 / det)
         if edge_axes[0]:
             l00, l01, l10 = _EDGE_AXIS_VAR_PX2, 0.0, 0.0
         if edge_axes[1]:

@@ -22,8 +22,16 @@ import numpy as np
 from perception.config import MatcherConfig, NccMethod
 from perception.fix_covariance import coarse_to_fine_covariance_m2, covariance_px, px_to_enu_cov
 from perception.match_metrics import MatchMetrics, SearchTimes
-from perception.peak_metrics import exclusion_radius, peak_to_sidelobe_ratio, refine_peak, second_peak_ratio
-from scenenav.core.frames import pixel_to_world, world_to_pixel
+from perception.ncc_fft import FftNcc
+from perception.ncc_fft import warm_up as ncc_fft_warm_up
+from perception.peak_metrics import (
+    exclusion_radius,
+    peak_to_sidelobe_ratio,
+    second_peak_ratio,
+    surface_peak_metrics,
+)
+from perception.peak_metrics import warm_up as peak_metrics_warm_up
+from scenenav.core.frames import world_to_pixel
 
 log = logging.getLogger(__name__)
 
@@ -102,14 +110,23 @@ class SceneMatcher:
         self.m_per_px = float(m_per_px)
         self.height_px, self.width_px = ref.shape
         self._method = _CV_METHOD[self.cfg.ncc_method]
+        # window searches with the unmasked zero-mean NCC: our DFT correlation (perception.ncc_fft)
+        self._fft = FftNcc() if self.cfg.ncc_method is NccMethod.CCOEFF_NORMED else None
+        # numba kernels loaded now (once per process), not at the first fix: in lockstep a first fix
+        # seconds late would time the node out
+        peak_metrics_warm_up()
+        if self._fft is not None:
+            ncc_fft_warm_up()
         self._levels: list[tuple[int, np.ndarray]] = []   # (factor, level image), factor ascending
         if max(ref.shape) > self.cfg.coarse_above_px:
             self._build_pyramid()
 
     # ------------------------------------------------------------------------------ geometry
     def pixel_to_world(self, u: float, v: float) -> tuple[float, float]:
-        """Continuous map pixel -> world ENU metres."""
-        return pixel_to_world(u, v, self.width_px, self.height_px, self.m_per_px)
+        """Continuous map pixel -> world ENU metres (``scenenav.core.frames.pixel_to_world``'s
+        arithmetic on Python floats: the same bits without its array conversions)."""
+        return ((float(u) - self.width_px / 2.0) * self.m_per_px,
+                (self.height_px / 2.0 - float(v)) * self.m_per_px)
 
     def world_to_pixel(self, x_m: float, y_m: float) -> tuple[float, float]:
         """World ENU metres -> continuous map pixel."""
@@ -199,15 +216,19 @@ class SceneMatcher:
             t0 = _timer()
         th, tw = template.shape
         x0, y0, x1, y1 = self._window_bounds(centre_uv, radius, tw, th)
-        window = self.reference[y0:y1, x0:x1]          # a view, never a copy
         t1 = _timer()
-        values = (np.zeros((y1 - y0 - th + 1, x1 - x0 - tw + 1), np.float32) if flat
-                  else self._correlate(window, template, mask))
+        argmax = -1
+        if flat:
+            values = np.zeros((y1 - y0 - th + 1, x1 - x0 - tw + 1), np.float32)
+        elif mask is None and self._fft is not None:
+            values, argmax = self._fft.surface(self.reference, x0, y0, x1, y1, template)
+        else:
+            values = self._correlate(self.reference[y0:y1, x0:x1], template, mask)   # a view, never a copy
         t2 = _timer()
         n_valid = None if mask is None else int(np.count_nonzero(mask))
         return self._finish(values, x0, y0, (x0 == 0, x1 == self.width_px, y0 == 0, y1 == self.height_px),
                             tw, th, flat, SearchMode.WINDOW, (x0, y0, x1 - x0, y1 - y0), n_valid,
-                            (t1 - t0) * _MS, (t2 - t1) * _MS, t2)
+                            (t1 - t0) * _MS, (t2 - t1) * _MS, t2, argmax)
 
     def _global(self, template: np.ndarray, mask: np.ndarray | None, flat: bool,
                 t0: float) -> MatchResult:
@@ -303,21 +324,19 @@ class SceneMatcher:
     # ------------------------------------------------------------------------------ metrics
     def _finish(self, vals: np.ndarray, u0: int, v0: int, at_map_edge: tuple[bool, bool, bool, bool],
                 tw: int, th: int, flat: bool, search: SearchMode, window: tuple[int, int, int, int],
-                n_valid_px: int | None, crop_ms: float, ncc_ms: float, t_refine: float) -> MatchResult:
+                n_valid_px: int | None, crop_ms: float, ncc_ms: float, t_refine: float,
+                argmax: int = -1) -> MatchResult:
         """Peak, metrics and covariance of the surface ``vals`` whose (0, 0) is map pixel (u0, v0);
         ``at_map_edge``: left, right, top, bottom of the window is the map edge. ``t_refine``: when
-        the correlation ended (the refinement time is measured from it)."""
+        the correlation ended (the refinement time is measured from it). ``argmax``: the flat index
+        of the surface's first maximum when the correlation found it (-1: search it here)."""
         cfg = self.cfg
-        iy, ix = divmod(int(vals.argmax()), vals.shape[1])
-        pk = refine_peak(vals, ix, iy, at_map_edge)
+        pk = surface_peak_metrics(vals, at_map_edge, cfg.exclusion_radius_px, argmax)
         if flat:
             psr, spr = 0.0, 1.0
             peak = 0.0
         else:
-            peak = pk.value
-            excl = exclusion_radius(vals, pk.ix, pk.iy, cfg.exclusion_radius_px)
-            psr = peak_to_sidelobe_ratio(vals, pk.ix, pk.iy, peak, excl)
-            spr = second_peak_ratio(vals, pk.ix, pk.iy, peak, excl)
+            peak, psr, spr = pk.value, pk.psr, pk.second_peak_ratio
         u = u0 + pk.ix + pk.dx + tw / 2.0
         v = v0 + pk.iy + pk.dy + th / 2.0
         rx = max(0.5, (vals.shape[1]) / 2.0)

@@ -43,7 +43,7 @@ from perception.alignment import (
     to_gray_float32,
 )
 from perception.assistant_map import AssistantMap
-from perception.config import PerceptionConfig, UnknownPolicy
+from perception.config import CropMode, PerceptionConfig, UnknownPolicy
 from perception.decision import (
     N_PAPER_CLASSES,
     VARIANCE_WINDOWS,
@@ -244,7 +244,9 @@ class PerceptionPipeline:
         prior_uv = None
         if prior_enu_m is not None and all(math.isfinite(c) for c in prior_enu_m):
             prior_uv = self.matcher.world_to_pixel(prior_enu_m[0], prior_enu_m[1])
-        mask = None if aligned.mask_is_full else aligned.mask
+        # the inscribed square's mask is all True by construction (perception.alignment): no scan
+        full = cfg.crop_mode is CropMode.INSCRIBED_SQUARE or aligned.mask_is_full
+        mask = None if full else aligned.mask
         # A prediction from a known velocity (tracking with two good fixes) is what the innovation
         # is measured against; a prior or a one-fix prediction says little about where to be.
         predicted = (self.tracker.state is TrackState.TRACKING
