@@ -100,6 +100,12 @@ class EkfConfig:
     velocity_ok_max_std_m_s: float = 2.0      # velocity_ok() threshold (horizontal 1-sigma)
     healthy_max_tilt_std_rad: float = 0.1     # is_healthy() threshold on the tilt 1-sigma
     position_ok_max_std_m: float = 10.0       # position_ok() threshold (horizontal 1-sigma)
+    # gyro_bias_learned(): the body x, y gyro-bias 1-sigma within this factor of the steady state the
+    # zero-rate update at rest converges to, sqrt(gyro noise density * gyro bias random walk) (3.2e-4
+    # rad/s with the defaults); 1.2 is reached ~8 s after the 1 s alignment. The pre-arm check of a
+    # dead-reckoned climb (issue 12): ArduPilot's EKF3 likewise waits for its delta-angle bias
+    # variances before it uses GPS or beacons (checkGyroCalStatus / delAngBiasLearned).
+    learned_gyro_bias_ratio: float = 1.2
 
     position_source: PositionSource = PositionSource.GPS   # EK3_SRC1_POSXY
     gravity_m_s2: float = STANDARD_GRAVITY_M_S2
@@ -119,6 +125,8 @@ class EkfConfig:
                      "velocity_reject_timeout_s"):
             value = getattr(self, name)
             check(_positive(value), name, value, "a positive number")
+        check(math.isfinite(self.learned_gyro_bias_ratio) and self.learned_gyro_bias_ratio > 1.0,
+              "learned_gyro_bias_ratio", self.learned_gyro_bias_ratio, "a number > 1")
         for name in ("position_gate_sd", "velocity_gate_sd", "height_gate_sd", "heading_gate_sd"):
             value = getattr(self, name)
             check(math.isfinite(value) and 1.0 <= value <= 100.0, name, value,

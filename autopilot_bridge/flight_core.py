@@ -186,6 +186,7 @@ class FlightCore(SensorFusionMixin, ArmingMixin, GuidedMixin, AutoMissionMixin,
         self._motors = np.zeros(4)
         self._last_out: ControlOutput | None = None
         self._gyro = np.zeros(3)
+        self._imu_dt_s = 0.0
         self._accel = np.full(3, math.nan)     # last IMU accelerometer sample (FLU), RAW_IMU
         self.vibration = VibrationMonitor()
         self._events: list[VehicleEvent] = []
@@ -316,6 +317,7 @@ class FlightCore(SensorFusionMixin, ArmingMixin, GuidedMixin, AutoMissionMixin,
             return self._motors.copy()
         self._gyro = gyro
         self._accel = accel
+        self._imu_dt_s = float(dt_s)
         self.vibration.add(accel, dt_s)
         if not self.nav.aligned:
             self.alignment.add_imu(self._now_s, accel, gyro)

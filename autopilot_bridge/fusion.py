@@ -5,7 +5,8 @@
 after each EKF predict. Vision fixes are fused only when valid and accepted by the perception node,
 younger than ``vision_max_age_s`` and taken at least SN_VIS_MIN_ALT above home; on the ground without
 a position source the last landed position is fused as a pseudo-measurement (as ArduPilot's EKF does
-when it is not aiding). ``on_power`` feeds the battery monitor.
+when it is not aiding); disarmed on the ground the averaged body x, y rates are fused as the gyro
+biases (zero-rate update: a dead-reckoned climb drifts by g eps t^3 / 6 for a residual bias eps). ``on_power`` feeds the battery monitor.
 
 Pure module: no zenoh, no pymavlink.
 """
@@ -91,6 +92,9 @@ class SensorFusionMixin:
         self._ext_yaw: list[tuple[float, float, float]] = []      # heading rad, rad: EK3_SRCn_YAW 6
         self._last_ext_height_s: float | None = None
         self._last_ext_yaw_s: float | None = None
+        self._rest_gyro_sum = np.zeros(3)      # body rates summed at rest (disarmed on the ground)
+        self._rest_n = 0
+        self._rest_s = 0.0
 
     def on_baro(self, t_s: float, altitude_m: float) -> None:
         if not all_finite(altitude_m):
@@ -187,6 +191,7 @@ class SensorFusionMixin:
             self._fuse_vision(v)
         self._vision.clear()
         self._ground_fusion()
+        self._rest_fusion()
 
     def _height_above_home(self) -> float:
         home_z = self._home[2] if self._home is not None else self.cfg.ground_z_m
@@ -222,6 +227,27 @@ class SensorFusionMixin:
         std = self.cfg.ground_position_std_m
         self.nav.fuse_vision_position(self._ground_xy, np.eye(2) * std * std)
         self.stats["ground_fusions"] += 1
+
+    def _rest_fusion(self) -> None:
+        """Disarmed on the ground (no motor test): the body rates averaged over each
+        ``ground_fusion_period_s`` are fused as the gyro biases (``NavFilter.fuse_zero_rate``), so
+        that a dead-reckoned climb starts with the bias learnt over the whole time at rest, not over
+        the 1 s alignment only (issue 12)."""
+        if self._armed or not self.fc.landed or self.motor_test_state.running:
+            self._rest_n = 0
+            self._rest_s = 0.0
+            self._rest_gyro_sum[:] = 0.0
+            return
+        self._rest_gyro_sum += self._gyro
+        self._rest_n += 1
+        self._rest_s += self._imu_dt_s
+        if self._rest_s < self.cfg.ground_fusion_period_s:
+            return
+        r = self.nav.fuse_zero_rate(self._rest_gyro_sum / self._rest_n, self._rest_s)
+        self.stats["rest_rate_fused" if r.accepted else "rest_rate_rejected"] += 1
+        self._rest_n = 0
+        self._rest_s = 0.0
+        self._rest_gyro_sum[:] = 0.0
 
     def _handle_position_reset(self, delta_xy) -> None:
         logger.warning("EKF position reset by (%.1f, %.1f) m", float(delta_xy[0]), float(delta_xy[1]))

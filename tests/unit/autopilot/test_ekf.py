@@ -312,3 +312,39 @@ def test_ext_nav_height_and_yaw_measured_earlier_are_moved_forward_to_now():
     assert abs(innov[age][0]) < 0.25
     assert innov[0.0][1] == pytest.approx(turn * age, abs=0.03)
     assert abs(innov[age][1]) < 0.03
+
+
+def test_zero_rate_at_rest_learns_the_horizontal_gyro_bias_and_rejects_motion():
+    """Issue 12: at rest, the averaged body x, y rates are the gyro biases (``fuse_zero_rate``).
+    Aligned with a bias 2 mrad/s off on x and y, 20 s of 0.2 s averages bring it within 0.25 mrad/s
+    and ``gyro_bias_learned`` turns true; a vehicle that really turns is gated out."""
+    rng = np.random.default_rng(12)
+    truth = KinematicTruth(lambda _t: np.zeros(3), _still)
+    samples = [truth.step(rng) for _ in range(100)]
+    accel = np.mean([s[0] for s in samples], axis=0)
+    gyro = np.mean([s[1] for s in samples], axis=0) + np.array([0.002, -0.002, 0.0])
+    nav = NavFilter(EkfConfig(position_source=PositionSource.EXTNAV))
+    nav.initialise(accel, truth.heading, truth.p[2], gyro_flu_rad_s=gyro, position_enu_m=truth.p.copy())
+    assert not nav.gyro_bias_learned()
+    fused = 0
+    window = []
+    for k in range(2000):
+        a, w = truth.step(rng)
+        nav.predict(a, w, DT)
+        window.append(w)
+        if len(window) == 20:
+            fused += nav.fuse_zero_rate(np.mean(window, axis=0), 20 * DT).accepted
+            window.clear()
+        if k % 5 == 0:
+            nav.fuse_baro(truth.p[2] + rng.normal(0.0, 0.3))
+            nav.fuse_compass((truth.heading + rng.normal(0.0, 0.01)) % (2 * math.pi))
+    assert fused == 100
+    err = nav.state().gyro_bias[:2] - GYRO_BIAS[:2]
+    assert np.all(np.abs(err) < 2.5e-4), err
+    assert nav.gyro_bias_learned()
+    assert np.all(nav.gyro_bias_std_rad_s()[:2] < 4e-4)
+    # a real roll of 0.1 rad/s is no bias: rejected, the bias stays
+    before = nav.state().gyro_bias.copy()
+    r = nav.fuse_zero_rate(GYRO_BIAS + np.array([0.1, 0.0, 0.0]), 0.2)
+    assert not r.accepted and r.test_ratio > 1.0
+    assert np.array_equal(nav.state().gyro_bias, before)
