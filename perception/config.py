@@ -14,6 +14,7 @@ from dataclasses import dataclass, field
 from enum import Enum
 
 from perception.decision import P_BAD_THRESHOLD, DecisionRule, FalseMatchMethod
+from perception.heading_offset import HeadingOffsetConfig
 from scenenav.core.config import check
 
 
@@ -136,6 +137,8 @@ class PerceptionConfig:
     quality_gate: bool = False                 # also reject what the matcher flags low quality
     true_match_tolerance_m: float = 5.0        # evaluation: a fix this close to the truth is true
     matcher: MatcherConfig = field(default_factory=MatcherConfig)
+    # learn the compass heading error from the matches (perception.heading_offset); off: raw compass
+    heading_offset: HeadingOffsetConfig = field(default_factory=HeadingOffsetConfig)
 
     def __post_init__(self) -> None:
         check(0.0 < self.fov_deg < 170.0, "perception.fov_deg", self.fov_deg, "a number in (0, 170)")
@@ -176,6 +179,8 @@ class PerceptionNodeConfig:
                                        # back and forth between the two nodes and their methods
     alignment: str = "rotation-scale"  # FIXED-mount frames: rotation-scale (as if nadir) or homography
                                        # (from the autopilot's estimated roll and pitch; docs/perception.md)
+    heading_learning: bool = False     # learn the compass heading error from the matches and correct
+                                       # it before alignment (perception.heading_offset; docs/realism.md)
 
     def __post_init__(self) -> None:
         methods = ("cnn", "assistant-map", "statistical", "none")

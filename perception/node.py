@@ -62,7 +62,8 @@ log = logging.getLogger(__name__)
 
 
 def make_pipeline(world, method: str, assistant_map_path: str | None, weights: str | None = None,
-                  fov_deg: float = PerceptionConfig.fov_deg, reference: str = "default"):
+                  fov_deg: float = PerceptionConfig.fov_deg, reference: str = "default",
+                  heading_learning: bool = False):
     """The pure perception pipeline for a world and a false-match method (``fov_deg``: the camera's,
     used when a capture does not state its own).
 
@@ -71,16 +72,19 @@ def make_pipeline(world, method: str, assistant_map_path: str | None, weights: s
     names the CNN weights it was fitted with. Empty: ``perception/weights/default.pt``, paper rule.
     ``reference``: the reference map matched against: ``default`` (the one the world's manifest
     names), ``orthophoto`` or ``perspective`` (``worlds.world.World.reference_map``).
+    ``heading_learning``: learn the compass heading error from the matches (perception.heading_offset).
     """
     from perception.decision import CombinedDecisionModel, DecisionRule, FalseMatchMethod
+    from perception.heading_offset import HeadingOffsetConfig
     from perception.pipeline import PerceptionPipeline
     m = FalseMatchMethod(method)
-    cfg = PerceptionConfig(fov_deg=fov_deg)
+    learning = HeadingOffsetConfig(enabled=heading_learning)
+    cfg = PerceptionConfig(fov_deg=fov_deg, heading_offset=learning)
     decision_model = None
     if weights and str(weights).endswith(".json"):
         decision_model = CombinedDecisionModel.load(weights)
         cfg = PerceptionConfig(fov_deg=fov_deg, decision_rule=DecisionRule.COMBINED,
-                               decision_model=str(weights))
+                               decision_model=str(weights), heading_offset=learning)
         cnn = decision_model.cnn_weights_path()
         weights = str(cnn) if cnn is not None else None
     classify = None
@@ -126,7 +130,7 @@ class PerceptionNode:
                  assistant_map_path: str | None = None, lockstep: bool = True,
                  out_dir: Path | None = None, camera: ExpectedCamera | None = None,
                  weights: str | None = None, reference: str = "default",
-                 alignment: str = "rotation-scale"):
+                 alignment: str = "rotation-scale", heading_learning: bool = False):
         self.world = world
         self.homography = alignment == "homography"
         self.node_id = node_id
@@ -142,7 +146,7 @@ class PerceptionNode:
         import cv2
         cv2.setNumThreads(1)
         self.pipeline = make_pipeline(world, method, assistant_map_path, weights, self.camera.fov_deg,
-                                      reference)
+                                      reference, heading_learning)
         self._diag = None
         if out_dir is not None:
             try:
