@@ -91,6 +91,7 @@ class FrameRecord:
     baro_m: float | None
     heading_correction_rad: float = math.nan     # the first probe's learned correction (if learning)
     match: tuple = ()                            # the first probe's (peak, psr, spr, quality_ok, search)
+    estimate_xy_m: tuple[float, float] = (math.nan, math.nan)   # the autopilot's position estimate
     fixes: dict[str, tuple[bool, bool, float, float]] = field(default_factory=dict)  # valid, accepted, x, y
 
 
@@ -205,6 +206,9 @@ def fly(cfg, world, *, probes: tuple[Probe, ...] = (Probe.NODE,), method: str = 
                                   tilts.at(frame.timestamp_us), thead, headings.at(frame.timestamp_us),
                                   ekf_headings.at(frame.timestamp_us), altitudes.at(frame.timestamp_us))
                 fixed = homography and frame.mount == "fixed"
+                nav = ap.estimate()
+                if nav is not None:
+                    rec.estimate_xy_m = (float(nav.position_enu_m[0]), float(nav.position_enu_m[1]))
                 for probe, pipe in pipes.items():
                     heading, height, tilt = rec.compass_heading_rad, rec.baro_m, rec.est_tilt_rad
                     if probe in (Probe.TRUTH_TILT, Probe.TRUTH_ALL):
@@ -309,6 +313,16 @@ def score(records: list[FrameRecord], world, altitude_m: float, threshold_m: flo
     return out
 
 
+def estimate_errors(records: list[FrameRecord], altitude_m: float) -> dict[str, float | None]:
+    """The autopilot's horizontal position error over the survey frames (RMS, max, m)."""
+    e = np.array([math.hypot(r.estimate_xy_m[0] - r.truth_xyz_m[0], r.estimate_xy_m[1] - r.truth_xyz_m[1])
+                  for r in records if abs(r.truth_xyz_m[2] - altitude_m) <= SURVEY_BAND_M])
+    e = e[np.isfinite(e)]
+    if not len(e):
+        return {"rms_m": None, "max_m": None}
+    return {"rms_m": float(np.sqrt(np.mean(e ** 2))), "max_m": float(e.max())}
+
+
 def attitude_errors(records: list[FrameRecord], altitude_m: float) -> dict[str, float]:
     """RMS / mean of the alignment inputs' errors over the survey frames (degrees, metres)."""
     s = [r for r in records if abs(r.truth_xyz_m[2] - altitude_m) <= SURVEY_BAND_M
@@ -368,7 +382,10 @@ def run_ablation(realism: str, overrides: tuple[str, ...], seed: int = 0, world:
     return {"realism": realism, "overrides": list(overrides), "seed": seed, "world": w.manifest.name,
             "method": method, "wall_s": time.perf_counter() - t0,
             "scores": score(recs, w, cfg.flight.altitude_m),
-            "inputs": attitude_errors(recs, cfg.flight.altitude_m)}
+            "inputs": attitude_errors(recs, cfg.flight.altitude_m),
+            "estimate": estimate_errors(recs, cfg.flight.altitude_m),
+            "survey_frames": sum(1 for r in recs if abs(r.truth_xyz_m[2] - cfg.flight.altitude_m) <= SURVEY_BAND_M),
+            "reached_landing_descent": bool(recs) and recs[-1].truth_xyz_m[2] < cfg.flight.altitude_m - SURVEY_BAND_M}
 
 
 def main(argv: list[str] | None = None) -> int:
