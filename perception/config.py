@@ -181,6 +181,9 @@ class PerceptionNodeConfig:
                                        # (from the autopilot's estimated roll and pitch; docs/perception.md)
     heading_learning: bool = False     # learn the compass heading error from the matches and correct
                                        # it before alignment (perception.heading_offset; docs/realism.md)
+    prior_from_estimate: bool = False  # without a track, search a window around the autopilot's estimate
+                                       # (autopilot/estimate) of radius prior_margin_px + 3 sigma, not the map
+    prior_margin_px: int = 24
 
     def __post_init__(self) -> None:
         methods = ("cnn", "assistant-map", "statistical", "none")
@@ -195,6 +198,7 @@ class PerceptionNodeConfig:
         check(self.swap_at_s >= 0, "swap_at_s", self.swap_at_s, ">= 0 s (0 = no swap)")
         check(self.swap_method in methods, "swap_method", self.swap_method,
               "one of cnn, assistant-map, statistical, none")
+        check(self.prior_margin_px >= 0, "prior_margin_px", self.prior_margin_px, "an integer >= 0 (map px)")
         check(self.alignment in ALIGNMENTS, "alignment", self.alignment, "one of " + ", ".join(ALIGNMENTS))
         check(self.swap_every_s == 0 or (self.swap_every_s >= 10.0 and self.swap_at_s > 0),
               "swap_every_s", self.swap_every_s,

@@ -130,9 +130,12 @@ class PerceptionNode:
                  assistant_map_path: str | None = None, lockstep: bool = True,
                  out_dir: Path | None = None, camera: ExpectedCamera | None = None,
                  weights: str | None = None, reference: str = "default",
-                 alignment: str = "rotation-scale", heading_learning: bool = False):
+                 alignment: str = "rotation-scale", heading_learning: bool = False,
+                 prior_from_estimate: bool = False, prior_margin_px: int = 24):
         self.world = world
         self.homography = alignment == "homography"
+        self.prior_from_estimate = prior_from_estimate
+        self.prior_margin_px = prior_margin_px
         self.node_id = node_id
         self.method = method
         self.lockstep = lockstep
@@ -161,6 +164,7 @@ class PerceptionNode:
         self._headings: deque[tuple[int, float]] = deque(maxlen=200)
         self._altitudes: deque[tuple[int, float]] = deque(maxlen=200)
         self._tilts: deque[tuple[int, tuple[float, float]]] = deque(maxlen=400)
+        self._priors: deque[tuple[int, tuple[float, float, float | None]]] = deque(maxlen=400)
         self._sensor_lock = threading.Lock()
         self._queue: queue.Queue = queue.Queue(maxsize=FRAME_BACKLOG)
         self._backlog_dropped: deque[CameraFrame] = deque()     # oldest frames pushed out
@@ -170,7 +174,7 @@ class PerceptionNode:
         self._worker.start()
         self.bus.subscribe(self.keys.compass, CompassSample, self._on_compass)
         self.bus.subscribe(self.keys.baro, BaroSample, self._on_baro)
-        if self.homography:
+        if self.homography or self.prior_from_estimate:
             self.bus.subscribe(self.keys.nav_estimate, NavEstimate, self._on_estimate)
         self.bus.subscribe(self.keys.camera, CameraFrame, self._on_frame)
         # Announce only once subscribed, so nothing addressed to us is lost.
@@ -191,9 +195,14 @@ class PerceptionNode:
             self._altitudes.append((msg.timestamp_us, msg.altitude_m))
 
     def _on_estimate(self, msg: NavEstimate, _k: str) -> None:
+        from perception.tracker import prior_search_radius_m
         roll, pitch, _heading = aviation_euler_from_quat(msg.q_wxyz)
+        mcfg = self.pipeline.cfg.matcher
+        radius = prior_search_radius_m(msg.position_std_m, self.pipeline.m_per_px, self.prior_margin_px,
+                                       mcfg.max_search_radius_px)
         with self._sensor_lock:
             self._tilts.append((msg.timestamp_us, (roll, pitch)))
+            self._priors.append((msg.timestamp_us, (msg.position_enu_m[0], msg.position_enu_m[1], radius)))
 
     @staticmethod
     def _at(history, t_us: int) -> float | None:
@@ -209,7 +218,8 @@ class PerceptionNode:
             heading = self._at(self._headings, msg.timestamp_us)
             altitude = self._at(self._altitudes, msg.timestamp_us)
             tilt = self._at(self._tilts, msg.timestamp_us) if self.homography and msg.mount == "fixed" else None
-        item = (msg, heading, altitude, tilt)
+            prior = self._at(self._priors, msg.timestamp_us) if self.prior_from_estimate else None
+        item = (msg, heading, altitude, tilt, prior)
         # Never block here: this runs in Zenoh's receive thread, and a blocked receive thread stalls
         # every subscription of the node (after a SIGSTOP the backlog filled the queue and the node
         # never saw a frame again). A full queue loses its oldest frame instead.
@@ -262,7 +272,7 @@ class PerceptionNode:
                 item = self._queue.get(timeout=0.2)
             except queue.Empty:
                 continue
-            msg, heading, altitude, tilt = item
+            msg, heading, altitude, tilt, prior = item
             if not self._info_repeated:
                 # the first put can leave before the recorder's subscription reached this session
                 self.bus.publish(self.keys.node_info(self.node_id), self._info)
@@ -285,11 +295,13 @@ class PerceptionNode:
                 else:
                     if self.homography and msg.mount == "fixed" and tilt is None:
                         self.stats["homography_without_estimate"] += 1
+                    prior_xy = None if prior is None or prior[2] is None else (prior[0], prior[1])
                     try:
                         res = self.pipeline.process(msg.pixels, heading, altitude,
-                                                    msg.timestamp_us * 1e-6, fov_deg=msg.fov_deg,
+                                                    msg.timestamp_us * 1e-6, prior_xy, fov_deg=msg.fov_deg,
                                                     tilt_rad=tilt, intrinsics_px=msg.intrinsics_fx_fy_cx_cy_px,
-                                                    distortion=msg.distortion_k1_k2_p1_p2)
+                                                    distortion=msg.distortion_k1_k2_p1_p2,
+                                                    prior_radius_m=None if prior_xy is None else prior[2])
                     except BadInput as exc:
                         self._drop("bad_input", msg, str(exc))
                         self._answer_invalid(msg)

@@ -210,7 +210,8 @@ class PerceptionPipeline:
                 timestamp_s: float, prior_enu_m: tuple[float, float] | None = None, *,
                 fov_deg: float | None = None, tilt_rad: tuple[float, float] | None = None,
                 intrinsics_px: tuple[float, float, float, float] | None = None,
-                distortion: Distortion = NO_DISTORTION) -> FixResult:
+                distortion: Distortion = NO_DISTORTION,
+                prior_radius_m: float | None = None) -> FixResult:
         """One capture -> FixResult. Raises BadInput for unusable inputs (the node drops those).
 
         ``prior_enu_m`` (optional, e.g. the autopilot's estimate) seeds the search window when the
@@ -219,6 +220,7 @@ class PerceptionPipeline:
         ``tilt_rad``: (roll, pitch) of the body a FIXED camera is on (the autopilot's estimate): align
         with the ground homography (``perception.alignment``); None: rotation and scale (nadir).
         ``intrinsics_px``, ``distortion``: the frame's calibration (the capture is undistorted first).
+        ``prior_radius_m``: the search radius around ``prior_enu_m`` (None: ``max_search_radius_px``).
         """
         t_start = time.perf_counter()
         t_s = finite_number("timestamp_s", timestamp_s)
@@ -261,8 +263,9 @@ class PerceptionPipeline:
         predicted = (self.tracker.state is TrackState.TRACKING
                      and self.tracker.velocity_px_s is not None)
         track_fixes = self.tracker.track_fixes if predicted else 0
+        prior_radius_px = None if prior_radius_m is None else prior_radius_m / self.m_per_px
         match = self.tracker.match(aligned.template, t_s, mask=mask, prior_uv=prior_uv,
-                                   offset_px=aligned.centre_offset_px)
+                                   prior_radius_px=prior_radius_px, offset_px=aligned.centre_offset_px)
         pred = self.tracker.last_prediction
         innovation_px = _NAN
         if predicted and pred is not None:

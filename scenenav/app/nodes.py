@@ -209,7 +209,8 @@ def run_perception(run_dir: Path | None, bus_cfg: BusConfig, method: str | None,
         assistant_map_path=assistant_map if assistant_map is not None else (pcfg.assistant_map or None),
         lockstep=pcfg.lockstep if lockstep is None else lockstep,
         out_dir=run_dir, camera=perception_camera(cfg), weights=_perception_weights(pcfg),
-        reference=pcfg.reference, alignment=pcfg.alignment, heading_learning=pcfg.heading_learning)
+        reference=pcfg.reference, alignment=pcfg.alignment, heading_learning=pcfg.heading_learning,
+        prior_from_estimate=pcfg.prior_from_estimate, prior_margin_px=pcfg.prior_margin_px)
     stop.wait()
     node.close()
     return 0

@@ -166,7 +166,10 @@ def fly(cfg, world, *, probes: tuple[Probe, ...] = (Probe.NODE,), method: str = 
     homography = cfg.perception.alignment == "homography"
     gps_on = sim.gps.enabled
 
+    from perception.tracker import prior_search_radius_m
     headings, altitudes, tilts, ekf_headings = _History(), _History(), _History(), _History()
+    priors = _History()
+    use_prior = cfg.perception.prior_from_estimate
     truth_at_capture: dict[int, tuple] = {}
     records: list[FrameRecord] = []
     mission_loaded = started = False
@@ -206,6 +209,8 @@ def fly(cfg, world, *, probes: tuple[Probe, ...] = (Probe.NODE,), method: str = 
                                   tilts.at(frame.timestamp_us), thead, headings.at(frame.timestamp_us),
                                   ekf_headings.at(frame.timestamp_us), altitudes.at(frame.timestamp_us))
                 fixed = homography and frame.mount == "fixed"
+                prior = priors.at(frame.timestamp_us) if use_prior else None
+                prior_xy = None if prior is None or prior[2] is None else (prior[0], prior[1])
                 nav = ap.estimate()
                 if nav is not None:
                     rec.estimate_xy_m = (float(nav.position_enu_m[0]), float(nav.position_enu_m[1]))
@@ -225,10 +230,11 @@ def fly(cfg, world, *, probes: tuple[Probe, ...] = (Probe.NODE,), method: str = 
                         rec.fixes[probe.value] = (False, False, math.nan, math.nan)
                         continue
                     try:
-                        res = pipe.process(frame.pixels, heading, height, rec.t_s, fov_deg=frame.fov_deg,
-                                           tilt_rad=tilt if fixed else None,
+                        res = pipe.process(frame.pixels, heading, height, rec.t_s, prior_xy,
+                                           fov_deg=frame.fov_deg, tilt_rad=tilt if fixed else None,
                                            intrinsics_px=frame.intrinsics_fx_fy_cx_cy_px,
-                                           distortion=frame.distortion_k1_k2_p1_p2)
+                                           distortion=frame.distortion_k1_k2_p1_p2,
+                                           prior_radius_m=None if prior_xy is None else prior[2])
                     except BadInput:
                         rec.fixes[probe.value] = (False, False, math.nan, math.nan)
                         continue
@@ -261,6 +267,11 @@ def fly(cfg, world, *, probes: tuple[Probe, ...] = (Probe.NODE,), method: str = 
                 if est is not None:
                     r, p, _h = aviation_euler_from_quat(est.q_wxyz)
                     tilts.add(out.timestamp_us, (r, p))
+                    pipe0 = pipes[probes[0]]
+                    priors.add(out.timestamp_us, (float(est.position_enu_m[0]), float(est.position_enu_m[1]),
+                                                  prior_search_radius_m(est.position_std_m, pipe0.m_per_px,
+                                                                        cfg.perception.prior_margin_px,
+                                                                        pipe0.cfg.matcher.max_search_radius_px)))
                     ekf_headings.add(out.timestamp_us, float(est.heading_rad))
             if setup.mission is not None and not started and ap.aligned:
                 if not mission_loaded:
