@@ -53,7 +53,8 @@ class HeadingOffsetConfig:
     # heading the frame is aligned with (a rotation search: the first measurement needs a lock).
     seed_offsets_deg: tuple[float, ...] = (-8.0, -4.0, 4.0, 8.0)
     learn_every_n: int = 3          # measure on every n-th frame that qualifies (a measurement costs
-                                    # about 2 ms CPU: two re-alignments and three small correlations)
+                                    # about 2 ms CPU: two re-alignments and three small correlations) ...
+    warmup_measurements: int = 10   # ... once the heading's sector has this many; on every one before
 
     def __post_init__(self) -> None:
         check(0.5 <= self.probe_deg <= 15.0, "heading_offset.probe_deg", self.probe_deg, "0.5 .. 15 degrees")
@@ -67,6 +68,8 @@ class HeadingOffsetConfig:
         check(self.min_run >= 1, "heading_offset.min_run", self.min_run, "an integer >= 1")
         check(all(abs(o) <= self.max_offset_deg for o in self.seed_offsets_deg),
               "heading_offset.seed_offsets_deg", self.seed_offsets_deg, "offsets within max_offset_deg")
+        check(self.warmup_measurements >= 0, "heading_offset.warmup_measurements",
+              self.warmup_measurements, "an integer >= 0")
         check(self.learn_every_n >= 1, "heading_offset.learn_every_n", self.learn_every_n,
               "an integer >= 1")
         check(self.min_template_px >= 16, "heading_offset.min_template_px", self.min_template_px,
@@ -125,9 +128,12 @@ class HeadingDeviation:
         self.measurements = 0
         self._qualified = 0
 
-    def due(self) -> bool:
-        """Count a frame that qualifies for a measurement; True on every ``learn_every_n``-th."""
+    def due(self, compass_heading_rad: float) -> bool:
+        """Count a frame that qualifies for a measurement; True on every ``learn_every_n``-th, and on
+        every one while the heading's sector has fewer than ``warmup_measurements``."""
         self._qualified += 1
+        if self.count[self._sector(compass_heading_rad)] < self.cfg.warmup_measurements:
+            return True
         return (self._qualified - 1) % self.cfg.learn_every_n == 0
 
     def _sector(self, heading_rad: float) -> int:

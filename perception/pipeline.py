@@ -282,7 +282,7 @@ class PerceptionPipeline:
             t_s, match.position_px, match.quality_ok, match.search is not SearchMode.WINDOW)
         if (deviation is not None and match.quality_ok and run >= deviation.cfg.min_run
                 and side >= deviation.cfg.min_template_px and match.search is SearchMode.WINDOW
-                and deviation.due()):
+                and deviation.due(compass_rad)):
             self._learn_heading(deviation, compass_rad, aligned, match,
                                 cfg.fov_deg if fov_deg is None else fov_deg, tilt_rad, intrinsics_px)
         innovation_m = innovation_px * self.m_per_px

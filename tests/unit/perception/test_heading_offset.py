@@ -59,8 +59,13 @@ def test_deviation_card_sectors_and_weights():
 
 
 def test_every_n_th_qualifying_frame_is_measured():
-    dev = HeadingDeviation(HeadingOffsetConfig(enabled=True, learn_every_n=3))
-    assert [dev.due() for _ in range(7)] == [True, False, False, True, False, False, True]
+    dev = HeadingDeviation(HeadingOffsetConfig(enabled=True, learn_every_n=3, warmup_measurements=2))
+    h = RAD(50.0)
+    assert [dev.due(h) for _ in range(3)] == [True, True, True]       # the sector is still warming up
+    dev.update(h, 0.01)
+    dev.update(h, 0.01)
+    assert [dev.due(h) for _ in range(6)] == [True, False, False, True, False, False]
+    assert dev.due(RAD(200.0))                                           # another sector: warm-up
 
 
 def test_learned_correction_is_clipped():
@@ -100,7 +105,8 @@ def test_rotation_peaks_prefer_the_right_rotation(world):
 def _fly_biased(world, learning: bool, bias_deg: float, n: int = 60):
     ref_rgb, day = world
     cfg = PerceptionConfig(heading_offset=HeadingOffsetConfig(enabled=learning, min_template_px=48,
-                                                              min_run=3, learn_every_n=2))
+                                                              min_run=3, learn_every_n=2,
+                                                              warmup_measurements=5))
     pipe = PerceptionPipeline(ref_rgb, 0.5, "none", cfg)
     heading = RAD(20.0)
     errors = []
@@ -117,7 +123,7 @@ def test_a_biased_compass_is_learned_and_the_fixes_improve(world):
     pipe, err_on = _fly_biased(world, True, bias)
     dev = pipe.heading_deviation
     assert dev is not None and dev.measurements > 10
-    assert dev.measurements <= 30                 # every second qualifying frame
+    assert dev.measurements <= 35                 # every second qualifying frame after 5
     # the correction undoes the compass error (the learned value is minus the bias)
     assert math.degrees(dev.correction_rad(RAD(20.0 + bias))) == pytest.approx(-bias, abs=1.5)
     _, err_off = _fly_biased(world, False, bias)
