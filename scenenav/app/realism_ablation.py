@@ -155,6 +155,8 @@ def fly(cfg, world, *, probes: tuple[Probe, ...] = (Probe.NODE,), method: str = 
                          "EK3_SRC1_VELXY": int(PositionSource.NONE)})
     defaults.update(cfg.autopilot.params)
     ap = FlightCore(ParameterStore(PARAM_SPECS, defaults=defaults), setup.core)
+    if not sim.gps.enabled:
+        ap.set_vision_available(True)      # the perception node is live (the node tells the core so)
     est_period_us = int(round(1e6 / cfg.autopilot.estimate_rate_hz))
     next_est_us = 0
 
