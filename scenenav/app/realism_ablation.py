@@ -1,4 +1,8 @@
-"""``scenenav experiment realism-ablation``: what makes the fixes false on a realism profile.
+"""``python -m scenenav.app.realism_ablation``: what makes the fixes false on a realism profile.
+
+Usage: ``python -m scenenav.app.realism_ablation --realism realistic [--set KEY=VALUE ...] [--probe
+truth-heading ...] [--method none|cnn|...] [--max-survey-s 90] [--json OUT] [--frames-csv OUT]``
+(docs/realism.md, "What breaks matching on `realistic`", has the table it made).
 
 One Table-2 mission is flown in-process, deterministic and without the bus: the simulator's core
 (``sitl.core.SimulatorCore``, the one every caller drives) ticked at the clock rate, the autopilot's
@@ -402,7 +406,7 @@ def run_ablation(realism: str, overrides: tuple[str, ...], seed: int = 0, world:
 
 
 def main(argv: list[str] | None = None) -> int:
-    ap = argparse.ArgumentParser(prog="scenenav experiment realism-ablation", description=__doc__.split("\n")[0])
+    ap = argparse.ArgumentParser(prog="python -m scenenav.app.realism_ablation", description=__doc__.split("\n")[0])
     ap.add_argument("--realism", default="realistic")
     ap.add_argument("--set", action="append", default=[], dest="sets", metavar="KEY=VALUE")
     ap.add_argument("--seed", type=int, default=0)
