@@ -14,6 +14,7 @@ from dataclasses import dataclass, field
 from enum import Enum
 
 from perception.decision import P_BAD_THRESHOLD, DecisionRule, FalseMatchMethod
+from perception.heading_offset import HeadingOffsetConfig
 from scenenav.core.config import check
 
 
@@ -144,6 +145,8 @@ class PerceptionConfig:
     rated_altitude_m: float = 100.0
     min_rated_footprint_share: float = 0.0
     matcher: MatcherConfig = field(default_factory=MatcherConfig)
+    # learn the compass heading error from the matches (perception.heading_offset); off: raw compass
+    heading_offset: HeadingOffsetConfig = field(default_factory=HeadingOffsetConfig)
 
     def __post_init__(self) -> None:
         check(0.0 < self.fov_deg < 170.0, "perception.fov_deg", self.fov_deg, "a number in (0, 170)")
@@ -191,6 +194,11 @@ class PerceptionNodeConfig:
     # the footprint the area rating was made for is PerceptionConfig.rated_altitude_m's (100 m);
     # docs/perception.md, "Rated height"
     min_rated_footprint_share: float = 0.0  # cnn, assistant-map: reject fixes of captures covering less of the rated footprint's area (0.5: below 70.7 m; 0 = off)
+    heading_learning: bool = False     # learn the compass heading error from the matches and correct
+                                       # it before alignment (perception.heading_offset; docs/realism.md)
+    prior_from_estimate: bool = False  # without a track, search a window around the autopilot's estimate
+                                       # (autopilot/estimate) of radius prior_margin_px + 3 sigma, not the map
+    prior_margin_px: int = 24
 
     def __post_init__(self) -> None:
         methods = ("cnn", "assistant-map", "statistical", "none")
@@ -207,6 +215,7 @@ class PerceptionNodeConfig:
               "one of cnn, assistant-map, statistical, none")
         check(0.0 <= self.min_rated_footprint_share <= 1.0, "min_rated_footprint_share",
               self.min_rated_footprint_share, "a number in [0, 1] (0 = off)")
+        check(self.prior_margin_px >= 0, "prior_margin_px", self.prior_margin_px, "an integer >= 0 (map px)")
         check(self.alignment in ALIGNMENTS, "alignment", self.alignment, "one of " + ", ".join(ALIGNMENTS))
         check(self.swap_every_s == 0 or (self.swap_every_s >= 10.0 and self.swap_at_s > 0),
               "swap_every_s", self.swap_every_s,

@@ -64,7 +64,8 @@ log = logging.getLogger(__name__)
 
 def make_pipeline(world, method: str, assistant_map_path: str | None, weights: str | None = None,
                   fov_deg: float = PerceptionConfig.fov_deg, reference: str = "default",
-                  min_rated_footprint_share: float = PerceptionConfig.min_rated_footprint_share):
+                  min_rated_footprint_share: float = PerceptionConfig.min_rated_footprint_share,
+                  heading_learning: bool = False):
     """The pure perception pipeline for a world and a false-match method (``fov_deg``: the camera's,
     used when a capture does not state its own).
 
@@ -74,11 +75,15 @@ def make_pipeline(world, method: str, assistant_map_path: str | None, weights: s
     ``reference``: the reference map matched against: ``default`` (the one the world's manifest
     names), ``orthophoto`` or ``perspective`` (``worlds.world.World.reference_map``).
     ``min_rated_footprint_share``: ``PerceptionConfig.min_rated_footprint_share`` (0: off).
+    ``heading_learning``: learn the compass heading error from the matches (perception.heading_offset).
     """
     from perception.decision import CombinedDecisionModel, DecisionRule, FalseMatchMethod
+    from perception.heading_offset import HeadingOffsetConfig
     from perception.pipeline import PerceptionPipeline
     m = FalseMatchMethod(method)
-    cfg = PerceptionConfig(fov_deg=fov_deg, min_rated_footprint_share=min_rated_footprint_share)
+    learning = HeadingOffsetConfig(enabled=heading_learning)
+    cfg = PerceptionConfig(fov_deg=fov_deg, min_rated_footprint_share=min_rated_footprint_share,
+                           heading_offset=learning)
     decision_model = None
     if weights and str(weights).endswith(".json"):
         decision_model = CombinedDecisionModel.load(weights)
@@ -129,9 +134,13 @@ class PerceptionNode:
                  out_dir: Path | None = None, camera: ExpectedCamera | None = None,
                  weights: str | None = None, reference: str = "default",
                  alignment: str = "rotation-scale",
-                 min_rated_footprint_share: float = PerceptionConfig.min_rated_footprint_share):
+                 min_rated_footprint_share: float = PerceptionConfig.min_rated_footprint_share,
+                 heading_learning: bool = False, prior_from_estimate: bool = False,
+                 prior_margin_px: int = 24):
         self.world = world
         self.homography = alignment == "homography"
+        self.prior_from_estimate = prior_from_estimate
+        self.prior_margin_px = prior_margin_px
         self.node_id = node_id
         self.method = method
         self.lockstep = lockstep
@@ -145,7 +154,7 @@ class PerceptionNode:
         import cv2
         cv2.setNumThreads(1)
         self.pipeline = make_pipeline(world, method, assistant_map_path, weights, self.camera.fov_deg,
-                                      reference, min_rated_footprint_share)
+                                      reference, min_rated_footprint_share, heading_learning)
         self._diag = None
         if out_dir is not None:
             try:
@@ -160,6 +169,7 @@ class PerceptionNode:
         self._headings: deque[tuple[int, float]] = deque(maxlen=200)
         self._altitudes: deque[tuple[int, float]] = deque(maxlen=200)
         self._tilts: deque[tuple[int, tuple[float, float]]] = deque(maxlen=400)
+        self._priors: deque[tuple[int, tuple[float, float, float | None]]] = deque(maxlen=400)
         self._sensor_lock = threading.Lock()
         self._queue: queue.Queue = queue.Queue(maxsize=FRAME_BACKLOG)
         self._backlog_dropped: deque[CameraFrame] = deque()     # oldest frames pushed out
@@ -169,7 +179,7 @@ class PerceptionNode:
         self._worker.start()
         self.bus.subscribe(self.keys.compass, CompassSample, self._on_compass)
         self.bus.subscribe(self.keys.baro, BaroSample, self._on_baro)
-        if self.homography:
+        if self.homography or self.prior_from_estimate:
             self.bus.subscribe(self.keys.nav_estimate, NavEstimate, self._on_estimate)
         self.bus.subscribe(self.keys.camera, CameraFrame, self._on_frame)
         # Announce only once subscribed, so nothing addressed to us is lost.
@@ -190,9 +200,14 @@ class PerceptionNode:
             self._altitudes.append((msg.timestamp_us, msg.altitude_m))
 
     def _on_estimate(self, msg: NavEstimate, _k: str) -> None:
+        from perception.tracker import prior_search_radius_m
         roll, pitch, _heading = aviation_euler_from_quat(msg.q_wxyz)
+        mcfg = self.pipeline.cfg.matcher
+        radius = prior_search_radius_m(msg.position_std_m, self.pipeline.m_per_px, self.prior_margin_px,
+                                       mcfg.max_search_radius_px)
         with self._sensor_lock:
             self._tilts.append((msg.timestamp_us, (roll, pitch)))
+            self._priors.append((msg.timestamp_us, (msg.position_enu_m[0], msg.position_enu_m[1], radius)))
 
     @staticmethod
     def _at(history, t_us: int) -> float | None:
@@ -208,7 +223,8 @@ class PerceptionNode:
             heading = self._at(self._headings, msg.timestamp_us)
             altitude = self._at(self._altitudes, msg.timestamp_us)
             tilt = self._at(self._tilts, msg.timestamp_us) if self.homography and msg.mount == "fixed" else None
-        item = (msg, heading, altitude, tilt)
+            prior = self._at(self._priors, msg.timestamp_us) if self.prior_from_estimate else None
+        item = (msg, heading, altitude, tilt, prior)
         # Never block here: this runs in Zenoh's receive thread, and a blocked receive thread stalls
         # every subscription of the node (after a SIGSTOP the backlog filled the queue and the node
         # never saw a frame again). A full queue loses its oldest frame instead.
@@ -261,7 +277,7 @@ class PerceptionNode:
                 item = self._queue.get(timeout=0.2)
             except queue.Empty:
                 continue
-            msg, heading, altitude, tilt = item
+            msg, heading, altitude, tilt, prior = item
             if not self._info_repeated:
                 # the first put can leave before the recorder's subscription reached this session
                 self.bus.publish(self.keys.node_info(self.node_id), self._info)
@@ -284,11 +300,13 @@ class PerceptionNode:
                 else:
                     if self.homography and msg.mount == "fixed" and tilt is None:
                         self.stats["homography_without_estimate"] += 1
+                    prior_xy = None if prior is None or prior[2] is None else (prior[0], prior[1])
                     try:
                         res = self.pipeline.process(msg.pixels, heading, altitude,
-                                                    msg.timestamp_us * 1e-6, fov_deg=msg.fov_deg,
+                                                    msg.timestamp_us * 1e-6, prior_xy, fov_deg=msg.fov_deg,
                                                     tilt_rad=tilt, intrinsics_px=msg.intrinsics_fx_fy_cx_cy_px,
-                                                    distortion=msg.distortion_k1_k2_p1_p2)
+                                                    distortion=msg.distortion_k1_k2_p1_p2,
+                                                    prior_radius_m=None if prior_xy is None else prior[2])
                     except BadInput as exc:
                         self._drop("bad_input", msg, str(exc))
                         self._answer_invalid(msg)

@@ -56,6 +56,7 @@ from perception.decision import (
     decide_from_p_bad,
     split_classifier_output,
 )
+from perception.heading_offset import HeadingDeviation, parabola_vertex, rotation_peaks
 from perception.match_metrics import MatchMetrics, StageTimes
 from perception.ncc_search import MatchResult, SceneMatcher, SearchMode
 from perception.statistical import StatisticalDetector
@@ -164,6 +165,9 @@ class PerceptionPipeline:
         self.matcher = SceneMatcher(gray, self.m_per_px, self.cfg.matcher)
         self.tracker = MatchTracker(self.matcher, self.cfg.matcher)
         self.track_evidence = TrackEvidence()
+        #: the learned compass heading error (None: the compass heading is used as it comes)
+        self.heading_deviation = (HeadingDeviation(self.cfg.heading_offset)
+                                  if self.cfg.heading_offset.enabled else None)
         self.last_aligned: AlignedCapture | None = None
         self.last_match: MatchResult | None = None
         self.classify = classify
@@ -208,7 +212,8 @@ class PerceptionPipeline:
                 timestamp_s: float, prior_enu_m: tuple[float, float] | None = None, *,
                 fov_deg: float | None = None, tilt_rad: tuple[float, float] | None = None,
                 intrinsics_px: tuple[float, float, float, float] | None = None,
-                distortion: Distortion = NO_DISTORTION) -> FixResult:
+                distortion: Distortion = NO_DISTORTION,
+                prior_radius_m: float | None = None) -> FixResult:
         """One capture -> FixResult. Raises BadInput for unusable inputs (the node drops those).
 
         ``prior_enu_m`` (optional, e.g. the autopilot's estimate) seeds the search window when the
@@ -217,11 +222,21 @@ class PerceptionPipeline:
         ``tilt_rad``: (roll, pitch) of the body a FIXED camera is on (the autopilot's estimate): align
         with the ground homography (``perception.alignment``); None: rotation and scale (nadir).
         ``intrinsics_px``, ``distortion``: the frame's calibration (the capture is undistorted first).
+        ``prior_radius_m``: the search radius around ``prior_enu_m`` (None: ``max_search_radius_px``).
         """
         t_start = time.perf_counter()
         t_s = finite_number("timestamp_s", timestamp_s)
         cfg = self.cfg
         timings = StageTimes()
+        deviation = self.heading_deviation
+        if deviation is not None:
+            heading_rad = finite_number("heading_rad", heading_rad)
+            compass_rad = heading_rad
+            heading_rad = compass_rad + deviation.correction_rad(compass_rad)
+            if not deviation.known(compass_rad):
+                heading_rad = self._seed_heading(deviation, image_rgb, heading_rad, altitude_m, t_s,
+                                                 cfg.fov_deg if fov_deg is None else fov_deg,
+                                                 tilt_rad, intrinsics_px, distortion)
         try:
             aligned = align_capture(image_rgb, heading_rad, altitude_m,
                                     cfg.fov_deg if fov_deg is None else fov_deg, self.m_per_px,
@@ -252,8 +267,9 @@ class PerceptionPipeline:
         predicted = (self.tracker.state is TrackState.TRACKING
                      and self.tracker.velocity_px_s is not None)
         track_fixes = self.tracker.track_fixes if predicted else 0
+        prior_radius_px = None if prior_radius_m is None else prior_radius_m / self.m_per_px
         match = self.tracker.match(aligned.template, t_s, mask=mask, prior_uv=prior_uv,
-                                   offset_px=aligned.centre_offset_px)
+                                   prior_radius_px=prior_radius_px, offset_px=aligned.centre_offset_px)
         pred = self.tracker.last_prediction
         innovation_px = _NAN
         if predicted and pred is not None:
@@ -268,6 +284,11 @@ class PerceptionPipeline:
 
         run, dr_innovation_px, dr_age_s, reach_excess_px = self.track_evidence.observe(
             t_s, match.position_px, match.quality_ok, match.search is not SearchMode.WINDOW)
+        if (deviation is not None and match.quality_ok and run >= deviation.cfg.min_run
+                and side >= deviation.cfg.min_template_px and match.search is SearchMode.WINDOW
+                and deviation.due(compass_rad)):
+            self._learn_heading(deviation, compass_rad, aligned, match,
+                                cfg.fov_deg if fov_deg is None else fov_deg, tilt_rad, intrinsics_px)
         innovation_m = innovation_px * self.m_per_px
         if self._rated_at(altitude_m):
             decision, reason, p_true, p_classes, variance, p_false, drone = self._decide(
@@ -298,6 +319,52 @@ class PerceptionPipeline:
             dr_innovation_px=dr_innovation_px, dr_age_s=dr_age_s,
             reach_excess_px=reach_excess_px, drone_px=drone, p_false=p_false,
             decision_rule=self.rule)
+
+    def _seed_heading(self, deviation: HeadingDeviation, image, heading_rad: float, altitude_m: float,
+                      t_s: float, fov_deg: float, tilt_rad, intrinsics_px, distortion) -> float:
+        """The heading among ``heading_rad`` and its ``seed_offsets_deg`` whose capture matches best
+        (quality-ok, highest peak) in the window the tracker would search; ``heading_rad`` when the
+        tracker has no window (a global search is due) or no candidate is quality-ok. The tracker
+        is not touched."""
+        pred = self.tracker.predict(t_s)
+        if pred is None:
+            return heading_rad
+        best_peak, best = -math.inf, heading_rad
+        for off in (0.0, *deviation.cfg.seed_offsets_deg):
+            try:
+                a = align_capture(image, heading_rad + math.radians(off), altitude_m, fov_deg,
+                                  self.m_per_px, self.cfg.crop_mode,
+                                  (self.matcher.width_px, self.matcher.height_px), tilt_rad=tilt_rad,
+                                  intrinsics_px=intrinsics_px, distortion=distortion,
+                                  min_template_px=self.cfg.matcher.min_template_px)
+            except (TemplateTooLarge, TemplateTooSmall):
+                return heading_rad
+            du, dv = a.centre_offset_px
+            r = self.matcher.match(a.template, (pred.uv[0] + du, pred.uv[1] + dv), pred.radius_px,
+                                   None if a.mask_is_full else a.mask)
+            if r.quality_ok and r.peak > best_peak:
+                best_peak, best = r.peak, heading_rad + math.radians(off)
+        return best
+
+    def _learn_heading(self, deviation: HeadingDeviation, compass_rad: float, aligned: AlignedCapture,
+                       match: MatchResult, fov_deg: float, tilt_rad, intrinsics_px) -> None:
+        """One measurement of the compass heading error (perception.heading_offset): the capture
+        (already undistorted) re-aligned at -probe and +probe around the heading used, each rotated
+        template's NCC peak near the locked-on position, the parabola's vertex."""
+        step = math.radians(deviation.cfg.probe_deg)
+        u, v = match.position_px
+        templates, centres = [], []
+        for d in (-step, 0.0, step):
+            a = aligned if d == 0.0 else align_capture(
+                aligned.gray, aligned.heading_rad + d, aligned.altitude_m, fov_deg, self.m_per_px,
+                self.cfg.crop_mode, None, tilt_rad=tilt_rad, intrinsics_px=intrinsics_px)
+            templates.append(a.template)
+            centres.append((u + a.centre_offset_px[0], v + a.centre_offset_px[1]))
+        peaks = rotation_peaks(self.matcher.reference, templates, centres,
+                               deviation.cfg.window_radius_px)
+        vertex = parabola_vertex(peaks[0], peaks[1], peaks[2], step)
+        if vertex is not None:
+            deviation.update(compass_rad, aligned.heading_rad - compass_rad + vertex)
 
     @property
     def rule(self) -> DecisionRule:

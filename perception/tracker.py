@@ -151,3 +151,19 @@ class MatchTracker:
             self.misses = 0
         elif self.state is not TrackState.TRACKING:
             self.misses = 0      # global search already; do not grow a window we do not use
+
+
+#: The prior's window covers this many standard deviations of the estimate's horizontal position.
+PRIOR_SIGMAS = 3.0
+
+
+def prior_search_radius_m(position_std_m, m_per_px: float, margin_px: float,
+                          max_radius_px: float) -> float | None:
+    """Search radius (m) around a position estimate of horizontal 1-sigma ``position_std_m`` (x, y,
+    ...): ``margin_px`` map pixels plus ``PRIOR_SIGMAS`` sigmas of the horizontal error; None (search
+    the whole map) when that exceeds ``max_radius_px`` or the std is not finite."""
+    sx, sy = float(position_std_m[0]), float(position_std_m[1])
+    if not (math.isfinite(sx) and math.isfinite(sy)):
+        return None
+    radius_m = margin_px * m_per_px + PRIOR_SIGMAS * math.hypot(sx, sy)
+    return radius_m if radius_m <= max_radius_px * m_per_px else None

@@ -210,7 +210,8 @@ def run_perception(run_dir: Path | None, bus_cfg: BusConfig, method: str | None,
         lockstep=pcfg.lockstep if lockstep is None else lockstep,
         out_dir=run_dir, camera=perception_camera(cfg), weights=_perception_weights(pcfg),
         reference=pcfg.reference, alignment=pcfg.alignment,
-        min_rated_footprint_share=pcfg.min_rated_footprint_share)
+        min_rated_footprint_share=pcfg.min_rated_footprint_share, heading_learning=pcfg.heading_learning,
+        prior_from_estimate=pcfg.prior_from_estimate, prior_margin_px=pcfg.prior_margin_px)
     stop.wait()
     node.close()
     return 0

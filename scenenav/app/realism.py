@@ -80,6 +80,9 @@ REALISTIC_SETTINGS: Mapping[str, Any] = MappingProxyType({
     **{f"sim.camera.{key}": (list(value) if isinstance(value, tuple) else value)
        for key, value in REALISTIC_CAMERA.items()},
     "perception.alignment": "homography",
+    # the compass is 4-9 deg off at some headings with the errors above (docs/realism.md "What breaks
+    # matching on `realistic`"): learn that error from the matches (perception.heading_offset)
+    "perception.heading_learning": True,
 })
 
 PROFILES: Mapping[Realism, Mapping[str, Any]] = MappingProxyType({
