@@ -53,6 +53,7 @@ class BaseSample:
     matchability: float = float("nan")
     visible_arms: int | None = None      # junction crops: arms the crop shows (perception.dataset_arms)
     arm_verdict: str = ""                # junction crops: ArmVerdict value at the crop centre
+    anchor_uv_px: tuple[float, float] | None = None   # junction crops: the junction (before jitter)
     base_id: str = ""
     group: str = ""
 
@@ -219,7 +220,8 @@ def _pick_junctions(cands: list[BaseSample], quota: int, max_per: int, jitter: f
                 return picked
             du, dv = rng.uniform(-jitter, jitter, 2) if (jitter > 0) else (0.0, 0.0)
             picked.append(BaseSample(world_seed=s.world_seed, source=s.source, u_px=s.u_px + du,
-                                     v_px=s.v_px + dv, label=s.label, arms=s.arms, kind=s.kind))
+                                     v_px=s.v_px + dv, label=s.label, arms=s.arms, kind=s.kind,
+                                     anchor_uv_px=(s.u_px, s.v_px)))
     return picked
 
 
@@ -273,10 +275,13 @@ def select_base_samples(worlds: list[WorldData], cfg: DatasetConfig, crop_px: in
 
 
 def assign_ids(samples: list[BaseSample], crop_px: int) -> None:
-    """Base ids and split groups (spatial tiles of one footprint per world)."""
+    """Base ids and split groups (spatial tiles of one crop side per world). A junction crop is
+    grouped by its junction, not its jittered centre, so the up to ``max_crops_per_junction`` crops
+    of one junction never straddle the training/validation split."""
     for i, s in enumerate(samples):
         s.base_id = f"w{s.world_seed}_{i:05d}"
-        s.group = f"w{s.world_seed}_t{int(s.v_px // crop_px)}_{int(s.u_px // crop_px)}"
+        u, v = s.anchor_uv_px if s.anchor_uv_px is not None else (s.u_px, s.v_px)
+        s.group = f"w{s.world_seed}_t{int(v // crop_px)}_{int(u // crop_px)}"
 
 
 def random_positions(worlds: list[WorldData], n: int, crop_px: int, rng: np.random.Generator) -> list[BaseSample]:

@@ -131,3 +131,15 @@ def test_flight_view_is_the_central_square_of_the_100_m_camera():
     from perception.dataset import build_dataset
     with pytest.raises(UserError, match="--crop intersection only"):
         build_dataset("/nonexistent-never-created", DatasetConfig(intersection_view=IntersectionView.FLIGHT))
+
+
+def test_crops_of_one_junction_share_a_split_group():
+    """Jittered repeats of a junction near a tile border stay in one group (no train/val leak)."""
+    from perception.cnn import MatchClass
+    from perception.dataset_samples import BaseSample, CropSource, _pick_junctions, assign_ids
+    j = BaseSample(world_seed=1, source=CropSource.JUNCTION, u_px=188.0, v_px=188.0,
+                   label=MatchClass.THREE_ARM, arms=3)
+    crops = _pick_junctions([j], 40, 40, 10.0, np.random.default_rng(0))
+    assert len({(int(c.u_px // 94), int(c.v_px // 94)) for c in crops}) > 1    # the jitter crosses tiles
+    assign_ids(crops, 94)
+    assert {c.group for c in crops} == {"w1_t2_2"}
