@@ -105,7 +105,8 @@ def build_dataset(out_dir: str | Path, cfg: DatasetConfig, progress: bool = Fals
     t_worlds = time.perf_counter() - t0
     by_seed = {wd.seed: wd for wd in worlds}
     rng = np.random.default_rng([cfg.seed, 7001])
-    samples = select_base_samples(worlds, cfg, crop_px, rng)
+    arm_stats: dict = {}
+    samples = select_base_samples(worlds, cfg, crop_px, rng, arm_stats)
     if not samples:
         raise UserError(f"worlds {list(seeds)}: no junction or bad-area crop fits (expected bigger worlds)")
 
@@ -159,9 +160,9 @@ def build_dataset(out_dir: str | Path, cfg: DatasetConfig, progress: bool = Fals
     for i, s in enumerate(samples):
         wd = by_seed[s.world_seed]
         srng = np.random.default_rng([cfg.seed, s.world_seed, i, 7003])
-        images = [(wd.scene.footprint_image(s.u_px, s.v_px, crop_px, cfg.image_px, cfg.fov_deg), {})]
+        images = [(wd.scene.footprint_image(s.u_px, s.v_px, crop_px, cfg.image_px, cfg.crop_fov_deg()), {})]
         for _ in range(int(per_sample_extra[i])):
-            images.append(augment_image(wd.scene, s, crop_px, cfg.image_px, cfg.augment, srng, cfg.fov_deg))
+            images.append(augment_image(wd.scene, s, crop_px, cfg.image_px, cfg.augment, srng, cfg.crop_fov_deg()))
         for a, (img, _params) in enumerate(images):
             rel = f"{IMAGES_DIR}/{s.label.name}/{s.base_id}_a{a}.png"
             u8 = np.clip(np.rint(img * 255.0), 0, 255).astype(np.uint8)
@@ -170,7 +171,8 @@ def build_dataset(out_dir: str | Path, cfg: DatasetConfig, progress: bool = Fals
             rows.append({"file": rel, "label": int(s.label), "label_name": s.label.name, "group": s.group,
                          "world_seed": s.world_seed, "source": s.source.value, "u_px": f"{s.u_px:.2f}",
                          "v_px": f"{s.v_px:.2f}", "arms": s.arms, "kind": s.kind, "cover": s.cover,
-                         "base_id": s.base_id, "aug_id": a,
+                         "visible_arms": "" if s.visible_arms is None else s.visible_arms,
+                         "arm_verdict": s.arm_verdict, "base_id": s.base_id, "aug_id": a,
                          "matchability": "" if math.isnan(s.matchability) else f"{s.matchability:.4f}"})
             bar.update(1)
     bar.close()
@@ -206,6 +208,8 @@ def build_dataset(out_dir: str | Path, cfg: DatasetConfig, progress: bool = Fals
         "m_per_px": cfg.m_per_px,
         "crop": cfg.crop.value,
         "crop_px": crop_px,
+        "crop_fov_deg": cfg.crop_fov_deg(),
+        "junction_arms": {"labels": cfg.arms.value, **arm_stats},
         "crop_m": crop_px * cfg.m_per_px,
         "image_px": cfg.image_px,
         "image_format": "8-bit grayscale PNG, images/<CLASS>/<base_id>_a<k>.png (a0 = base crop)",

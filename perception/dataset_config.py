@@ -6,6 +6,7 @@ See ``perception.dataset`` for how a dataset is built.
 from __future__ import annotations
 
 import logging
+import math
 from dataclasses import dataclass, field
 from enum import Enum
 
@@ -35,6 +36,33 @@ class CropGeometry(str, Enum):
 
     FOOTPRINT = "footprint"
     INTERSECTION = "intersection"
+
+
+class ArmLabels(str, Enum):
+    """Which junction crops are kept (docs/cnn.md, "Why three-arm junctions are confused").
+
+    ``GRAPH``: every junction, labelled by its road-graph degree (what the generator built).
+    ``VISIBLE``: only junctions whose crop shows that many arms in the road raster
+    (``perception.dataset_arms``: roads connected to the junction that reach the circle at 45 % of
+    the crop side, no square or parking lot filling the ring), as a person labelling by eye would
+    keep them; the others are dropped and counted in the manifest.
+    """
+
+    GRAPH = "graph"
+    VISIBLE = "visible"
+
+
+class IntersectionView(str, Enum):
+    """From where an intersection crop is captured (relief worlds; flat worlds look the same).
+
+    ``CROP``: the nadir camera whose 60 deg footprint is the crop square (43 m up for a 50 m crop):
+    roofs lean far over the streets near the crop border.
+    ``FLIGHT``: the central square of the flight camera's image at ``altitude_m`` (100 m), i.e. the
+    junction as the drone sees it (a narrower field of view from the flight altitude).
+    """
+
+    CROP = "crop"
+    FLIGHT = "flight"
 
 
 @dataclass(frozen=True)
@@ -73,6 +101,8 @@ class DatasetConfig:
     # 50 m square holds one junction ~96 % of the time) and the centre jitter in map pixels.
     intersection_crop_m: float = 50.0
     intersection_jitter_px: float = 10.0
+    intersection_view: IntersectionView = IntersectionView.CROP
+    arms: ArmLabels = ArmLabels.GRAPH
     max_crops_per_junction: int = 3
     bad_min_spacing_px: int = 24
     validate_global_n: int = 16
@@ -91,6 +121,12 @@ class DatasetConfig:
         if self.crop is CropGeometry.INTERSECTION:
             return max(8, round(self.intersection_crop_m / self.m_per_px))
         return footprint_px(self.altitude_m, self.fov_deg, self.m_per_px)
+
+    def crop_fov_deg(self) -> float:
+        """Field of view the crops are captured with (``footprint_image``'s altitude follows from it)."""
+        if self.crop is CropGeometry.INTERSECTION and self.intersection_view is IntersectionView.FLIGHT:
+            return math.degrees(2.0 * math.atan(self.crop_px() * self.m_per_px / (2.0 * self.altitude_m)))
+        return self.fov_deg
 
     def jitter_px(self) -> float:
         """Uniform jitter of a junction crop's centre, map pixels."""
@@ -125,6 +161,10 @@ def check_config(cfg: DatasetConfig) -> None:
                         "camera footprints; use --crop footprint (or --labelling paper)")
     if cfg.crop is CropGeometry.INTERSECTION and not 5.0 <= cfg.intersection_crop_m <= 500.0:
         raise UserError(f"--intersection-crop-m = {cfg.intersection_crop_m}: expected metres in [5, 500]")
+    if cfg.crop is not CropGeometry.INTERSECTION and (cfg.arms is not ArmLabels.GRAPH
+                                                      or cfg.intersection_view is not IntersectionView.CROP):
+        raise UserError("--arms visible / --intersection-view flight: for --crop intersection only (a footprint "
+                        "holds several junctions)")
     crop = cfg.crop_px()
     jitter = cfg.jitter_px()
     if min(cfg.world_width_px, cfg.world_height_px) < crop + 2 * jitter + 8:

@@ -35,7 +35,12 @@ IMAGES_DIR = "images"
 
 
 INDEX_COLUMNS = ("file", "label", "label_name", "group", "world_seed", "source", "u_px", "v_px",
-                 "arms", "kind", "cover", "base_id", "aug_id", "matchability")
+                 "arms", "kind", "cover", "visible_arms", "arm_verdict", "base_id", "aug_id",
+                 "matchability")
+
+
+OPTIONAL_INDEX_COLUMNS = ("visible_arms", "arm_verdict")
+"""Columns added later (junction crops' visible arms); older datasets without them still load."""
 
 
 @dataclass(frozen=True)
@@ -85,7 +90,7 @@ def load_dataset(data_dir: str | Path, resize_px: int | None = None, progress: b
         rows = tuple(csv.DictReader(fh))
     if not rows:
         raise UserError(f"{ip}: no images listed")
-    missing_cols = set(INDEX_COLUMNS) - set(rows[0])
+    missing_cols = set(INDEX_COLUMNS) - set(OPTIONAL_INDEX_COLUMNS) - set(rows[0])
     if missing_cols:
         raise UserError(f"{ip}: missing column(s) {sorted(missing_cols)}")
     side = resize_px or int(man.get("image_px", PAPER_INPUT_PX))

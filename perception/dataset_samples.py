@@ -8,7 +8,7 @@ from __future__ import annotations
 
 import logging
 import math
-from dataclasses import dataclass
+from dataclasses import asdict, dataclass
 from enum import Enum
 
 import cv2
@@ -16,7 +16,8 @@ import numpy as np
 
 from perception.capture import CaptureScene
 from perception.cnn import MatchClass
-from perception.dataset_config import DatasetConfig
+from perception.dataset_arms import DEFAULT_ARM_COUNT, ArmCountConfig, ArmVerdict, arm_check
+from perception.dataset_config import ArmLabels, DatasetConfig
 from scenenav.core.errors import UserError
 
 log = logging.getLogger(__name__)
@@ -50,6 +51,9 @@ class BaseSample:
     kind: str = ""
     cover: str = ""
     matchability: float = float("nan")
+    visible_arms: int | None = None      # junction crops: arms the crop shows (perception.dataset_arms)
+    arm_verdict: str = ""                # junction crops: ArmVerdict value at the crop centre
+    anchor_uv_px: tuple[float, float] | None = None   # junction crops: the junction (before jitter)
     base_id: str = ""
     group: str = ""
 
@@ -62,6 +66,24 @@ class WorldData:
     scene: CaptureScene
     junctions: tuple
     landcover: np.ndarray
+
+    def road_masks(self) -> tuple[np.ndarray, np.ndarray]:
+        """(carriageway, squares + parking lots) uint8 masks of the land cover (cached)."""
+        cached = getattr(self, "_masks", None)
+        if cached is None:
+            from worlds.landcover import LandCover
+            road = (self.landcover == int(LandCover.ROAD)).astype(np.uint8)
+            paved = np.isin(self.landcover, [int(LandCover.SQUARE), int(LandCover.PARKING)]).astype(np.uint8)
+            cached = (road, paved)
+            self._masks = cached
+        return cached
+
+    def check_arms(self, s: BaseSample, crop_px: int, cfg: ArmCountConfig = DEFAULT_ARM_COUNT) -> ArmVerdict:
+        """Set ``s.visible_arms`` and ``s.arm_verdict`` for a junction crop centred at (s.u_px, s.v_px)."""
+        road, paved = self.road_masks()
+        verdict, seen = arm_check(s.arms, road, paved, s.u_px, s.v_px, crop_px, self.m_per_px, cfg)
+        s.visible_arms, s.arm_verdict = seen, verdict.value
+        return verdict
 
     @property
     def ortho_gray(self) -> np.ndarray:
@@ -198,19 +220,41 @@ def _pick_junctions(cands: list[BaseSample], quota: int, max_per: int, jitter: f
                 return picked
             du, dv = rng.uniform(-jitter, jitter, 2) if (jitter > 0) else (0.0, 0.0)
             picked.append(BaseSample(world_seed=s.world_seed, source=s.source, u_px=s.u_px + du,
-                                     v_px=s.v_px + dv, label=s.label, arms=s.arms, kind=s.kind))
+                                     v_px=s.v_px + dv, label=s.label, arms=s.arms, kind=s.kind,
+                                     anchor_uv_px=(s.u_px, s.v_px)))
     return picked
 
 
 def select_base_samples(worlds: list[WorldData], cfg: DatasetConfig, crop_px: int,
-                        rng: np.random.Generator) -> list[BaseSample]:
-    """Base crop positions with equal class quotas (deficits moved to the other classes)."""
+                        rng: np.random.Generator, arm_stats: dict | None = None) -> list[BaseSample]:
+    """Base crop positions with equal class quotas (deficits moved to the other classes).
+
+    Intersection crops: every junction candidate's visible arms are checked at the junction
+    (``WorldData.check_arms``); with ``cfg.arms`` VISIBLE only those that agree are kept. The
+    verdict counts per graph class go to ``arm_stats`` (for the manifest); picked crops are checked
+    again at their jittered centre (``BaseSample.visible_arms`` / ``arm_verdict``, in index.csv).
+    """
     junctions = {c: [] for c in MatchClass if c is not MatchClass.BAD}
     bad: list[BaseSample] = []
+    check = cfg.isolated_junctions_only()
+    verdicts: dict[str, dict[str, int]] = {c.name: {} for c in junctions}
+    by_seed = {wd.seed: wd for wd in worlds}
     for wd in worlds:
         for s in _junction_candidates(wd, crop_px, cfg.jitter_px(), cfg.isolated_junctions_only()):
+            if check:
+                v = wd.check_arms(s, crop_px).value
+                verdicts[s.label.name][v] = verdicts[s.label.name].get(v, 0) + 1
+                if cfg.arms is ArmLabels.VISIBLE and v != ArmVerdict.AGREE.value:
+                    continue
             junctions[s.label].append(s)
         bad.extend(_bad_candidates(wd, crop_px, cfg.bad_min_share))
+    if check and arm_stats is not None:
+        n_all = sum(sum(d.values()) for d in verdicts.values())
+        n_agree = sum(d.get(ArmVerdict.AGREE.value, 0) for d in verdicts.values())
+        arm_stats.update({"candidates_by_graph_class": verdicts, "n_candidates": n_all,
+                          "agree_share": n_agree / max(n_all, 1), "arm_count": asdict(DEFAULT_ARM_COUNT)})
+        log.info("junction candidates by visible-arm verdict: %s (%.1f %% agree)", verdicts,
+                 100.0 * n_agree / max(n_all, 1))
     avail = {c: len(v) * cfg.max_crops_per_junction for c, v in junctions.items()}
     avail[MatchClass.BAD] = len(bad)
     log.info("candidates: %s", {c.name: n for c, n in avail.items()})
@@ -219,6 +263,10 @@ def select_base_samples(worlds: list[WorldData], cfg: DatasetConfig, crop_px: in
     picked += _pick_bad(bad, quotas[MatchClass.BAD], cfg.bad_min_spacing_px, rng)
     for c in (MatchClass.FOUR_ARM, MatchClass.THREE_ARM, MatchClass.TWO_ARM):
         picked += _pick_junctions(junctions[c], quotas[c], cfg.max_crops_per_junction, cfg.jitter_px(), rng)
+    if check:
+        for s in picked:
+            if s.source is CropSource.JUNCTION:
+                by_seed[s.world_seed].check_arms(s, crop_px)
     short = cfg.base_crops - len(picked)
     if short > 0:
         log.warning("only %d base crops available (asked %d): generate more worlds (--worlds)",
@@ -227,10 +275,13 @@ def select_base_samples(worlds: list[WorldData], cfg: DatasetConfig, crop_px: in
 
 
 def assign_ids(samples: list[BaseSample], crop_px: int) -> None:
-    """Base ids and split groups (spatial tiles of one footprint per world)."""
+    """Base ids and split groups (spatial tiles of one crop side per world). A junction crop is
+    grouped by its junction, not its jittered centre, so the up to ``max_crops_per_junction`` crops
+    of one junction never straddle the training/validation split."""
     for i, s in enumerate(samples):
         s.base_id = f"w{s.world_seed}_{i:05d}"
-        s.group = f"w{s.world_seed}_t{int(s.v_px // crop_px)}_{int(s.u_px // crop_px)}"
+        u, v = s.anchor_uv_px if s.anchor_uv_px is not None else (s.u_px, s.v_px)
+        s.group = f"w{s.world_seed}_t{int(v // crop_px)}_{int(u // crop_px)}"
 
 
 def random_positions(worlds: list[WorldData], n: int, crop_px: int, rng: np.random.Generator) -> list[BaseSample]:

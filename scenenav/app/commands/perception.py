@@ -47,12 +47,13 @@ def _dataset(args: argparse.Namespace) -> int:
     from perception.capture import CaptureSettings
     from perception.cnn import Labelling
     from perception.dataset import build_dataset
-    from perception.dataset_config import CropGeometry, DatasetConfig
+    from perception.dataset_config import ArmLabels, CropGeometry, DatasetConfig, IntersectionView
     w, h = args.world_size
     cfg = DatasetConfig(n_worlds=args.worlds, seed=args.seed, labelling=Labelling(args.labelling),
                         base_crops=args.base_crops, augment_to=args.augment_to, world_width_px=w,
                         world_height_px=h, crop=CropGeometry(args.crop),
                         intersection_crop_m=args.intersection_crop_m,
+                        intersection_view=IntersectionView(args.intersection_view), arms=ArmLabels(args.arms),
                         capture=CaptureSettings(relief=not args.no_relief, reference=args.reference))
     man = build_dataset(args.out, cfg, progress=not args.quiet, command=_command_line())
     print(f"dataset {args.out}: {man['n_images']} images ({man['n_base_crops']} base crops), "
@@ -202,6 +203,17 @@ def register(subparsers) -> None:
                         "(paper labelling only; docs/cnn.md compares both) (default footprint)")
     d.add_argument("--intersection-crop-m", type=positive_float, default=dc.intersection_crop_m, metavar="M",
                    help=f"side of an intersection crop in metres (default {dc.intersection_crop_m:g})")
+    d.add_argument("--intersection-view", choices=["crop", "flight"], default=dc.intersection_view.value,
+                   help="with --crop intersection on a relief world: crop = the nadir camera whose 60 deg "
+                        "footprint is the crop (about 43 m up for 50 m: roofs lean far over the streets); "
+                        "flight = the central square of the flight camera's image at 100 m, the junction as "
+                        f"the drone sees it (default {dc.intersection_view.value})")
+    d.add_argument("--arms", choices=["graph", "visible"], default=dc.arms.value,
+                   help="with --crop intersection: graph = every junction, labelled by its road-graph arm "
+                        "count; visible = only junctions whose crop shows that many arms in the road raster "
+                        "(roads from the junction reaching 45 %% of the crop side from the centre, no square "
+                        "or parking lot filling the ring), as labelling by eye would; the manifest counts "
+                        f"the dropped ones (default {dc.arms.value})")
     d.add_argument("--no-relief", action="store_true",
                    help="flat crops of the orthophoto even where the world has a DSM (default: nadir "
                         "captures rendered with relief there; flat worlds give the same images either way)")

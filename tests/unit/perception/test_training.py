@@ -144,3 +144,20 @@ def test_cli_info_on_the_shipped_weights(capsys):
     out = capsys.readouterr().out
     assert "conv1" in out and "dropout2" in out and "Softmax" in out
     assert MatchClass.BAD.name in out
+
+
+def test_shipped_intersection_model_matches_its_record():
+    """perception/weights/intersection.pt (docs/cnn.md, Table 1 on intersection crops) and its record agree."""
+    import hashlib
+
+    from perception.shipped import WEIGHTS_DIR
+    pt = WEIGHTS_DIR / "intersection.pt"
+    record = json.loads((WEIGHTS_DIR / "intersection_training_record.json").read_text())
+    clf = MatchClassifier.from_file(pt)
+    assert clf.meta.training_record_id == record["record_id"]
+    assert record["weights"]["sha256"] == hashlib.sha256(pt.read_bytes()).hexdigest()
+    assert clf.input_px == record["config"]["input_px"] == 48
+    assert record["dataset"]["crop_px"] == 94 and record["config"]["epochs"] == 60
+    assert record["final"]["val_accuracy"] > 0.8
+    proba = clf.predict_proba(np.zeros((2, 200, 200), np.float32))
+    assert proba.shape == (2, 4) and np.allclose(proba.sum(axis=1), 1.0)
