@@ -25,13 +25,17 @@ Outputs
   the set ones also in ``autopilot.params_store`` when given, kept between runs),
   ``<run>/mavlink.json`` (the MAVLink ports), ``<run>/autopilot_stats.json`` (counters, at exit)
 
-Threading: every Zenoh callback only enqueues; one worker thread handles the queue in arrival order
-and polls the MAVLink server (after every tick and every 10 ms while idle, so ground stations are
-answered while the simulator waits). The simulator publishes a tick's sensors before its ClockTick
-from one session, so they are here first. Lockstep determinism for vision: a fix is handed to the
-core only at a tick whose ``camera_seq_acked`` covers its frame, and before stepping such a tick the
-worker waits (at most ``autopilot.vision_wait_s`` wall seconds) for the followed node's fix of that
-frame if that node is a lockstep camera member.
+Threading: no hand-off per sample. Every input is handled in the thread that delivers it (Zenoh's
+receive thread for the samples, with ``indirect=False``; Zenoh's callback thread for liveliness),
+under one lock, in arrival order: the ClockTick's flight-core step and its MotorCommand run in the
+receive thread that decoded the ClockTick, right after the tick's sensors (the simulator publishes
+them before its ClockTick from one session). A small service thread polls the MAVLink server every
+10 ms when no tick did (after every tick the receive thread polls it), so ground stations are
+answered while the simulator waits, and ends a vision wait that timed out. Lockstep determinism for
+vision: a fix is handed to the core only at a tick whose ``camera_seq_acked`` covers its frame, and
+a tick that needs the followed node's fix of that frame (when that node is a lockstep camera member)
+is parked, with the inputs after it, until the fix (or the node's ack) arrives or
+``autopilot.vision_wait_s`` wall seconds have passed; the thread delivering the fix steps it.
 
 Configuration: an ``AutopilotSetup`` (``autopilot_bridge.config``) that the app layer derives from
 the scenario (``scenenav.app.nodes``); the node never reads the scenario. The node never looks at
@@ -44,7 +48,6 @@ from __future__ import annotations
 import dataclasses
 import json
 import logging
-import queue
 import threading
 import time
 from collections import Counter, deque
@@ -117,6 +120,11 @@ class ItemKind(Enum):
     CAMERA_MEMBER = "camera"       # liveliness of lockstep/member/camera/<id>
 
 
+#: inputs handled while a tick waits for its fix (the rest are held until it is stepped)
+_PASS_WHILE_PARKED = frozenset((ItemKind.FIX, ItemKind.ACK, ItemKind.PERCEPTION,
+                                ItemKind.CAMERA_MEMBER))
+
+
 @dataclass(frozen=True)
 class _Item:
     kind: ItemKind
@@ -152,10 +160,12 @@ class AutopilotNode:
             self.params.save()      # the run folder's params.json shows the values flown
         self.core = FlightCore(self.params, setup.core)
         self.server = self._open_server()
-        # worker state
-        self._q: queue.SimpleQueue[_Item] = queue.SimpleQueue()
+        # input state: every input is handled under this lock by the thread delivering it
+        self._lock = threading.RLock()
         self._replay: deque[_Item] = deque()
         self._stop = threading.Event()
+        self._last_poll = 0.0
+        self._closed = False
         self._imu: ImuSample | None = None
         self._last_tick = -1
         self._now_us = 0
@@ -187,7 +197,7 @@ class AutopilotNode:
         self._auto_last_reason = ""
         # bus
         self.bus = Bus(bus_cfg)
-        self._worker = threading.Thread(target=self._work, name="autopilot", daemon=True)
+        self._worker = threading.Thread(target=self._service, name="autopilot-service", daemon=True)
         self._worker.start()
         k = self.keys
         self._subscribers: list[Any] = []
@@ -200,11 +210,11 @@ class AutopilotNode:
         self._subscribe_ordered(k.vision_fix_all, VisionFix, ItemKind.FIX)
         self._subscribe_ordered(k.lockstep_ack_all, LockstepAck, ItemKind.ACK)
         self.bus.watch_liveliness(f"{k.root}/nodes/perception/*",
-                                  lambda key, alive: self._q.put(_Item(
+                                  lambda key, alive: self._feed(_Item(
                                       ItemKind.PERCEPTION, node_id=key.rsplit("/", 1)[-1],
                                       alive=alive)))
         self.bus.watch_liveliness(f"{k.root}/lockstep/member/camera/*",
-                                  lambda key, alive: self._q.put(_Item(
+                                  lambda key, alive: self._feed(_Item(
                                       ItemKind.CAMERA_MEMBER, node_id=key.rsplit("/", 1)[-1],
                                       alive=alive)))
         # announce only once subscribed
@@ -253,11 +263,11 @@ class AutopilotNode:
 
     # ------------------------------------------------------------------ callbacks (Zenoh threads)
     def _subscribe_ordered(self, key: str, cls: type, kind: ItemKind) -> None:
-        """Decode and enqueue in the Zenoh receive thread itself (``indirect=False``).
+        """Decode and handle in the Zenoh receive thread itself (``indirect=False``).
 
-        ``Bus.subscribe`` runs each subscriber's callback on its own Python thread, which loses the
-        order between keys (a tick's IMU sample can then arrive after its ClockTick); handling the
-        samples in the network thread keeps the publisher's per-session order.
+        Handling the samples in the network thread keeps the publisher's per-session order across
+        keys (a tick's IMU sample before its ClockTick) and costs no thread hand-off per sample:
+        the ClockTick's step and its MotorCommand run right here.
         """
         def handler(sample: zenoh.Sample) -> None:
             try:
@@ -270,54 +280,59 @@ class AutopilotNode:
                     if n <= 5 or n % 100 == 0:
                         log.warning("dropped malformed message #%d on %s: %s", n, k, exc)
                     return
-                self._q.put(_Item(kind, msg, node_id=k.rsplit("/", 1)[-1]))
+                self._feed(_Item(kind, msg, node_id=k.rsplit("/", 1)[-1]))
             except Exception:  # noqa: BLE001 - never raise into Zenoh's network thread
+                self.stats["worker_errors"] += 1
                 log.exception("subscriber for %s failed", key)
         self._subscribers.append(self.bus.session.declare_subscriber(
             key, zenoh.handlers.Callback(handler, indirect=False)))
 
-    # ------------------------------------------------------------------ worker
-    def _next_item(self, timeout_s: float) -> _Item | None:
-        if self._replay:
-            return self._replay.popleft()
-        try:
-            return self._q.get(timeout=timeout_s)
-        except queue.Empty:
-            return None
+    # ------------------------------------------------------------------ inputs
+    def _feed(self, item: _Item) -> None:
+        """Handle one input in the calling thread (a Zenoh thread), with the inputs a tick that was
+        parked held back; then any it releases."""
+        with self._lock:
+            if self._closed:
+                return
+            self._process(item)
+            while self._replay:
+                self._process(self._replay.popleft())
 
-    def _work(self) -> None:
-        while not self._stop.is_set():
-            try:
-                self._work_once()
-            except Exception:  # noqa: BLE001 - the worker must survive any bug in one message
-                self.stats["worker_errors"] += 1
-                log.exception("autopilot worker error")
-
-    def _work_once(self) -> None:
-        if self._parked is not None and (self._parked_fix_ready()
-                                         or time.monotonic() > self._parked_deadline):
-            if not self._parked_fix_ready():
-                self.stats["vision_wait_timeouts"] += 1
-                self._mark_answered(self._followed or "", self._parked.camera_seq_acked)
-                self._hung.add(self._followed or "")
-                self._event(Severity.WARNING, f"no fix from {self._followed} for frame "
-                                              f"{self._parked.camera_seq_acked} within "
-                                              f"{self.acfg.vision_wait_s:.1f} s; stepping without its "
-                                              f"fixes until it answers again")
-            self._unpark()
-            return
-        item = self._next_item(IDLE_POLL_S)
-        if item is None:
-            self._poll_server()
-            return
-        if self._parked is not None and item.kind not in (ItemKind.FIX, ItemKind.ACK,
-                                                          ItemKind.PERCEPTION,
-                                                          ItemKind.CAMERA_MEMBER):
+    def _process(self, item: _Item) -> None:
+        if self._parked is not None and item.kind not in _PASS_WHILE_PARKED:
             self._held.append(item)
             if item.kind == ItemKind.CLOCK:     # the simulator moved on: stop waiting
                 self._unpark()
             return
         self._handle(item)
+        if self._parked is not None and self._parked_fix_ready():
+            self._unpark()
+
+    def _service(self) -> None:
+        """The service thread: the MAVLink server's poll while no tick polls it, and the end of a
+        vision wait that timed out."""
+        while not self._stop.wait(IDLE_POLL_S):
+            try:
+                with self._lock:
+                    self._service_once()
+                    while self._replay:
+                        self._process(self._replay.popleft())
+            except Exception:  # noqa: BLE001 - the thread must survive any bug in one message
+                self.stats["worker_errors"] += 1
+                log.exception("autopilot service error")
+
+    def _service_once(self) -> None:
+        if self._parked is not None and time.monotonic() > self._parked_deadline:
+            self.stats["vision_wait_timeouts"] += 1
+            self._mark_answered(self._followed or "", self._parked.camera_seq_acked)
+            self._hung.add(self._followed or "")
+            self._event(Severity.WARNING, f"no fix from {self._followed} for frame "
+                                          f"{self._parked.camera_seq_acked} within "
+                                          f"{self.acfg.vision_wait_s:.1f} s; stepping without its "
+                                          f"fixes until it answers again")
+            self._unpark()
+        if time.monotonic() - self._last_poll >= IDLE_POLL_S:
+            self._poll_server()
 
     def _unpark(self) -> None:
         tick, self._parked = self._parked, None
@@ -431,6 +446,7 @@ class AutopilotNode:
         self._poll_server()
 
     def _poll_server(self) -> None:
+        self._last_poll = time.monotonic()
         self.core.set_gcs_heartbeat(self.server.last_gcs_heartbeat_s)
         self.server.poll(self._now_us * 1e-6)
         self._publish_texts()
@@ -570,6 +586,14 @@ class AutopilotNode:
     def close(self) -> dict:
         self._stop.set()
         self._worker.join(timeout=5.0)
+        for sub in self._subscribers:       # no input after this: the server and core close
+            try:
+                sub.undeclare()
+            except zenoh.ZError:
+                pass
+        self._subscribers.clear()
+        with self._lock:
+            self._closed = True
         self.server.close()
         self.core.close()
         stats: dict[str, Any] = {"node": dict(self.stats), "core": dict(self.core.stats),

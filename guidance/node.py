@@ -5,6 +5,8 @@ drifts off it.
 Inputs
   ``clock``                ClockTick     simulated time; in lockstep the node is a TICK member until
                                           its mission runs, so the upload happens at a fixed tick
+                                          (the main loop is handed only the ticks it acts on: each
+                                          while a member, then those a check is due at)
   ``autopilot/estimate``   NavEstimate   where the autopilot thinks it is (drift checks, replans)
   ``autopilot/status``     AutopilotStatus  armed / mission progress / landed
   the assistant-map file   .npz; re-read when it changes on disk (e.g. replaced by a later flight)
@@ -155,7 +157,25 @@ class GuidanceNode:
         self._status = msg
 
     def _on_tick(self, msg: ClockTick, _k: str) -> None:
-        self._ticks.put(msg)
+        """Hand the main loop only the ticks it acts on: every tick while the node is a lockstep
+        member (it acknowledges each), the ones at which a start try or a drift check is due, and
+        the last one; the others are counted here (no thread wake-up per tick while flying)."""
+        if self._acts_on(msg):
+            self._ticks.put(msg)
+            return
+        self.stats["ticks"] += 1
+        self._last_t_us = msg.timestamp_us
+
+    def _acts_on(self, msg: ClockTick) -> bool:
+        # Read from a Zenoh thread while the main loop may change them: a stale phase or due time
+        # only hands over a tick more, which the main loop handles as before.
+        if msg.state == RunState.FINISHED.value or self._member_token is not None:
+            return True
+        if self.phase is Phase.WAITING:
+            return msg.timestamp_us >= self._next_try_us
+        if self.phase is Phase.FLYING:
+            return msg.timestamp_us >= self._next_check_us
+        return False
 
     # ------------------------------------------------------------------ helpers
     def event(self, text: str, severity: Severity = Severity.INFO) -> None:

@@ -17,6 +17,11 @@ Inputs: everything under ``scenenav/<ns>/**`` (it is the one node besides evalua
 * per perception node (``perception_nodes`` in ``recorder_stats.json``): its method (from its
   ``NodeInfo``, else from its fixes), fixes, valid and accepted fixes, first and last fix time.
 
+Off the lockstep's critical path: Zenoh's receive thread only queues the samples (a FIFO without
+Python, ``Bus.subscribe_inbox``); the recorder's thread takes what arrived every
+:data:`DRAIN_PERIOD_S` wall seconds and writes it in one batch (a few wake-ups per second instead of
+one per message, nothing dropped; a stop drains the FIFO before the files close).
+
 A full disk (ENOSPC, or any write error) stops all output once: the files keep what was written,
 the recorder logs one line naming the disk and its free space, publishes that as an event and keeps
 draining the bus until it is stopped.
@@ -57,6 +62,12 @@ from scenenav.core.keys import Keys, type_for_key
 log = logging.getLogger(__name__)
 
 NODE_ID = "recorder"
+#: The recorder's thread takes the samples that arrived every this many wall seconds (a SIGKILL loses
+#: at most these, besides the unclosed MCAP chunk and the CSV rows of the last second).
+DRAIN_PERIOD_S = 0.05
+#: Samples the FIFO holds between two drains (some 50 per simulated second at 100 Hz: room for
+#: minutes); when full, Zenoh's receive thread waits for the recorder instead of dropping.
+INBOX_CAPACITY = 1 << 16
 
 TRUTH_COLUMNS = ["t_s", "x_m", "y_m", "z_m", "vx_m_s", "vy_m_s", "vz_m_s", "heading_deg",
                  "qw", "qx", "qy", "qz"]
@@ -143,10 +154,32 @@ class RecorderNode:
         self.viz = VizState(cfg.camera_every_n)
         self._viz_maps = viz_maps                         # written with the first message
         self.perception_nodes: dict[str, dict[str, Any]] = {}
+        self._types: dict[str, type | None] = {}           # message class per concrete key
         self.bus = Bus(bus_cfg)
-        self.bus.subscribe_raw(self.keys.everything, self._on_sample)
+        self._inbox = self.bus.subscribe_inbox(self.keys.everything, INBOX_CAPACITY)
+        self._stop = threading.Event()
+        self._drainer = threading.Thread(target=self._drain_loop, name="recorder", daemon=True)
+        self._drainer.start()
         self.bus.watch_liveliness(self.keys.node_alive_all, self._on_node)
         self.bus.declare_token(self.keys.node_alive("recorder", NODE_ID))
+
+    def _drain_loop(self) -> None:
+        while not self._stop.wait(DRAIN_PERIOD_S):
+            self.drain()
+
+    def drain(self) -> int:
+        """Write every sample that has arrived (in arrival order); the number written."""
+        take = self._inbox.take
+        n = 0
+        while True:
+            sample = take()
+            if sample is None:
+                return n
+            n += 1
+            try:
+                self._on_sample(*sample)
+            except Exception:  # noqa: BLE001 - one bad message must not stop the recording
+                log.exception("recording a sample of %s failed", sample[1])
 
     def set_viz_maps(self, maps) -> None:
         """The view's map grids (``scenenav.app.viz.map_messages``), written with the next message
@@ -234,11 +267,18 @@ class RecorderNode:
             self._add(self._channel(v.topic, v.schema_name, v.schema), v.payload, v.log_time_ns)
 
     def _on_sample(self, payload: bytes, key: str) -> None:
-        type_name = type_for_key(self.keys, key)
-        if type_name is None:
-            return
         try:
-            msg = decode(message_type(type_name), payload)
+            cls = self._types[key]
+        except KeyError:
+            type_name = type_for_key(self.keys, key)
+            cls = message_type(type_name) if type_name is not None else None
+            if len(self._types) < 4096:         # bounded: keys are few, a flood of others is not
+                self._types[key] = cls
+        if cls is None:
+            return
+        type_name = cls.__name__
+        try:
+            msg = decode(cls, payload)
         except DecodeError as exc:
             self.dropped += 1
             if self.dropped <= 5 or self.dropped % 100 == 0:
@@ -332,7 +372,10 @@ class RecorderNode:
             c.flush()
 
     def close(self) -> dict:
+        self._stop.set()
+        self._drainer.join(timeout=10.0)
         self.bus.close()
+        self.drain()                    # what arrived before the session closed
         with self._lock:
             if not self._closed:
                 self._closed = True

@@ -96,6 +96,24 @@ def _direct(handler: Callable) -> zenoh.handlers.Callback:
     return zenoh.handlers.Callback(handler, indirect=False)
 
 
+class Inbox:
+    """Raw samples waiting for their consumer (``Bus.subscribe_inbox``)."""
+
+    def __init__(self, subscriber: Any) -> None:
+        self._sub = subscriber
+
+    def take(self) -> tuple[bytes, str] | None:
+        """The oldest waiting sample as (payload, key), or None when none is waiting (also once
+        the session is closed and the FIFO empty)."""
+        try:
+            sample = self._sub.try_recv()
+        except zenoh.ZError:            # closed and empty
+            return None
+        if sample is None:
+            return None
+        return sample.payload.to_bytes(), str(sample.key_expr)
+
+
 class Bus:
     """One Zenoh session of a node, with typed publish/subscribe and malformed-message counting."""
 
@@ -164,6 +182,15 @@ class Bus:
             except Exception:
                 log.exception("raw handler for %s failed", sample.key_expr)
         self._subscribers.append(self.session.declare_subscriber(key, _direct(handler)))
+
+    def subscribe_inbox(self, key: str, capacity: int) -> Inbox:
+        """The samples of ``key`` queued in a FIFO of ``capacity`` (``zenoh.handlers.FifoChannel``)
+        for a thread of the caller to take in batches (``Inbox.take``): Zenoh's receive thread
+        only queues them, without running Python or taking its GIL. Nothing is dropped: when the
+        FIFO is full, the receive thread waits (the consumer must keep up)."""
+        sub = self.session.declare_subscriber(key, zenoh.handlers.FifoChannel(capacity))
+        self._subscribers.append(sub)
+        return Inbox(sub)
 
     def _count_drop(self, key: str, why: str) -> None:
         with self._lock:
