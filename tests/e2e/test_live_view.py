@@ -67,8 +67,9 @@ def _mcap_channels(path: Path) -> dict[str, tuple[str, bytes, str]]:
 def test_live_view_streams_camera_and_estimate_during_a_flight(tmp_path):
     run = tmp_path / "live"
     # paced (2x): the client connects while the vehicle flies (a lockstep flight may end first); no
-    # perception node (the simulator publishes the camera frames all the same); 30 simulated s: with
-    # 12 the flight of a loaded machine ended before the client had its messages
+    # perception node (the simulator publishes the camera frames all the same); 60 simulated s: with
+    # 12, and once (load 8-10, CI of 2026-12-04) with 30, the flight of a loaded machine ended before
+    # the client had its messages
     launcher = subprocess.Popen(
         [sys.executable, "-m", "scenenav.app.cli", "run", "--out", str(run), "--set", "duration_s=30",
          "--set", "flight.mode=autopilot", "--set", "perception.enabled=false", "--set", "clock.mode=realtime", "--set", "clock.speed_factor=2",
