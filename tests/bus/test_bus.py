@@ -8,6 +8,7 @@ import pytest
 from scenenav.core.bus import Bus, BusConfig, free_port
 from scenenav.core.contracts import ImuSample, LockstepRole
 from scenenav.core.keys import Keys
+from tests.support.lineproc import wait_until
 
 
 @pytest.fixture
@@ -20,13 +21,8 @@ def peers():
     hub.close()
 
 
-def _wait(cond, timeout=10.0):
-    t0 = time.monotonic()
-    while time.monotonic() - t0 < timeout:
-        if cond():
-            return True
-        time.sleep(0.02)
-    return False
+def _wait(cond) -> bool:
+    return wait_until(cond, timeout_s=10.0, period_s=0.02)
 
 
 def test_typed_pub_sub_and_garbage_counted(peers):

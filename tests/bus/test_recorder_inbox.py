@@ -8,15 +8,11 @@ from scenenav.app.scenario import RecorderConfig
 from scenenav.core.bus import Bus, BusConfig, free_port
 from scenenav.core.contracts import ClockMode, ClockTick, ImuSample, LockstepRole, RunState, TruthPose
 from scenenav.core.keys import Keys
+from tests.support.lineproc import wait_until
 
 
-def _wait(cond, timeout=10.0):
-    t0 = time.monotonic()
-    while time.monotonic() - t0 < timeout:
-        if cond():
-            return True
-        time.sleep(0.02)
-    return False
+def _wait(cond) -> bool:
+    return wait_until(cond, timeout_s=10.0, period_s=0.02)
 
 
 def test_inbox_keeps_order_across_keys_and_ends_empty_after_close():
