@@ -41,6 +41,7 @@ import dataclasses
 import json
 import logging
 import math
+import sys
 import time
 from dataclasses import dataclass, field
 from enum import Enum
@@ -424,7 +425,7 @@ def main(argv: list[str] | None = None) -> int:
                            args.max_survey_s, progress=True,
                            frames_csv=Path(args.frames_csv) if args.frames_csv else None)
     except UserError as exc:
-        print(f"error: {exc}")
+        print(f"error: {exc}", file=sys.stderr)
         return 2
     text = json.dumps(res, indent=1)
     print(text)
