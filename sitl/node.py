@@ -220,6 +220,10 @@ class SimulatorNode:
                 and not self._stop.is_set():
             self.event(Severity.WARNING, f"not every expected node joined within "
                                          f"{clock.startup_timeout_s:.0f} s: {self.barrier.members()}")
+        # the renderer's start-up (kernels, camera) overlaps the members' joining, not the first frame
+        if not self.camera.wait_ready(clock.startup_timeout_s) and not self._stop.is_set():
+            self.event(Severity.WARNING, f"the camera renderer was not ready within "
+                                         f"{clock.startup_timeout_s:.0f} s; the first frame waits for it")
         # The control tick's members (the autopilot) are waited for in both modes, as ArduPilot's
         # SITL waits for its servo outputs: physics never runs on a stale motor command, so a busy
         # machine slows simulated time down instead of letting the vehicle fly open loop (a paced

@@ -36,6 +36,8 @@ from sitl.config import CameraConfig
 
 log = logging.getLogger(__name__)
 
+#: the worker's first message: kernels loaded and the camera built, requests are rendered at once
+READY = "ready"
 #: image slots in the shared ring (frames in flight at once; beyond that, images go through the pipe)
 IMAGE_SLOTS = 8
 
@@ -66,6 +68,7 @@ def _serve(conn, parent_conn, parent_pid: int, orthophoto: np.ndarray, m_per_px:
     warm_up()             # kernels loaded while the simulator starts, not at its first frame
     camera = GroundCamera(-1, orthophoto, m_per_px, cfg, heights_m=heights_m, facade_rgb=facade_rgb,
                           optics_rng=_optics_rng(optics_seed))
+    conn.send(READY)
     try:
         while True:
             try:
@@ -107,6 +110,7 @@ class CameraPipeline:
         self._ring: mmap.mmap | None = None
         self._slot_bytes = cfg.width_px * cfg.height_px * 3
         self._free_slots = list(range(IMAGE_SLOTS))
+        self._ready = not cfg.render_in_worker
         if cfg.render_in_worker:
             ctx = mp.get_context("fork")   # the child inherits the orthophoto without a copy
             self._conn, child = ctx.Pipe()
@@ -140,22 +144,43 @@ class CameraPipeline:
                          _floats(velocity_enu_m_s), _floats(body_rates_flu_rad_s)))
         self._in_flight.append(seq)
 
+    def wait_ready(self, timeout_s: float) -> bool:
+        """Block until the worker has loaded its kernels and built its camera (at most ``timeout_s``),
+        so that the first frame of a run is not a start-up of about 0.3 s inside the lockstep loop
+        (``scenenav bench sim``, 2026-12-05). True when ready (always in-process)."""
+        if self._ready:
+            return True
+        try:
+            if not self._conn.poll(timeout_s):
+                return False
+            self._take(self._conn.recv())
+        except (EOFError, OSError) as exc:
+            raise RuntimeError("the camera render process died (see the simulator log)") from exc
+        return self._ready
+
+    def _take(self, msg) -> None:
+        if msg == READY:
+            self._ready = True
+            return
+        got_seq, slot, image = msg
+        self._in_flight.remove(got_seq)
+        if slot >= 0:
+            assert self._ring is not None
+            shape = tuple(image)
+            n = int(np.prod(shape))
+            image = _slot_view(self._ring, slot, self._slot_bytes)[:n].reshape(shape).copy()
+            self._free_slots.append(slot)
+        self._done[got_seq] = image
+
     def result(self, seq: int) -> np.ndarray:
         while seq not in self._done:
             if not self._in_flight:
                 raise KeyError(f"camera frame {seq} was never requested")
             try:
-                got_seq, slot, image = self._conn.recv()
+                msg = self._conn.recv()
             except (EOFError, OSError) as exc:
                 raise RuntimeError("the camera render process died (see the simulator log)") from exc
-            self._in_flight.remove(got_seq)
-            if slot >= 0:
-                assert self._ring is not None
-                shape = tuple(image)
-                n = int(np.prod(shape))
-                image = _slot_view(self._ring, slot, self._slot_bytes)[:n].reshape(shape).copy()
-                self._free_slots.append(slot)
-            self._done[got_seq] = image
+            self._take(msg)
         return self._done.pop(seq)
 
     def close(self) -> None:

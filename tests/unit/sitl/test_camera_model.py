@@ -298,3 +298,30 @@ def test_render_worker_more_frames_in_flight_than_image_slots():
     for a, b in zip(*images, strict=True):
         np.testing.assert_array_equal(a, b)
     assert len({img.tobytes() for img in images[0]}) == n + 1
+
+
+def test_render_worker_reports_ready_before_the_first_frame():
+    """``wait_ready`` returns once the worker has built its camera; a frame requested after that
+    comes back like any other, and one requested before ``wait_ready`` was ever called too (the
+    ready message is consumed on the way)."""
+    from sitl.render_worker import CameraPipeline
+    top = np.random.default_rng(7).integers(0, 255, (96, 96, 3), dtype=np.uint8)
+    cfg = CameraConfig(width_px=32, height_px=32, ground_window_px=128, render_in_worker=True)
+    pose = (np.array([0.0, 0.0, 30.0]), np.array([1.0, 0.0, 0.0, 0.0]))
+    early = CameraPipeline(top, 0.5, cfg)
+    ready = CameraPipeline(top, 0.5, cfg)
+    try:
+        early.request(0, *pose)
+        first = early.result(0)
+        assert ready.wait_ready(30.0)
+        assert ready.wait_ready(0.0)          # once ready, stays ready without another message
+        ready.request(0, *pose)
+        np.testing.assert_array_equal(ready.result(0), first)
+    finally:
+        early.close()
+        ready.close()
+    in_process = CameraPipeline(top, 0.5, dataclasses.replace(cfg, render_in_worker=False))
+    try:
+        assert in_process.wait_ready(0.0)
+    finally:
+        in_process.close()
