@@ -362,7 +362,12 @@ class SimNodeConfig:
         check(self.expected_tick_members >= 0 and self.expected_camera_members >= 0,
               "expected_tick_members", (self.expected_tick_members, self.expected_camera_members),
               "counts >= 0")
-        frame_ticks = max(1, round(self.clock.tick_rate_hz / self.sim.camera.rate_hz))
-        check(self.clock.camera_answer_ticks < frame_ticks, "clock.camera_answer_ticks",
-              self.clock.camera_answer_ticks,
-              f"fewer than the {frame_ticks} control ticks between two camera frames")
+        check_camera_answer_ticks(self.clock, self.sim.camera)
+
+
+def check_camera_answer_ticks(clock: ClockConfig, camera: CameraConfig) -> None:
+    """``clock.camera_answer_ticks`` must be fewer than the control ticks between two camera frames
+    (a frame's answer is waited for before the next frame goes out); ConfigError otherwise."""
+    frame_ticks = max(1, round(clock.tick_rate_hz / camera.rate_hz))
+    check(clock.camera_answer_ticks < frame_ticks, "clock.camera_answer_ticks", clock.camera_answer_ticks,
+          f"fewer than the {frame_ticks} control ticks between two camera frames")

@@ -20,7 +20,7 @@ from scenenav.core.clock import ClockConfig
 from scenenav.core.config import apply_overrides, check, load_config, load_yaml, to_dict
 from scenenav.core.contracts import ClockMode
 from scenenav.core.errors import UserError
-from sitl.config import SimConfig
+from sitl.config import SimConfig, check_camera_answer_ticks
 
 
 class FlightMode(str, Enum):
@@ -154,6 +154,7 @@ class ScenarioConfig:
               "a port, not 0, when guidance.enabled (the guidance node uploads its mission over the "
               "autopilot's MAVLink TCP port): set a free port, or guidance.enabled=false")
         check(self.seed >= 0, "seed", self.seed, "a non-negative integer")
+        check_camera_answer_ticks(self.clock, self.sim.camera)
         # In lockstep the simulator waits up to clock.member_timeout_s for the autopilot's answer,
         # and the autopilot may itself wait up to autopilot.vision_wait_s for perception's fix
         # first: a member timeout not longer than that wait gives up on a healthy autopilot and

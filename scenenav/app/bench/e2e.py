@@ -242,10 +242,12 @@ def _perception_stages(fixes_csv: Path) -> tuple[int, dict[str, float], dict[str
 
 # ------------------------------------------------------------------ the bench
 def run_e2e_bench(cfg: E2eBenchConfig | None = None, out_dir: str | None = None,
-                  progress: bool = True) -> dict:
+                  progress: bool = True, overrides: tuple[str, ...] = ()) -> dict:
     """Fly the bench mission through the launcher; return the figures (see the module docstring).
     ``out_dir``: keep the bench folder there (the scenario and the run folder ``run/``); default a
-    temporary folder, removed afterwards."""
+    temporary folder, removed afterwards. ``overrides``: ``KEY=VALUE`` scenario overrides (as
+    ``scenenav run --set``), checked before anything starts."""
+    from scenenav.app.scenario import load_scenario
     from scenenav.app.launcher import run
     cfg = cfg if cfg is not None else E2eBenchConfig()
     keep = out_dir is not None
@@ -256,15 +258,22 @@ def run_e2e_bench(cfg: E2eBenchConfig | None = None, out_dir: str | None = None,
     run_dir = base / "run"
     scenario_path = base / "bench_e2e.yaml"
     scenario_path.write_text(yaml.safe_dump(scenario(cfg, free_port()), sort_keys=False))
+    try:
+        load_scenario(scenario_path, overrides)    # a bad --set: one line, before any process starts
+    except UserError as exc:
+        if not keep:
+            shutil.rmtree(base, ignore_errors=True)
+        raise UserError("bench e2e --set: " + str(exc).split("(with --set overrides): ", 1)[-1]) from None
     wall0 = time.time()
     try:
         with CpuSampler(run_dir, cfg.sample_period_s) as sampler:
-            summary = run(str(scenario_path), str(run_dir), progress=progress)
+            summary = run(str(scenario_path), str(run_dir), overrides=overrides, progress=progress)
         report = _report(cfg, run_dir, summary, sampler, time.time() - wall0)
     finally:
         if not keep:
             shutil.rmtree(base, ignore_errors=True)
     report["run_dir"] = str(run_dir) if keep else None
+    report["overrides"] = list(overrides)
     return report
 
 
@@ -363,7 +372,7 @@ def _cmd_bench_e2e(args: argparse.Namespace) -> int:
         cfg = E2eBenchConfig(seed=args.seed, duration_s=args.duration_s)
     except UserError as exc:
         raise UserError(f"bench e2e: {exc}") from None
-    report = run_e2e_bench(cfg, out_dir=args.out, progress=not args.quiet)
+    report = run_e2e_bench(cfg, out_dir=args.out, progress=not args.quiet, overrides=tuple(args.set or ()))
     if args.json:
         emit_json(report)
     else:
@@ -393,6 +402,9 @@ def register_bench(bench_subparsers) -> None:
     p.add_argument("--out", metavar="DIR",
                    help="keep the bench scenario and the run folder here (default: a temporary folder, "
                         "removed afterwards)")
+    p.add_argument("--set", action="append", metavar="KEY=VALUE",
+                   help="override a key of the bench scenario, as `scenenav run --set` (e.g. "
+                        "--set clock.camera_answer_ticks=0); the JSON records the overrides")
     p.add_argument("--quiet", action="store_true", help="no progress bar")
     p.set_defaults(func=_cmd_bench_e2e)
 
