@@ -43,6 +43,11 @@ PAPER_SETTINGS: Mapping[str, Any] = MappingProxyType({
     "sim.gps.horizontal_noise_std_m": 0.3,       # SIM_GPS1_ACC default 0.3 m (reported accuracy)
     "sim.gps.vertical_noise_std_m": 0.3,         # SIM_GPS1_ACC
     "sim.gps.satellites": 10,                    # SIM_GPS1_NUMSATS default 10
+    # IMU white noise: AP_InertialSensor_SITL's base noise with SIM_ACC1_RND = SIM_GYR1_RND = 0 (the
+    # defaults): uniform +-0.01 m/s^2 and +-0.04 deg/s per 1 kHz sample (std 0.0058 m/s^2, 4.0e-4
+    # rad/s); our sample is the mean over a 10 ms tick, so / sqrt(10)
+    "sim.imu.accel_noise_std_m_s2": 0.0018,
+    "sim.imu.gyro_noise_std_rad_s": 1.3e-4,
 })
 
 #: ``realistic``: everything of ``paper`` plus these (docs/realism.md gives each basis).
@@ -59,7 +64,11 @@ REALISTIC_SETTINGS: Mapping[str, Any] = MappingProxyType({
     "sim.baro.drift_time_constant_s": 300.0,
     "sim.baro.ground_effect_m": -1.0,                         # SIM_BARO_GEFF_M style
     "sim.baro.ground_effect_height_m": 2.0,                   # SIM_BARO_GEFF_M: zero at 2 m AGL
-    # IMU: bias random walk and motor vibration scaled with throttle
+    # IMU: white noise of a flight controller's MEMS IMU (the project's values: about 2x / 3x the
+    # BMI088 datasheet densities of 0.014 deg/s/rt-Hz and 175 ug/rt-Hz over a 10 ms tick), bias
+    # random walk and motor vibration scaled with throttle
+    "sim.imu.accel_noise_std_m_s2": 0.05,
+    "sim.imu.gyro_noise_std_rad_s": 0.005,
     "sim.imu.accel_bias_walk_m_s2_per_sqrt_s": 2.0e-4,
     "sim.imu.gyro_bias_walk_rad_s_per_sqrt_s": 5.0e-6,
     "sim.imu.vibration_accel_m_s2": 1.7,                      # SIM_ACC_RND style, x throttle
