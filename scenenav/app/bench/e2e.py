@@ -1,9 +1,9 @@
 """``scenenav bench e2e``: the whole stack in lockstep through the real launcher, and where the time goes.
 
 The flight is a fixed short GPS-denied mission: ``scenarios/gps_denied.yaml`` (GPS off, the autopilot
-navigates on the perception node's fixes with the online CNN and the combined decision rule, the guidance node
-plans around the bad areas of the world's assistant map and uploads the mission over MAVLink, landing
-at the end) cut to one leg out and back (home -> (-150, 185) m -> home at 100 m, about 480 m). Every
+navigates on the perception node's fixes with the online CNN and the combined decision rule, the
+guidance node plans around the bad areas of the world's assistant map and uploads the mission over
+MAVLink, landing at the end) cut to one leg out and back (home -> (-150, 185) m -> home at 100 m, about 480 m). Every
 node runs as its own process, started by ``scenenav.app.launcher.run`` exactly as ``scenenav run``
 starts it: simulator, autopilot, perception, guidance, recorder.
 
