@@ -55,7 +55,8 @@ class EkfConfig:
     gyro_noise_rad_s_per_rt_hz: float = 0.001
     # Accelerometer white noise; ArduPilot EK3_ACC_P_NSE is the per-step equivalent (0.35 m/s^2).
     accel_noise_m_s2_per_rt_hz: float = 0.02
-    # Gyro bias random walk; ArduPilot EK3_GBIAS_P_NSE (0.001 rad/s^2) per step.
+    # Gyro bias random walk; set from ArduPilot EK3_GBIAS_P_NSE (default 0.001 rad/s^2 per step:
+    # param_binding.gyro_bias_noise_density) in a flight.
     gyro_bias_noise_rad_s2_per_rt_hz: float = 1.0e-4
     # Accelerometer bias random walk; ArduPilot EK3_ABIAS_P_NSE (0.02 m/s^3) per step.
     accel_bias_noise_m_s3_per_rt_hz: float = 2.0e-3

@@ -56,6 +56,7 @@ age^2 (no state buffer / delayed-horizon fusion).
 
 from __future__ import annotations
 
+import dataclasses
 import logging
 import math
 from dataclasses import dataclass
@@ -282,6 +283,14 @@ class NavFilter:
     @property
     def position_source(self) -> PositionSource:
         return self._source
+
+    def set_gyro_bias_noise(self, density_rad_s2_per_rt_hz: float) -> None:
+        """Change the gyro-bias random walk the filter assumes (``EK3_GBIAS_P_NSE``); from the next
+        prediction on. It also sets how well the bias must be known before a dead-reckoned climb
+        (``gyro_bias_learned``)."""
+        self._cfg = dataclasses.replace(self._cfg, gyro_bias_noise_rad_s2_per_rt_hz=float(density_rad_s2_per_rt_hz))
+        self._q_density[9:12] = self._cfg.gyro_bias_noise_rad_s2_per_rt_hz ** 2
+        self._qd_dt = math.nan
 
     def set_position_source(self, source: PositionSource) -> None:
         """Select the horizontal position source (EK3_SRC1_POSXY); takes effect on the next fix, no reset."""

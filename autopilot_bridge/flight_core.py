@@ -82,7 +82,7 @@ from autopilot_bridge.mixer import QuadXMixer
 from autopilot_bridge.mode_commands import ModeCommandsMixin
 from autopilot_bridge.modes import NEEDS_POSITION, POSITION_MODES, CopterMode
 from autopilot_bridge.motor_test import MotorTestMixin
-from autopilot_bridge.param_binding import ParamBindingMixin
+from autopilot_bridge.param_binding import ParamBindingMixin, gyro_bias_noise_density
 from autopilot_bridge.params import ParameterStore
 from autopilot_bridge.pilot import PilotMixin
 from autopilot_bridge.smart_rtl import BreadcrumbPath, smart_rtl_law
@@ -143,7 +143,9 @@ class FlightCore(SensorFusionMixin, ArmingMixin, GuidedMixin, AutoMissionMixin,
                             self.cfg.origin_alt_amsl_m)
         self._source_set = 1            # EK3_SRC<n>_*: SET_EKF_SOURCE_SET (param_binding)
         source = self._source_param()
-        self.nav = NavFilter(dataclasses.replace(self._algo.ekf, position_source=source))
+        self.nav = NavFilter(dataclasses.replace(
+            self._algo.ekf, position_source=source,
+            gyro_bias_noise_rad_s2_per_rt_hz=gyro_bias_noise_density(params.get("EK3_GBIAS_P_NSE"))))
         self.fc = FlightController(self._control_config(), self.airframe)
         self.mixer = QuadXMixer(self.airframe)
         self.failsafe = FailsafeMonitor()

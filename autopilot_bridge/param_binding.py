@@ -1,5 +1,5 @@
 """Parameter binding (part of ``FlightCore``): the ArduCopter parameters mapped onto the algorithms'
-configs (ANGLE_MAX, WPNAV_*, PILOT_*, LAND_*, RTL_*, WP_YAW_BEHAVIOR, EK3_SRC1_POSXY, the airframe
+configs (ANGLE_MAX, WPNAV_*, PILOT_*, LAND_*, RTL_*, WP_YAW_BEHAVIOR, EK3_SRC1_POSXY, EK3_GBIAS_P_NSE, the airframe
 model), applied again whenever the parameter store reports a change.
 
 Pure module: no zenoh, no pymavlink.
@@ -24,6 +24,17 @@ from autopilot_bridge.vehicle_interface import (
 logger = logging.getLogger(__name__)
 
 
+#: ArduPilot adds (dt * EK3_GBIAS_P_NSE)^2 of delta-angle bias variance per EKF step of dt, a gyro-bias
+#: random walk of density EK3_GBIAS_P_NSE * sqrt(dt); our filter steps at the 100 Hz control tick.
+EKF_STEP_S = 0.01
+
+
+def gyro_bias_noise_density(p_nse_rad_s2: float) -> float:
+    """``EK3_GBIAS_P_NSE`` (rad/s/s) -> the filter's gyro-bias random walk (rad/s^2/sqrt(Hz)); the
+    default 1e-3 gives ``EkfConfig``'s 1e-4."""
+    return float(p_nse_rad_s2) * EKF_STEP_S ** 0.5
+
+
 class ParamBindingMixin:
     """Part of ``FlightCore`` (``autopilot_bridge.flight_core``); works on its state."""
 
@@ -40,6 +51,8 @@ class ParamBindingMixin:
 
     def _apply_param(self, name: str, value: float) -> None:
         self._tel = None
+        if name == "EK3_GBIAS_P_NSE":
+            self.nav.set_gyro_bias_noise(gyro_bias_noise_density(value))
         if name == f"EK3_SRC{self._source_set}_POSXY":
             self.nav.set_position_source(self._source_param())
             self._announce(MavSeverity.INFO, f"EKF3 IMU0 is using {self._source_name()}")

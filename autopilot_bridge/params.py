@@ -161,6 +161,9 @@ DEFAULT_PARAM_SPECS: tuple[ParamSpec, ...] = (
           ((0, "Disabled"), (3, "Analog Voltage Only"), (4, "Analog Voltage and Current"))),
     _spec("DISARM_DELAY", _I8, 10, 0, 127, "s",
           "Delay before automatic disarm after landing; 0 disables auto disarm", safe=(0, None)),
+    _spec("EK3_GBIAS_P_NSE", _F, 1.0e-3, 1.0e-5, 1.0e-3, "rad/s/s",
+          "Rate gyro bias stability: the EKF's gyro-bias process noise (lower: the bias learnt at "
+          "rest is kept longer, e.g. for dead-reckoned climbs and landings)"),
     _spec("EK3_SRC1_POSXY", _I8, 3, 0, 6, "", "EKF horizontal position source",
           ((0, "None"), (3, "GPS"), (6, "ExternalNav"))),
     _spec("EK3_SRC1_POSZ", _I8, 1, 0, 6, "", "EKF vertical position source",

@@ -46,3 +46,18 @@ def test_thrust_curve_and_output_range():
     assert lin.command_for_thrust(0.3 * t_max) == pytest.approx(0.3)
     with pytest.raises(ConfigError):
         Airframe(spin_min=0.5, spin_max=0.4)
+
+
+def test_ek3_gbias_p_nse_sets_the_filters_gyro_bias_noise_at_start_and_in_flight():
+    from autopilot_bridge.config import EkfConfig
+    from autopilot_bridge.param_binding import gyro_bias_noise_density
+    store = ParameterStore(PARAM_SPECS)
+    core = FlightCore(store)
+    default = EkfConfig().gyro_bias_noise_rad_s2_per_rt_hz
+    assert core.nav._cfg.gyro_bias_noise_rad_s2_per_rt_hz == pytest.approx(default)
+    assert store.set("EK3_GBIAS_P_NSE", 1.0e-4).ok
+    assert core.nav._cfg.gyro_bias_noise_rad_s2_per_rt_hz == pytest.approx(0.1 * default)
+    assert core.nav._q_density[9] == pytest.approx(gyro_bias_noise_density(1.0e-4) ** 2)
+    store2 = ParameterStore(PARAM_SPECS)
+    assert store2.set("EK3_GBIAS_P_NSE", 1.0e-5).ok
+    assert FlightCore(store2).nav._cfg.gyro_bias_noise_rad_s2_per_rt_hz == pytest.approx(0.01 * default)

@@ -348,3 +348,38 @@ def test_zero_rate_at_rest_learns_the_horizontal_gyro_bias_and_rejects_motion():
     r = nav.fuse_zero_rate(GYRO_BIAS + np.array([0.1, 0.0, 0.0]), 0.2)
     assert not r.accepted and r.test_ratio > 1.0
     assert np.array_equal(nav.state().gyro_bias, before)
+
+
+def test_lower_gyro_bias_process_noise_keeps_the_bias_learnt_at_rest_tighter():
+    """``set_gyro_bias_noise`` (EK3_GBIAS_P_NSE): with a 10x lower bias random walk the zero-rate
+    update at rest settles to a smaller bias uncertainty (sqrt(q r)), the learnt threshold follows,
+    and the uncertainty then grows more slowly in flight without aiding."""
+    from autopilot_bridge.param_binding import gyro_bias_noise_density
+    assert gyro_bias_noise_density(1.0e-3) == pytest.approx(EkfConfig().gyro_bias_noise_rad_s2_per_rt_hz)
+    stds = []
+    for p_nse in (1.0e-3, 1.0e-4):
+        rng = np.random.default_rng(3)
+        truth = KinematicTruth(lambda _t: np.zeros(3), _still)
+        samples = [truth.step(rng) for _ in range(100)]
+        nav = NavFilter(EkfConfig(position_source=PositionSource.EXTNAV))
+        nav.initialise(np.mean([s[0] for s in samples], axis=0), truth.heading, truth.p[2],
+                       gyro_flu_rad_s=np.mean([s[1] for s in samples], axis=0),
+                       position_enu_m=truth.p.copy())
+        nav.set_gyro_bias_noise(gyro_bias_noise_density(p_nse))
+        window = []
+        for _ in range(10000):    # 100 s at rest: the lower noise settles more slowly
+            a, w = truth.step(rng)
+            nav.predict(a, w, DT)
+            window.append(w)
+            if len(window) == 20:
+                nav.fuse_zero_rate(np.mean(window, axis=0), 20 * DT)
+                window.clear()
+        at_rest = float(nav.gyro_bias_std_rad_s()[0])
+        assert nav.gyro_bias_learned()
+        for _ in range(3000):     # 30 s without any aiding
+            a, w = truth.step(rng)
+            nav.predict(a, w, DT)
+        stds.append((at_rest, float(nav.gyro_bias_std_rad_s()[0])))
+    (rest_hi, later_hi), (rest_lo, later_lo) = stds
+    assert rest_lo < 0.5 * rest_hi
+    assert later_lo - rest_lo < 0.2 * (later_hi - rest_hi)
