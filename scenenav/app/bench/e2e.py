@@ -247,8 +247,8 @@ def run_e2e_bench(cfg: E2eBenchConfig | None = None, out_dir: str | None = None,
     ``out_dir``: keep the bench folder there (the scenario and the run folder ``run/``); default a
     temporary folder, removed afterwards. ``overrides``: ``KEY=VALUE`` scenario overrides (as
     ``scenenav run --set``), checked before anything starts."""
-    from scenenav.app.scenario import load_scenario
     from scenenav.app.launcher import run
+    from scenenav.app.scenario import load_scenario
     cfg = cfg if cfg is not None else E2eBenchConfig()
     keep = out_dir is not None
     base = Path(out_dir) if keep else Path(tempfile.mkdtemp(prefix="scenenav-bench-e2e-"))
