@@ -35,8 +35,26 @@ NODE_ID = "perception"
 
 
 # ------------------------------------------------------------------------------ samples
+def survey_altitude_m(run_dir: Path) -> float | None:
+    """The flight altitude of an autopilot flight folder (its ``scenario.yaml``), None for a
+    scripted flight (or a folder without a scenario)."""
+    path = Path(run_dir) / "scenario.yaml"
+    if not path.is_file():
+        return None
+    import yaml
+    flight = (yaml.safe_load(path.read_text(encoding="utf-8")) or {}).get("flight") or {}
+    if flight.get("mode") != "autopilot":
+        return None
+    return float(flight.get("altitude_m", 100.0))
+
+
 def flight_samples(run_dir: str | Path, threshold_m: float = 5.0) -> FlightSamples:
-    """Features and labels of one ``cnn`` flight folder (see the module docstring)."""
+    """Features and labels of one ``cnn`` flight folder (see the module docstring).
+
+    An autopilot flight's samples are the fixes captured within ``SURVEY_BAND_M`` of its flight
+    altitude (true height), the fixes ``scenenav experiment table2`` scores; the climb and the
+    landing are left out. The run, the anchor and the statistical indicators are still fed every
+    valid fix in order, as in flight."""
     from perception.assistant_map import AssistantMap
     from scenenav.app.evaluation import fix_table, read_csv
     run_dir = Path(run_dir)
@@ -82,9 +100,15 @@ def flight_samples(run_dir: str | Path, threshold_m: float = 5.0) -> FlightSampl
                              in zip(p_bad, peak, psr, spr, innov, run, dr_innov, dr_age, *variances,
                                     reach, strict=False)])
         p_bads[src] = p_bad
-    return FlightSamples(world=run_dir.name, y=fx["is_false"][idx_fx].astype(bool),
-                         error_m=fx["error_m"][idx_fx], t_s=fx["t_s"][idx_fx], features=features,
-                         p_bad=p_bads)
+    sel = np.ones(len(idx_fx), dtype=bool)
+    altitude = survey_altitude_m(run_dir)
+    if altitude is not None:
+        from scenenav.app.experiment import SURVEY_BAND_M
+        sel = np.abs(np.asarray(fx["truth_z_m"], dtype=float)[idx_fx] - altitude) <= SURVEY_BAND_M
+    return FlightSamples(world=run_dir.name, y=fx["is_false"][idx_fx][sel].astype(bool),
+                         error_m=fx["error_m"][idx_fx][sel], t_s=fx["t_s"][idx_fx][sel],
+                         features={k: v[sel] for k, v in features.items()},
+                         p_bad={k: v[sel] for k, v in p_bads.items()})
 
 
 # ------------------------------------------------------------------------------ flights
@@ -121,9 +145,9 @@ def collect(out: str | Path, world_seeds: tuple[int, ...], size_px: tuple[int, i
     manifest of another realism, flight kind or overrides is refused."""
     from worlds.generator import CityConfig, generate_world
     check_training_seeds(world_seeds)
-    if realism is not None:
-        from scenenav.app.realism import parse_realism
-        parse_realism(realism, "--realism")
+    from scenenav.app.scenario import load_scenario
+    # bad --realism or --set: one line before any world is generated
+    load_scenario(None, ((f"realism={realism}",) if realism is not None else ()) + tuple(overrides))
     out = Path(out)
     flight = {"realism": realism or "ideal", "flight": "scripted" if scripted else "autopilot",
               "overrides": list(overrides)}
