@@ -28,9 +28,10 @@ Definitions (printed in table2.md):
 * ``fix_time_ms_median``: the perception node's per-fix time (align + NCC + CNN + lookup).
 
 Decision rule of the cnn and assistant-map rows (column ``rule``): ``combined`` by default, i.e.
-``perception.weights`` is the shipped combined decision model
-(``perception/weights/decision_combined.json``: the logistic P(false fix) from the area's P(bad),
-the NCC quality and the innovation against the tracker; docs/perception.md). The paper's rule
+``perception.weights`` is the combined decision model of the scenario (``decision_model_for``: the
+``perception.decision_model`` a realism profile or ``--set`` gives, else the shipped
+``perception/weights/decision_combined.json``: the logistic P(false fix) from the area's P(bad),
+the NCC quality and the track evidence; docs/perception.md). The paper's rule
 (P(bad) > 0.5) is flown with ``decision_rule="paper"`` or ``--set perception.weights=<a CNN .pt>``
 (overrides come last). With the combined rule, two more flights repeat the cnn and assistant-map
 rows under the paper's rule (``paper_rows``; run folders ``run-*-paper``) for comparison. The rule
@@ -122,9 +123,11 @@ def table2_scenario(world_dir: str | Path | None, seed: int = 0, realism: str | 
     return base, load_scenario(None, tuple(base) + tuple(overrides)), world
 
 
-def default_decision_model() -> Path:
+def decision_model_for(cfg) -> Path:
+    """The combined-rule model a scenario flies: its ``perception.decision_model`` (set by a realism
+    profile, the scenario or ``--set``), else the shipped ``decision_combined.json``."""
     from perception.decision import DEFAULT_DECISION_MODEL
-    return DEFAULT_DECISION_MODEL
+    return Path(cfg.perception.decision_model) if cfg.perception.decision_model else DEFAULT_DECISION_MODEL
 
 
 def flown_rule(run_dir: Path) -> str:
@@ -186,7 +189,7 @@ def run_table2(world_dir: str | None, out: str, seed: int = 0, threshold_m: floa
         suffix = "-paper" if rule == "paper" and decision_rule != "paper" else ""
         sets = list(base) + [f"perception.method={method}", f"name=table2-{method}{suffix}"]
         if rule == "combined" and method in ("cnn", "assistant-map"):
-            sets.append(f"perception.weights={default_decision_model()}")
+            sets.append(f"perception.weights={decision_model_for(cfg0)}")
         sets += list(overrides)
         map_path = out_dir / f"assistant_map{suffix}.npz"
         if method == "assistant-map":
