@@ -15,6 +15,7 @@ from enum import Enum
 from types import MappingProxyType
 from typing import Any, Mapping
 
+from perception.decision import REALISTIC_DECISION_MODEL
 from scenenav.core.config import set_dotted
 from scenenav.core.errors import UserError
 from sitl.camera_model import REALISTIC_CAMERA
@@ -83,6 +84,9 @@ REALISTIC_SETTINGS: Mapping[str, Any] = MappingProxyType({
     # the compass is 4-9 deg off at some headings with the errors above (docs/realism.md "What breaks
     # matching on `realistic`"): learn that error from the matches (perception.heading_offset)
     "perception.heading_learning": True,
+    # the combined decision rule fitted on realistic autopilot flights over training worlds 101-110
+    # (docs/perception.md "Fitting"): the one fitted on ideal scripted flights accepted far-off fixes
+    "perception.decision_model": str(REALISTIC_DECISION_MODEL),
 })
 
 PROFILES: Mapping[Realism, Mapping[str, Any]] = MappingProxyType({
