@@ -75,8 +75,8 @@ def test_results_page_keeps_one_column_per_profile(tmp_path):
 
 
 def test_each_profile_flies_its_own_combined_rule_model():
-    """realistic selects the model fitted on realistic flights (a file that loads and names the CNN
-    it was fitted with); ideal and paper keep the shipped one; --set still wins."""
+    """paper and realistic select the model fitted on realistic flights (a file that loads and
+    names the CNN it was fitted with); ideal keeps the shipped one; --set still wins."""
     from perception.decision import DEFAULT_DECISION_MODEL, REALISTIC_DECISION_MODEL, CombinedDecisionModel
     from scenenav.app.experiment import decision_model_for
     realistic = load_scenario(None, ("realism=realistic",))
@@ -84,6 +84,7 @@ def test_each_profile_flies_its_own_combined_rule_model():
     model = CombinedDecisionModel.load(REALISTIC_DECISION_MODEL)
     assert model.cnn_weights_path().name == "matchability.pt" and model.cnn_weights_path().is_file()
     assert model.meta["data"]["realism"] == "realistic" and model.meta["data"]["flight"] == "autopilot"
+    assert decision_model_for(load_scenario(None, ("realism=paper",))) == REALISTIC_DECISION_MODEL
     assert decision_model_for(load_scenario(None, ("realism=ideal",))) == DEFAULT_DECISION_MODEL
     mine = load_scenario(None, ("realism=realistic", f"perception.decision_model={DEFAULT_DECISION_MODEL}"))
     assert decision_model_for(mine) == DEFAULT_DECISION_MODEL
