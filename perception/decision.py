@@ -202,6 +202,9 @@ class TrackEvidence:
 
 #: The shipped combined-rule model (fitted by ``scenenav cnn fit-decision``, see docs/perception.md).
 DEFAULT_DECISION_MODEL = Path(__file__).resolve().parent / "weights" / "decision_combined.json"
+#: The same rule fitted on ``realistic``-profile autopilot flights (docs/perception.md, "Refit on
+#: `realistic`"); the ``paper`` and ``realistic`` realism profiles select it (``perception.decision_model``).
+REALISTIC_DECISION_MODEL = DEFAULT_DECISION_MODEL.parent / "decision_combined_realistic.json"
 DECISION_MODEL_FORMAT = 1
 
 

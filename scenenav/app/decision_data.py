@@ -35,8 +35,26 @@ NODE_ID = "perception"
 
 
 # ------------------------------------------------------------------------------ samples
+def survey_altitude_m(run_dir: Path) -> float | None:
+    """The flight altitude of an autopilot flight folder (its ``scenario.yaml``), None for a
+    scripted flight (or a folder without a scenario)."""
+    path = Path(run_dir) / "scenario.yaml"
+    if not path.is_file():
+        return None
+    import yaml
+    flight = (yaml.safe_load(path.read_text(encoding="utf-8")) or {}).get("flight") or {}
+    if flight.get("mode") != "autopilot":
+        return None
+    return float(flight.get("altitude_m", 100.0))
+
+
 def flight_samples(run_dir: str | Path, threshold_m: float = 5.0) -> FlightSamples:
-    """Features and labels of one ``cnn`` flight folder (see the module docstring)."""
+    """Features and labels of one ``cnn`` flight folder (see the module docstring).
+
+    An autopilot flight's samples are the fixes captured within ``SURVEY_BAND_M`` of its flight
+    altitude (true height), the fixes ``scenenav experiment table2`` scores; the climb and the
+    landing are left out. The run, the anchor and the statistical indicators are still fed every
+    valid fix in order, as in flight."""
     from perception.assistant_map import AssistantMap
     from scenenav.app.evaluation import fix_table, read_csv
     run_dir = Path(run_dir)
@@ -82,38 +100,66 @@ def flight_samples(run_dir: str | Path, threshold_m: float = 5.0) -> FlightSampl
                              in zip(p_bad, peak, psr, spr, innov, run, dr_innov, dr_age, *variances,
                                     reach, strict=False)])
         p_bads[src] = p_bad
-    return FlightSamples(world=run_dir.name, y=fx["is_false"][idx_fx].astype(bool),
-                         error_m=fx["error_m"][idx_fx], t_s=fx["t_s"][idx_fx], features=features,
-                         p_bad=p_bads)
+    sel = np.ones(len(idx_fx), dtype=bool)
+    altitude = survey_altitude_m(run_dir)
+    if altitude is not None:
+        from scenenav.app.experiment import SURVEY_BAND_M
+        sel = np.abs(np.asarray(fx["truth_z_m"], dtype=float)[idx_fx] - altitude) <= SURVEY_BAND_M
+    return FlightSamples(world=run_dir.name, y=fx["is_false"][idx_fx][sel].astype(bool),
+                         error_m=fx["error_m"][idx_fx][sel], t_s=fx["t_s"][idx_fx][sel],
+                         features={k: v[sel] for k, v in features.items()},
+                         p_bad={k: v[sel] for k, v in p_bads.items()})
 
 
 # ------------------------------------------------------------------------------ flights
 def fly_cnn(world_dir: str | Path, run_dir: str | Path, weights: str = "", seed: int = 0,
-            progress: bool = False) -> dict:
-    """One Table-2 style flight (bowtie, scripted, method cnn) over ``world_dir``."""
+            progress: bool = False, realism: str | None = None, scripted: bool = True,
+            overrides: tuple[str, ...] = ()) -> dict:
+    """One Table-2 flight with method cnn over ``world_dir``: the flight ``scenenav experiment
+    table2`` flies (``experiment.table2_scenario``: the autopilot mission on GPS, or the scripted
+    kinematic path with ``scripted``) on profile ``realism``, ``overrides`` last (as ``--set``)."""
+    from scenenav.app.experiment import table2_scenario
     from scenenav.app.launcher import run
-    from scenenav.app.nodes import load_world_for
-    from scenenav.app.scenario import load_scenario, route_for
-    base = ["flight.mode=scripted", f"seed={seed}", f"world={Path(world_dir).resolve()}"]
-    cfg0 = load_scenario(None, tuple(base))
-    route = route_for(cfg0, load_world_for(cfg0))
-    sets = base + ["flight.route_enu_m=" + json.dumps([list(p) for p in route]),
-                   "duration_s=100000", "perception.method=cnn", "name=decision-data-cnn"]
+    sets, _cfg, _world = table2_scenario(world_dir, seed, realism, scripted, tuple(overrides))
+    sets += ["perception.method=cnn", "name=decision-data-cnn"]
     if weights:
         sets.append(f"perception.weights={Path(weights).resolve()}")
-    return run(None, str(run_dir), tuple(sets), progress=progress)
+    return run(None, str(run_dir), tuple(sets) + tuple(overrides), progress=progress)
+
+
+def check_training_seeds(world_seeds: tuple[int, ...]) -> None:
+    """Refuse the default world and every held-out seed (``RESERVED_SEEDS``, any seed >= 9000)."""
+    reserved = sorted(s for s in set(world_seeds) if s in RESERVED_SEEDS or s >= HELD_OUT_FROM)
+    if reserved:
+        raise UserError(f"world seed(s) {reserved} reserved for held-out evaluation (0 and every seed "
+                        f">= {HELD_OUT_FROM}); choose other training seeds")
 
 
 def collect(out: str | Path, world_seeds: tuple[int, ...], size_px: tuple[int, int] = (900, 1000),
-            weights: str = "", progress: bool = False, command: str = "") -> list[Path]:
-    """Generate each training world and fly it once with the online CNN (skips finished ones).
-    Writes ``manifest.json`` (command, seeds, size, weights) beside ``worlds/`` and ``flights/``."""
+            weights: str = "", progress: bool = False, command: str = "",
+            realism: str | None = None, scripted: bool = True,
+            overrides: tuple[str, ...] = ()) -> list[Path]:
+    """Generate each training world and fly it once with the online CNN (skips finished ones), as
+    ``fly_cnn`` flies it. Writes ``manifest.json`` (command, seeds, size, weights, realism, flight
+    kind, overrides) beside ``worlds/`` and ``flights/``. A folder holds one kind of flight: a
+    manifest of another realism, flight kind or overrides is refused."""
     from worlds.generator import CityConfig, generate_world
-    reserved = sorted(set(world_seeds) & RESERVED_SEEDS)
-    if reserved:
-        raise UserError(f"world seed(s) {reserved} reserved for held-out evaluation "
-                        f"({sorted(RESERVED_SEEDS)}); choose other training seeds")
+    check_training_seeds(world_seeds)
+    from scenenav.app.scenario import load_scenario
+    # bad --realism or --set: one line before any world is generated
+    load_scenario(None, ((f"realism={realism}",) if realism is not None else ()) + tuple(overrides))
     out = Path(out)
+    flight = {"realism": realism or "ideal", "flight": "scripted" if scripted else "autopilot",
+              "overrides": list(overrides)}
+    man_path = out / "manifest.json"
+    if man_path.is_file():
+        old = json.loads(man_path.read_text(encoding="utf-8"))
+        was = {"realism": old.get("realism", "ideal"), "flight": old.get("flight", "scripted"),
+               "overrides": old.get("overrides", [])}
+        if was != flight:
+            raise UserError(f"{out}: holds {was['realism']}/{was['flight']} flights with overrides "
+                            f"{was['overrides']}; asked for {flight['realism']}/{flight['flight']} with "
+                            f"{flight['overrides']} (choose another --out)")
     (out / "worlds").mkdir(parents=True, exist_ok=True)
     runs = []
     for seed in world_seeds:
@@ -126,18 +172,21 @@ def collect(out: str | Path, world_seeds: tuple[int, ...], size_px: tuple[int, i
         if not (rdir / "summary.json").is_file():
             if rdir.exists():
                 raise UserError(f"{rdir}: an unfinished flight; delete it and run again")
-            log.info("decision data: flying world %d", seed)
-            fly_cnn(wdir, rdir, weights, progress=progress)
+            log.info("decision data: flying world %d (%s, %s)", seed, flight["realism"], flight["flight"])
+            fly_cnn(wdir, rdir, weights, progress=progress, realism=realism, scripted=scripted,
+                    overrides=overrides)
         runs.append(rdir)
-    (out / "manifest.json").write_text(json.dumps({
-        "command": command, "world_seeds": list(world_seeds), "world_size_px": list(size_px),
-        "weights": str(Path(weights).resolve()) if weights else "perception/weights/default.pt",
-        "flights": [str(r) for r in runs]}, indent=2) + "\n")
+        man_path.write_text(json.dumps({   # after every flight: a stopped collection keeps its record
+            "command": command, "world_seeds": list(world_seeds), "world_size_px": list(size_px),
+            "weights": str(Path(weights).resolve()) if weights else "perception/weights/default.pt",
+            **flight, "flights": [str(r) for r in runs]}, indent=2) + "\n")
     return runs
 
 
 #: Never used for fitting: the default world (seed 0) and the held-out evaluation worlds.
 RESERVED_SEEDS = frozenset({0, 9001, 9002, 9003, 9101, 9102, 9103})
+#: Every seed from here up is reserved for held-out (blind) checks.
+HELD_OUT_FROM = 9000
 #: Training worlds of the shipped model (disjoint from the CNN's training worlds 1-12 too).
 DEFAULT_TRAIN_SEEDS = tuple(range(101, 111))
 

@@ -28,9 +28,10 @@ Definitions (printed in table2.md):
 * ``fix_time_ms_median``: the perception node's per-fix time (align + NCC + CNN + lookup).
 
 Decision rule of the cnn and assistant-map rows (column ``rule``): ``combined`` by default, i.e.
-``perception.weights`` is the shipped combined decision model
-(``perception/weights/decision_combined.json``: the logistic P(false fix) from the area's P(bad),
-the NCC quality and the innovation against the tracker; docs/perception.md). The paper's rule
+``perception.weights`` is the combined decision model of the scenario (``decision_model_for``: the
+``perception.decision_model`` a realism profile or ``--set`` gives, else the shipped
+``perception/weights/decision_combined.json``: the logistic P(false fix) from the area's P(bad),
+the NCC quality and the track evidence; docs/perception.md). The paper's rule
 (P(bad) > 0.5) is flown with ``decision_rule="paper"`` or ``--set perception.weights=<a CNN .pt>``
 (overrides come last). With the combined rule, two more flights repeat the cnn and assistant-map
 rows under the paper's rule (``paper_rows``; run folders ``run-*-paper``) for comparison. The rule
@@ -95,9 +96,38 @@ def flight_settings(route, altitude_m: float, speed_m_s: float, scripted: bool) 
             f"autopilot.params={FAST_LANDING_PARAMS}", f"duration_s={duration:.0f}"]
 
 
-def default_decision_model() -> Path:
+def table2_scenario(world_dir: str | Path | None, seed: int = 0, realism: str | None = None,
+                    scripted: bool = False, overrides: tuple[str, ...] = (),
+                    extra: tuple[str, ...] = ()):
+    """The flight every table2 flight flies: ``(sets, cfg, world)``.
+
+    ``sets`` are the ``--set`` items (seed, realism, world, route and flight kind:
+    ``flight_settings``, then ``extra``) without ``overrides``; ``cfg`` is the scenario they give
+    with ``overrides`` laid over them (as ``--set`` would); ``world`` the loaded world. The route is
+    the one ``route_for`` fits to the world on the profile and overrides. One helper for every
+    caller that flies "the Table-2 flight" (``run_table2``, ``scenenav cnn decision-data``,
+    ``realism_ablation``)."""
+    from scenenav.app.nodes import load_world_for
+    from scenenav.app.realism import parse_realism
+    from scenenav.app.scenario import load_scenario, route_for
+    base = [f"seed={seed}", *extra]
+    if realism is not None:
+        parse_realism(realism, "--realism")
+        base.append(f"realism={realism}")
+    if world_dir:
+        base.append(f"world={Path(world_dir).resolve()}")
+    cfg0 = load_scenario(None, tuple(base) + ("flight.mode=scripted",) + tuple(overrides))
+    world = load_world_for(cfg0)
+    route = route_for(cfg0, world)
+    base += flight_settings(route, cfg0.flight.altitude_m, cfg0.flight.speed_m_s, scripted)
+    return base, load_scenario(None, tuple(base) + tuple(overrides)), world
+
+
+def decision_model_for(cfg) -> Path:
+    """The combined-rule model a scenario flies: its ``perception.decision_model`` (set by a realism
+    profile, the scenario or ``--set``), else the shipped ``decision_combined.json``."""
     from perception.decision import DEFAULT_DECISION_MODEL
-    return DEFAULT_DECISION_MODEL
+    return Path(cfg.perception.decision_model) if cfg.perception.decision_model else DEFAULT_DECISION_MODEL
 
 
 def flown_rule(run_dir: Path) -> str:
@@ -138,9 +168,7 @@ def run_table2(world_dir: str | None, out: str, seed: int = 0, threshold_m: floa
                paper_rows: bool = True, realism: str | None = None, scripted: bool = False) -> dict:
     from scenenav.app.evaluation import fix_height_splits, fix_table
     from scenenav.app.launcher import run
-    from scenenav.app.nodes import load_world_for
     from scenenav.app.realism import parse_realism
-    from scenenav.app.scenario import load_scenario, route_for
     if decision_rule not in DECISION_RULES:
         raise UserError(f"decision rule {decision_rule!r}: expected one of {', '.join(DECISION_RULES)}")
     if realism is not None:
@@ -148,16 +176,9 @@ def run_table2(world_dir: str | None, out: str, seed: int = 0, threshold_m: floa
     out_dir = Path(out)
     if out_dir.exists() and any(out_dir.iterdir()):
         raise UserError(f"{out_dir}: output folder exists and is not empty (choose a new --out)")
-    base = [f"seed={seed}", f"evaluation.false_fix_threshold_m={threshold_m}"]
-    if realism is not None:
-        base.append(f"realism={realism}")
-    if world_dir:
-        base.append(f"world={Path(world_dir).resolve()}")
-    cfg0 = load_scenario(None, tuple(base) + ("flight.mode=scripted",) + tuple(overrides))
-    world = load_world_for(cfg0)
-    route = route_for(cfg0, world)
-    base += flight_settings(route, cfg0.flight.altitude_m, cfg0.flight.speed_m_s, scripted)
-    cfg0 = load_scenario(None, tuple(base) + tuple(overrides))   # what every flight flies
+    base, cfg0, world = table2_scenario(   # cfg0: what every flight flies
+        world_dir, seed, realism, scripted, tuple(overrides),
+        extra=(f"evaluation.false_fix_threshold_m={threshold_m}",))
     out_dir.mkdir(parents=True, exist_ok=True)
     rows = []
     flights = [(m, decision_rule) for m in METHODS]
@@ -168,7 +189,7 @@ def run_table2(world_dir: str | None, out: str, seed: int = 0, threshold_m: floa
         suffix = "-paper" if rule == "paper" and decision_rule != "paper" else ""
         sets = list(base) + [f"perception.method={method}", f"name=table2-{method}{suffix}"]
         if rule == "combined" and method in ("cnn", "assistant-map"):
-            sets.append(f"perception.weights={default_decision_model()}")
+            sets.append(f"perception.weights={decision_model_for(cfg0)}")
         sets += list(overrides)
         map_path = out_dir / f"assistant_map{suffix}.npz"
         if method == "assistant-map":

@@ -49,7 +49,7 @@ from pathlib import Path
 
 import numpy as np
 
-from scenenav.app.experiment import SURVEY_BAND_M, flight_settings
+from scenenav.app.experiment import SURVEY_BAND_M, table2_scenario
 from scenenav.core.errors import UserError
 
 log = logging.getLogger(__name__)
@@ -107,17 +107,8 @@ def _wrap(a: float) -> float:
 def ablation_settings(realism: str, seed: int, world: str | None, overrides: tuple[str, ...]):
     """The scenario (``ScenarioConfig``), world and route of the Table-2 autopilot flight on
     ``realism`` with ``overrides`` (``KEY=VALUE``, laid over everything like ``--set``)."""
-    from scenenav.app.nodes import load_world_for
-    from scenenav.app.scenario import load_scenario, route_for
-    base = [f"seed={seed}", f"realism={realism}"]
-    if world:
-        base.append(f"world={world}")
-    cfg0 = load_scenario(None, tuple(base) + ("flight.mode=scripted",) + overrides)
-    w = load_world_for(cfg0)
-    route = route_for(cfg0, w)
-    sets = tuple(base) + tuple(flight_settings(route, cfg0.flight.altitude_m, cfg0.flight.speed_m_s, False))
-    cfg = load_scenario(None, sets + overrides)
-    return cfg, w, route
+    _sets, cfg, w = table2_scenario(world, seed, realism, False, overrides)
+    return cfg, w, cfg.flight.route_enu_m
 
 
 def fly(cfg, world, *, probes: tuple[Probe, ...] = (Probe.NODE,), method: str = "none",

@@ -137,8 +137,11 @@ def _bench(args: argparse.Namespace) -> int:
 def _decision_data(args: argparse.Namespace) -> int:
     from scenenav.app.decision_data import collect
     runs = collect(args.out, args.worlds, args.world_size, args.weights or "", progress=not args.quiet,
-                   command=_command_line())
-    print(f"decision data {args.out}: {len(runs)} cnn flights: " + ", ".join(str(r) for r in runs))
+                   command=_command_line(), realism=args.realism, scripted=args.scripted,
+                   overrides=tuple(args.set or ()))
+    kind = "scripted" if args.scripted else "autopilot"
+    print(f"decision data {args.out}: {len(runs)} cnn flights ({args.realism or 'ideal'}, {kind}): "
+          + ", ".join(str(r) for r in runs))
     return 0
 
 
@@ -289,19 +292,33 @@ def register(subparsers) -> None:
     cb.add_argument("--json", action="store_true", help="print only JSON on stdout")
     cb.set_defaults(func=_bench)
 
-    from scenenav.app.decision_data import DEFAULT_TRAIN_SEEDS
+    from scenenav.app.decision_data import DEFAULT_TRAIN_SEEDS, HELD_OUT_FROM
+    from scenenav.app.realism import Realism
     dd = csub.add_parser(
         "decision-data", help="fly training worlds with the online CNN (data for fit-decision)",
-        description="Generate each training world (seeded) and fly the Table-2 path over it once with "
-                    "method cnn (a full lockstep `scenenav run`); the run folders (fixes.csv, "
-                    "perception_diag_perception.csv, assistant map) are the combined rule's training "
-                    "data. Seeds 0 (default world), 9001-9003 and 9101-9103 (held out) are refused.")
+        description="Generate each training world (seeded) and fly the Table-2 flight over it once with "
+                    "method cnn, exactly as `scenenav experiment table2` flies it (a full lockstep "
+                    "`scenenav run`): by default the autopilot mission on GPS, on the --realism profile, "
+                    "with the --set overrides last; --scripted flies the old kinematic path (the data "
+                    "of the first fits). One world at a time; a finished flight is kept and skipped when "
+                    "the command is run again. The run folders (fixes.csv, perception_diag_perception.csv, "
+                    "assistant map) and manifest.json are the combined rule's training data "
+                    "(`scenenav cnn fit-decision --data DIR`). Seed 0 (the default world) and every "
+                    f"seed >= {HELD_OUT_FROM} (held out for blind checks) are refused.")
     dd.add_argument("--out", required=True, metavar="DIR", help="data folder (worlds/ and flights/)")
     dd.add_argument("--worlds", type=_seeds, default=DEFAULT_TRAIN_SEEDS, metavar="SEEDS",
                     help="training world seeds (default " + ",".join(map(str, DEFAULT_TRAIN_SEEDS)) + ")")
     dd.add_argument("--world-size", type=_size, default=(900, 1000), metavar="WxH",
                     help="world size in px (default 900x1000, the paper's map)")
     dd.add_argument("--weights", metavar="PT", help="CNN weights (default: the shipped default.pt)")
+    dd.add_argument("--realism", choices=[r.value for r in Realism],
+                    help="realism profile of every flight (docs/realism.md; default: none given, i.e. "
+                         "ideal, as the first fits)")
+    dd.add_argument("--scripted", action="store_true",
+                    help="fly the kinematic path without the autopilot (the old decision data) instead "
+                         "of the autopilot mission table2 flies by default")
+    dd.add_argument("--set", action="append", metavar="KEY=VALUE",
+                    help="scenario override for every flight, laid over everything (repeatable)")
     dd.add_argument("--quiet", action="store_true", help="no progress bars")
     dd.set_defaults(func=_decision_data)
 

@@ -37,6 +37,8 @@ def scenenav(*args):
     (["experiment", "relief", "--world", "/nonexistent/world", "--json"], "/nonexistent/world"),
     (["sitl", "--out", "{tmp}/m", "--tcp-port", "0", "--external", "autopilot:mine"], "scenenav run --external"),
     (["sitl", "--out", "{tmp}/l", "--tcp-port", "0", "--external", "nonsense"], "ROLE:ID"),
+    (["cnn", "decision-data", "--out", "{tmp}/dd", "--worlds", "101,9050"], "reserved for held-out"),
+    (["cnn", "decision-data", "--out", "{tmp}/de", "--set", "flight.altitude_m=-3"], "altitude_m"),
 ])
 def test_one_line_error_exit_2(tmp_path, args, needle):
     bad = tmp_path / "bad.yaml"

@@ -72,3 +72,19 @@ def test_results_page_keeps_one_column_per_profile(tmp_path):
     assert "| cnn | 0.31 / 100.0 / 0 | 1.50 / 100.0 / 0 |" in text
     stored = json.loads((page.parent / "table2-realistic-autopilot.json").read_text())
     assert stored["rows"][0]["rms_error_m"] == 1.50
+
+
+def test_each_profile_flies_its_own_combined_rule_model():
+    """paper and realistic select the model fitted on realistic flights (a file that loads and
+    names the CNN it was fitted with); ideal keeps the shipped one; --set still wins."""
+    from perception.decision import DEFAULT_DECISION_MODEL, REALISTIC_DECISION_MODEL, CombinedDecisionModel
+    from scenenav.app.experiment import decision_model_for
+    realistic = load_scenario(None, ("realism=realistic",))
+    assert decision_model_for(realistic) == REALISTIC_DECISION_MODEL != DEFAULT_DECISION_MODEL
+    model = CombinedDecisionModel.load(REALISTIC_DECISION_MODEL)
+    assert model.cnn_weights_path().name == "matchability.pt" and model.cnn_weights_path().is_file()
+    assert model.meta["data"]["realism"] == "realistic" and model.meta["data"]["flight"] == "autopilot"
+    assert decision_model_for(load_scenario(None, ("realism=paper",))) == REALISTIC_DECISION_MODEL
+    assert decision_model_for(load_scenario(None, ("realism=ideal",))) == DEFAULT_DECISION_MODEL
+    mine = load_scenario(None, ("realism=realistic", f"perception.decision_model={DEFAULT_DECISION_MODEL}"))
+    assert decision_model_for(mine) == DEFAULT_DECISION_MODEL
