@@ -6,7 +6,9 @@ Inputs
   ``sensors/compass``   CompassSample   (newest before the frame is used for alignment)
   ``sensors/baro``      BaroSample      (newest before the frame is used for scale)
   ``autopilot/estimate`` NavEstimate    (alignment homography: the estimated roll and pitch at or just
-                                         before the frame, for FIXED-mount frames; never truth)
+                                         before the frame, for FIXED-mount frames; never truth; the
+                                         worker waits, at most ESTIMATE_WAIT_S, until that estimate
+                                         is sure to have arrived, so lockstep runs are repeatable)
 Outputs
   ``perception/fix/<node_id>``   VisionFix  (one per frame; ``valid`` false when no match)
   ``lockstep/ack/<node_id>``     LockstepAck (role camera, after the fix) when in lockstep
@@ -125,6 +127,11 @@ DIAG_COLUMNS = ("t_s", "frame_seq", "valid", "accepted", "rule", "reason", "sear
 #: is dropped (``stats["dropped_backlog"]``, logged, no fix and no ack for it): the newest frames are
 #: the ones worth matching.
 FRAME_BACKLOG = 64
+#: Wall seconds the worker waits for the autopilot estimate of a frame's capture time (see
+#: ``_estimate_settled``); after that it aligns with the newest one it has (``stats["estimate_late"]``).
+ESTIMATE_WAIT_S = 0.5
+#: Estimates this many periods older than a frame mean the stream stopped: no waiting then.
+STALLED_ESTIMATE_PERIODS = 20
 
 class PerceptionNode:
     """See the module docstring. ``camera``: the camera this node expects (FOV and size)."""
@@ -171,6 +178,8 @@ class PerceptionNode:
         self._tilts: deque[tuple[int, tuple[float, float]]] = deque(maxlen=400)
         self._priors: deque[tuple[int, tuple[float, float, float | None]]] = deque(maxlen=400)
         self._sensor_lock = threading.Lock()
+        self._estimate_arrived = threading.Condition(self._sensor_lock)
+        self._estimate_period_us = 0      # between the last two estimates (0: fewer than two yet)
         self._queue: queue.Queue = queue.Queue(maxsize=FRAME_BACKLOG)
         self._backlog_dropped: deque[CameraFrame] = deque()     # oldest frames pushed out
         self._stop = threading.Event()
@@ -206,8 +215,40 @@ class PerceptionNode:
         radius = prior_search_radius_m(msg.position_std_m, self.pipeline.m_per_px, self.prior_margin_px,
                                        mcfg.max_search_radius_px)
         with self._sensor_lock:
+            if self._tilts:
+                self._estimate_period_us = max(0, msg.timestamp_us - self._tilts[-1][0])
             self._tilts.append((msg.timestamp_us, (roll, pitch)))
             self._priors.append((msg.timestamp_us, (msg.position_enu_m[0], msg.position_enu_m[1], radius)))
+            self._estimate_arrived.notify_all()
+
+    def _estimate_settled(self, t_us: int) -> bool:
+        """Whether the estimate at or before ``t_us`` is known for sure: one stamped within an
+        estimate period before ``t_us``, or later, has arrived (the estimates come in order on the
+        autopilot's link). Without this the frame would take whichever estimate happened to have
+        arrived, and the autopilot's and the simulator's links race: two lockstep runs differed in
+        3 of 900 realistic fixes (2026-12-05). Call with ``_sensor_lock`` held."""
+        if not self._tilts or self._estimate_period_us <= 0:
+            return True     # the autopilot has not published two yet: nothing to wait for
+        newest = self._tilts[-1][0]
+        if newest < t_us - STALLED_ESTIMATE_PERIODS * self._estimate_period_us:
+            return True     # the estimates stopped (the autopilot left): do not wait for each frame
+        return newest > t_us - self._estimate_period_us
+
+    def _estimate_for(self, msg: CameraFrame) -> tuple[tuple[float, float] | None, tuple | None]:
+        """The estimated (roll, pitch) for a fixed-mount frame's homography and the search prior, from
+        the autopilot estimate at or before the frame's time, once it is settled (at most
+        ``ESTIMATE_WAIT_S``)."""
+        want_tilt = self.homography and msg.mount == "fixed"
+        if not (want_tilt or self.prior_from_estimate):
+            return None, None
+        t = msg.timestamp_us
+        with self._estimate_arrived:
+            if not self._estimate_arrived.wait_for(lambda: self._estimate_settled(t) or self._stop.is_set(),
+                                                   ESTIMATE_WAIT_S):
+                self.stats["estimate_late"] += 1
+            tilt = self._at(self._tilts, t) if want_tilt else None
+            prior = self._at(self._priors, t) if self.prior_from_estimate else None
+        return tilt, prior
 
     @staticmethod
     def _at(history, t_us: int) -> float | None:
@@ -222,9 +263,7 @@ class PerceptionNode:
         with self._sensor_lock:
             heading = self._at(self._headings, msg.timestamp_us)
             altitude = self._at(self._altitudes, msg.timestamp_us)
-            tilt = self._at(self._tilts, msg.timestamp_us) if self.homography and msg.mount == "fixed" else None
-            prior = self._at(self._priors, msg.timestamp_us) if self.prior_from_estimate else None
-        item = (msg, heading, altitude, tilt, prior)
+        item = (msg, heading, altitude)
         # Never block here: this runs in Zenoh's receive thread, and a blocked receive thread stalls
         # every subscription of the node (after a SIGSTOP the backlog filled the queue and the node
         # never saw a frame again). A full queue loses its oldest frame instead.
@@ -277,7 +316,8 @@ class PerceptionNode:
                 item = self._queue.get(timeout=0.2)
             except queue.Empty:
                 continue
-            msg, heading, altitude, tilt, prior = item
+            msg, heading, altitude = item
+            tilt, prior = self._estimate_for(msg)
             if not self._info_repeated:
                 # the first put can leave before the recorder's subscription reached this session
                 self.bus.publish(self.keys.node_info(self.node_id), self._info)

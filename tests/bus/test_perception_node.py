@@ -160,6 +160,41 @@ def test_homography_node_aligns_fixed_mount_frames_with_the_estimated_attitude(w
     assert not nadir_fixes[0].valid or math.hypot(*nadir_fixes[0].position_xy_enu_m) > 10.0
 
 
+def test_a_frame_waits_for_the_estimate_of_its_capture_time(world):
+    """The autopilot's estimates (every 50 ms here) and the simulator's frames come on different links
+    and may race. A frame stamped 120 ms that arrives while the newest estimate is from 50 ms waits
+    for the 100 ms one (the last at or before its time) instead of taking the 50 ms one: the 100 ms
+    estimate carries the 12-degree pitch, the 50 ms one a level attitude (which would put the fix
+    about 21 m off)."""
+    from scenenav.core.contracts import NavEstimate
+    from scenenav.core.rotations import quat_from_aviation_euler
+    from sitl.camera import GroundCamera
+    from sitl.config import CameraConfig, CameraMount
+    cfg = CameraConfig(mount=CameraMount.FIXED, relief=False)
+    q = quat_from_aviation_euler(0.0, math.radians(-12.0), 0.0)
+    with GroundCamera(-1, world.orthophoto, world.m_per_px, cfg, optics_rng=np.random.default_rng(0)) as cam:
+        image = cam.render_capture(0.0, np.array([0.0, 0.0, 100.0]), np.array(q))
+    level = (1.0, 0.0, 0.0, 0.0)
+
+    def estimate(t_us, quat):
+        return NavEstimate(t_us, (0.0, 0.0, 100.0), (0.0, 0.0, 0.0), quat, 0.0, (1.0, 1.0, 1.0), 3, "")
+
+    with _live_node(world, alignment="homography") as (hub, keys, node, fixes, acks):
+        hub.publish(keys.nav_estimate, estimate(0, level))
+        hub.publish(keys.nav_estimate, estimate(50_000, level))
+        time.sleep(0.3)
+        hub.publish(keys.camera, CameraFrame(120_000, 0, 200, 200, "rgb8", 60.0, "fixed",
+                                             intrinsics_px(200, 200, 60.0), NO_DISTORTION,
+                                             np.ascontiguousarray(image)))
+        time.sleep(0.15)
+        assert not acks                                       # still waiting for its estimate
+        hub.publish(keys.nav_estimate, estimate(100_000, q))
+        _wait_for(acks, 1)
+        stats = dict(node.stats)
+    assert len(fixes) == 1 and fixes[0].valid and math.hypot(*fixes[0].position_xy_enu_m) < 2.5
+    assert stats.get("estimate_late", 0) == 0
+
+
 def test_a_backlog_drops_the_oldest_frames_and_never_blocks_the_receive_thread(world):
     """A frozen worker (the node was stopped, or is far behind) must not block Zenoh's receive
     thread: other subscriptions keep being served, and the newest frames are the ones answered."""
