@@ -51,3 +51,15 @@ def port_number(text: str) -> int:
     if not 0 <= value <= MAX_PORT:
         raise argparse.ArgumentTypeError(f"{text!r}: expected a port number 0 to {MAX_PORT}")
     return value
+
+
+def add_flight_kind_arguments(parser: argparse.ArgumentParser, realism_default: str,
+                              scripted_means: str) -> None:
+    """``--realism {ideal,paper,realistic}`` and ``--scripted``, as the Table-2 flights take them
+    (``experiment table2``, ``cnn decision-data``); the help texts name each command's default."""
+    from scenenav.app.realism import Realism
+    parser.add_argument("--realism", choices=[r.value for r in Realism],
+                        help=f"realism profile of every flight (docs/realism.md; default: {realism_default})")
+    parser.add_argument("--scripted", action="store_true",
+                        help=f"fly the kinematic path without the autopilot ({scripted_means}) instead of "
+                             f"the autopilot mission table2 flies by default")

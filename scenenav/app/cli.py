@@ -11,11 +11,10 @@ import re
 import sys
 from pathlib import Path
 
-from scenenav.app.arg_types import nonneg_int, port_number, positive_int
+from scenenav.app.arg_types import add_flight_kind_arguments, nonneg_int, port_number, positive_int
 
 DEFAULT_LIVE_PORT = 8765          # Foxglove's default WebSocket port (scenenav.app.live)
 from scenenav.app.json_output import emit_json, run_json_aware
-from scenenav.app.realism import Realism
 from scenenav.core.errors import UserError
 
 log = logging.getLogger("scenenav")
@@ -278,12 +277,7 @@ def build_parser(domain_commands: bool | str = True) -> argparse.ArgumentParser:
     t2.add_argument("--results-page", metavar="FILE.md",
                     help="also update the results page (e.g. docs/results.md): this run's column "
                          "(its profile and flight kind) beside the tables stored there")
-    t2.add_argument("--realism", choices=[r.value for r in Realism],
-                    help="realism profile of every flight (docs/realism.md; default: the scenario "
-                         "default, ideal)")
-    t2.add_argument("--scripted", action="store_true",
-                    help="fly the kinematic path without the autopilot (the old table) instead of "
-                         "the autopilot mission on GPS")
+    add_flight_kind_arguments(t2, "the scenario default, ideal", "the old table")
     t2.add_argument("--no-paper-rows", action="store_true",
                     help="skip the two extra flights of the paper's rule (four flights, not six)")
     t2.set_defaults(func=_table2)

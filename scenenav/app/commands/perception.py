@@ -12,7 +12,7 @@ import shlex
 import sys
 from pathlib import Path
 
-from scenenav.app.arg_types import nonneg_int, positive_float, positive_int
+from scenenav.app.arg_types import add_flight_kind_arguments, nonneg_int, positive_float, positive_int
 from scenenav.app.json_output import emit_json, run_json_aware
 from scenenav.core.errors import UserError
 
@@ -293,7 +293,6 @@ def register(subparsers) -> None:
     cb.set_defaults(func=_bench)
 
     from scenenav.app.decision_data import DEFAULT_TRAIN_SEEDS, HELD_OUT_FROM
-    from scenenav.app.realism import Realism
     dd = csub.add_parser(
         "decision-data", help="fly training worlds with the online CNN (data for fit-decision)",
         description="Generate each training world (seeded) and fly the Table-2 flight over it once with "
@@ -311,12 +310,7 @@ def register(subparsers) -> None:
     dd.add_argument("--world-size", type=_size, default=(900, 1000), metavar="WxH",
                     help="world size in px (default 900x1000, the paper's map)")
     dd.add_argument("--weights", metavar="PT", help="CNN weights (default: the shipped default.pt)")
-    dd.add_argument("--realism", choices=[r.value for r in Realism],
-                    help="realism profile of every flight (docs/realism.md; default: none given, i.e. "
-                         "ideal, as the first fits)")
-    dd.add_argument("--scripted", action="store_true",
-                    help="fly the kinematic path without the autopilot (the old decision data) instead "
-                         "of the autopilot mission table2 flies by default")
+    add_flight_kind_arguments(dd, "none given, i.e. ideal, as the first fits", "the old decision data")
     dd.add_argument("--set", action="append", metavar="KEY=VALUE",
                     help="scenario override for every flight, laid over everything (repeatable)")
     dd.add_argument("--quiet", action="store_true", help="no progress bars")
