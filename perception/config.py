@@ -184,7 +184,7 @@ class PerceptionNodeConfig:
                                        # orthophoto (reference.png) or perspective (reference_perspective.png)
     lockstep: bool = True              # the simulator waits for this node's answer to each frame
     decision_rule: str = "paper"       # cnn, assistant-map: paper (P(bad) > 0.5) or combined (docs/perception.md)
-    decision_model: str = ""           # combined rule: model .json (empty: the shipped one)
+    decision_model: str = ""           # combined rule: a model .json, or a shipped one by name: ideal or realistic (empty: ideal)
     swap_at_s: float = 0.0             # > 0: at this simulated time a second node takes over (swap)
     swap_method: str = "statistical"   # method of that second node (perception-2)
     swap_every_s: float = 0.0          # > 0 (with swap_at_s > 0): swap again every this many simulated s,

@@ -205,7 +205,17 @@ DEFAULT_DECISION_MODEL = Path(__file__).resolve().parent / "weights" / "decision
 #: The same rule fitted on ``realistic``-profile autopilot flights (docs/perception.md, "Refit on
 #: `realistic`"); the ``paper`` and ``realistic`` realism profiles select it (``perception.decision_model``).
 REALISTIC_DECISION_MODEL = DEFAULT_DECISION_MODEL.parent / "decision_combined_realistic.json"
+#: Shipped models by name, for scenario files (``perception.decision_model: realistic``).
+SHIPPED_DECISION_MODELS = {"ideal": DEFAULT_DECISION_MODEL, "realistic": REALISTIC_DECISION_MODEL}
 DECISION_MODEL_FORMAT = 1
+
+
+def decision_model_path(name_or_path: str) -> Path:
+    """``perception.decision_model`` -> the model file: "" the shipped (ideal-fitted) model, a name of
+    ``SHIPPED_DECISION_MODELS``, or a path to a ``scenenav cnn fit-decision`` JSON."""
+    if not name_or_path:
+        return DEFAULT_DECISION_MODEL
+    return SHIPPED_DECISION_MODELS.get(name_or_path, Path(name_or_path))
 
 
 @dataclass(frozen=True)

@@ -126,8 +126,8 @@ def table2_scenario(world_dir: str | Path | None, seed: int = 0, realism: str | 
 def decision_model_for(cfg) -> Path:
     """The combined-rule model a scenario flies: its ``perception.decision_model`` (set by a realism
     profile, the scenario or ``--set``), else the shipped ``decision_combined.json``."""
-    from perception.decision import DEFAULT_DECISION_MODEL
-    return Path(cfg.perception.decision_model) if cfg.perception.decision_model else DEFAULT_DECISION_MODEL
+    from perception.decision import decision_model_path
+    return decision_model_path(cfg.perception.decision_model)
 
 
 def flown_rule(run_dir: Path) -> str:

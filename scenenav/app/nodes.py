@@ -181,10 +181,8 @@ def _perception_weights(pcfg) -> str | None:
     """What the perception node loads: a CNN .pt (paper rule) or a decision model .json (combined
     rule; it names the CNN it was fitted with)."""
     if pcfg.decision_rule == "combined":
-        if pcfg.decision_model:
-            return pcfg.decision_model
-        from perception.decision import DEFAULT_DECISION_MODEL
-        return str(DEFAULT_DECISION_MODEL)
+        from perception.decision import decision_model_path
+        return str(decision_model_path(pcfg.decision_model))
     return pcfg.weights or None
 
 

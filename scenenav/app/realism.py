@@ -15,7 +15,6 @@ from enum import Enum
 from types import MappingProxyType
 from typing import Any, Mapping
 
-from perception.decision import REALISTIC_DECISION_MODEL
 from scenenav.core.config import set_dotted
 from scenenav.core.errors import UserError
 from sitl.camera_model import REALISTIC_CAMERA
@@ -52,7 +51,7 @@ PAPER_SETTINGS: Mapping[str, Any] = MappingProxyType({
     # the combined decision rule fitted on realistic autopilot flights over training worlds 101-110;
     # it serves paper's autopilot flights better than a fit on paper flights or the shipped model
     # fitted on ideal scripted flights (docs/perception.md, "Refit on `realistic`"); realistic inherits it
-    "perception.decision_model": str(REALISTIC_DECISION_MODEL),
+    "perception.decision_model": "realistic",     # perception.decision.REALISTIC_DECISION_MODEL
 })
 
 #: ``realistic``: everything of ``paper`` plus these (docs/realism.md gives each basis).

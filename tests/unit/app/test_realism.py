@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import dataclasses
 import subprocess
 import sys
 
@@ -77,3 +78,25 @@ def test_unknown_profile_on_the_command_line_exits_2(tmp_path):
     lines = [ln for ln in r.stderr.splitlines() if ln.strip()]
     assert len(lines) == 1 and "realism" in lines[0] and "Traceback" not in r.stderr
     assert not (tmp_path / "x").exists() or not any((tmp_path / "x").iterdir())
+
+
+def test_decision_models_by_name_and_the_gps_denied_pin():
+    """``perception.decision_model`` takes a shipped model by name; gps_denied.yaml pins the
+    ideal-fitted one under every profile, its realistic twin the realistic refit."""
+    from pathlib import Path
+
+    from perception.decision import DEFAULT_DECISION_MODEL, REALISTIC_DECISION_MODEL, decision_model_path
+    from scenenav.app.nodes import _perception_weights
+    from scenenav.app.scenario import load_scenario
+    assert decision_model_path("") == decision_model_path("ideal") == DEFAULT_DECISION_MODEL
+    assert decision_model_path("realistic") == REALISTIC_DECISION_MODEL
+    assert decision_model_path("my/model.json") == Path("my/model.json")
+    root = Path(__file__).resolve().parents[3] / "scenarios"
+    for overrides in ((), ("realism=paper",), ("realism=realistic",)):
+        cfg = load_scenario(root / "gps_denied.yaml", overrides)
+        assert _perception_weights(cfg.perception) == str(DEFAULT_DECISION_MODEL)
+    twin = load_scenario(root / "gps_denied_realistic.yaml")
+    assert _perception_weights(twin.perception) == str(REALISTIC_DECISION_MODEL)
+    paper = load_scenario(None, ("realism=paper",))
+    assert _perception_weights(dataclasses.replace(paper.perception, decision_rule="combined")) \
+        == str(REALISTIC_DECISION_MODEL)
