@@ -124,6 +124,8 @@ class GuidanceNode:
         self.keys = Keys(bus_cfg.namespace)
         self.bus = Bus(bus_cfg)
         self.phase = Phase.WAITING
+        #: why the mission can never start (no route), or None
+        self.failure: str | None = None
         self.route_xy: np.ndarray | None = None
         self.legs: list[PlannedRoute] = []
         self.replans = 0
@@ -315,6 +317,7 @@ class GuidanceNode:
                 self.plan(self.cfg.start_enu_m, self.cfg.goals_enu_m)
             except UserError as exc:
                 self.event(f"no route: {exc}", Severity.ERROR)
+                self.failure = f"no route: {exc}"
                 self.phase = Phase.DONE
                 return
             link.upload_mission(self._mission(), takeoff_alt_m=self.altitude_m(),

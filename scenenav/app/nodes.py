@@ -272,6 +272,10 @@ def run_guidance(run_dir: Path, bus_cfg: BusConfig) -> int:
     threading.Thread(target=lambda: (stop.wait(), node.stop()), daemon=True).start()
     try:
         node.run()
+        if node.failure is not None:
+            # the mission can never start: a failed node, named in the run's summary
+            log.error("guidance: %s", node.failure)
+            return 1
         stop.wait()          # stay up (liveliness) until the launcher stops the run
     finally:
         stats = node.close()
