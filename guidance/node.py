@@ -33,6 +33,7 @@ computer), at the first drift check after the trigger.
 
 from __future__ import annotations
 
+import dataclasses
 import logging
 import math
 import queue
@@ -52,7 +53,7 @@ from guidance.fence import (
     fence_from_items,
 )
 from guidance.mavlink_client import AutopilotLink, MavlinkClientError, MissionWaypoint
-from guidance.planner import PlannedRoute, join_legs, plan_through
+from guidance.planner import PlannedRoute, join_legs, plan_through, snap_to_good_area
 from guidance.smoothing import polyline_length
 from scenenav.core.bus import Bus, BusConfig
 from scenenav.core.contracts import (
@@ -233,6 +234,25 @@ class GuidanceNode:
         self._write_route(length, clearance)
         return self.route_xy
 
+    def _snap_goals(self) -> None:
+        """With ``snap_goals_m`` > 0, move each goal that lies on a bad matching area (or too close to
+        one for the route's clearance) to the nearest point that does not, once, before the first
+        plan; every later plan and replan uses the moved goals. A goal with no such point within
+        ``snap_goals_m`` stays (the plan then says why there is no route)."""
+        limit = self.cfg.snap_goals_m
+        if limit <= 0.0:
+            return
+        probability = apply_fence(self._probability(), self.world.m_per_px, self.fence)
+        goals = []
+        for i, goal in enumerate(self.cfg.goals_enu_m):
+            moved = snap_to_good_area(probability, self.world.m_per_px, goal, self.planner_cfg, limit)
+            if moved is not None and moved != tuple(goal):
+                self.event(f"goal {i + 1} ({goal[0]:.0f}, {goal[1]:.0f}) m lies on or near a bad "
+                           f"matching area: moved {math.dist(goal, moved):.0f} m to "
+                           f"({moved[0]:.0f}, {moved[1]:.0f}) m (guidance.snap_goals_m)")
+            goals.append(tuple(goal) if moved is None else moved)
+        self.cfg = dataclasses.replace(self.cfg, goals_enu_m=tuple(goals))
+
     def _write_route(self, length_m: float, clearance_m: float) -> None:
         if self.out_dir is None:
             return
@@ -314,6 +334,7 @@ class GuidanceNode:
         if self.route_xy is None:
             self.load_fence()
             try:
+                self._snap_goals()
                 self.plan(self.cfg.start_enu_m, self.cfg.goals_enu_m)
             except UserError as exc:
                 self.event(f"no route: {exc}", Severity.ERROR)

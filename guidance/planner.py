@@ -31,7 +31,7 @@ from guidance.potential_field import DescentStatus, PlanningGrid, PotentialField
 from guidance.smoothing import FieldChecker, densify, polyline_length, round_corners, shortcut, subdivide
 from scenenav.core.errors import UserError
 from scenenav.core.formats.route_file import round_or_none
-from scenenav.core.frames import world_to_pixel
+from scenenav.core.frames import pixel_to_world, world_to_pixel
 
 log = logging.getLogger(__name__)
 
@@ -115,6 +115,34 @@ def validate_probability(probability) -> np.ndarray:
     if np.isnan(arr).all():
         raise UserError("assistant map: every cell is NaN (unvisited); expected a map with visited cells")
     return arr
+
+
+def snap_to_good_area(probability: np.ndarray, m_per_px: float, xy_m, cfg: PlannerConfig,
+                      max_m: float) -> tuple[float, float] | None:
+    """The nearest point within ``max_m`` of ``xy_m`` (world metres) that lies on a good matching area
+    with the route's clearance around it (camera footprint half-width + ``clearance_m`` to the nearest
+    bad pixel, ``bad_pixel_mask``); ``xy_m`` itself when it qualifies; None when no point does. For
+    goals given by place rather than by map (a mission reused on another world)."""
+    prob = validate_probability(probability)
+    h, w = prob.shape
+    bad = bad_pixel_mask(prob, cfg)
+    depth_px = ndimage.distance_transform_edt(~bad)
+    need_px = cfg.required_distance_m / m_per_px
+    u, v = world_to_pixel(float(xy_m[0]), float(xy_m[1]), w, h, m_per_px)
+    r = max_m / m_per_px
+    r0, r1 = max(0, int(v - r)), min(h, int(v + r) + 1)
+    c0, c1 = max(0, int(u - r)), min(w, int(u + r) + 1)
+    rows, cols = np.nonzero(depth_px[r0:r1, c0:c1] >= need_px)
+    if rows.size == 0:
+        return None
+    d2 = (rows + r0 + 0.5 - v) ** 2 + (cols + c0 + 0.5 - u) ** 2
+    k = int(np.argmin(d2))
+    if d2[k] > r * r:
+        return None
+    if d2[k] <= 2.0:      # the point itself (its own pixel or a neighbour) qualifies
+        return float(xy_m[0]), float(xy_m[1])
+    x, y = pixel_to_world(cols[k] + c0 + 0.5, rows[k] + r0 + 0.5, w, h, m_per_px)
+    return float(x), float(y)
 
 
 def _check_point(prob: np.ndarray, m_per_px: float, xy: np.ndarray, name: str, cfg: PlannerConfig) -> None:

@@ -223,7 +223,7 @@ def guidance_config_from_scenario(cfg: ScenarioConfig, mavlink_port: int, lockst
     end = RouteEnd.RTL if cfg.autopilot.mission_end.value == "rtl" else RouteEnd.LAND
     node_cfg = GuidanceRunConfig(
         start_enu_m=tuple(cfg.flight.start_enu_m), goals_enu_m=tuple(tuple(p) for p in g.goals_enu_m),
-        assistant_map=g.assistant_map, altitude_m=cfg.flight.altitude_m, end=end,
+        assistant_map=g.assistant_map, altitude_m=cfg.flight.altitude_m, end=end, snap_goals_m=g.snap_goals_m,
         replan_drift_m=g.replan_drift_m, check_period_s=g.check_period_s,
         start_after_s=g.start_after_s, mavlink_url=f"tcp:127.0.0.1:{mavlink_port}", lockstep=lockstep)
     planner_cfg = dataclasses.replace(

@@ -1,0 +1,28 @@
+"""``snap_to_good_area``: a goal on a bad matching area moves to the nearest point that keeps the
+route's clearance, within a limit; a good goal stays where it is."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+from guidance.config import PlannerConfig
+from guidance.planner import snap_to_good_area
+from scenenav.core.frames import world_to_pixel
+
+
+def test_a_goal_on_a_bad_area_moves_to_the_nearest_point_with_clearance():
+    m_per_px = 1.0
+    prob = np.full((200, 200), 0.9, dtype=np.float32)
+    prob[:, :120] = 0.1                          # bad west of column 120 (x < 20 m)
+    cfg = PlannerConfig(footprint_m=0.0, clearance_m=10.0)
+    good = snap_to_good_area(prob, m_per_px, (50.0, 0.0), cfg, 100.0)
+    assert good == (50.0, 0.0)                   # already good, 30 m from the bad area
+    moved = snap_to_good_area(prob, m_per_px, (0.0, 30.0), cfg, 100.0)
+    assert moved is not None
+    u, _v = world_to_pixel(moved[0], moved[1], 200, 200, m_per_px)
+    assert 129.0 <= u <= 132.0                   # 10 m (pixel centre to pixel centre) east of the edge
+    assert abs(moved[1] - 30.0) < 1.0            # straight east: the nearest such point
+    assert snap_to_good_area(prob, m_per_px, (-90.0, 0.0), cfg, 50.0) is None   # too far to move
+    assert math.isfinite(moved[0])
