@@ -235,9 +235,9 @@ class GuidanceNode:
         return self.route_xy
 
     def _snap_goals(self) -> None:
-        """With ``snap_goals_m`` > 0, move each goal that lies on a bad matching area (or too close to
-        one for the route's clearance) to the nearest point that does not, once, before the first
-        plan; every later plan and replan uses the moved goals. A goal with no such point within
+        """With ``snap_goals_m`` > 0, move each goal that lies on a bad matching area to the nearest
+        point with the route's clearance, once, before the first plan; every later plan and replan
+        uses the moved goals. A goal with no such point within
         ``snap_goals_m`` stays (the plan then says why there is no route)."""
         limit = self.cfg.snap_goals_m
         if limit <= 0.0:
@@ -247,8 +247,8 @@ class GuidanceNode:
         for i, goal in enumerate(self.cfg.goals_enu_m):
             moved = snap_to_good_area(probability, self.world.m_per_px, goal, self.planner_cfg, limit)
             if moved is not None and moved != tuple(goal):
-                self.event(f"goal {i + 1} ({goal[0]:.0f}, {goal[1]:.0f}) m lies on or near a bad "
-                           f"matching area: moved {math.dist(goal, moved):.0f} m to "
+                self.event(f"goal {i + 1} ({goal[0]:.0f}, {goal[1]:.0f}) m lies on a bad matching "
+                           f"area: moved {math.dist(goal, moved):.0f} m to "
                            f"({moved[0]:.0f}, {moved[1]:.0f}) m (guidance.snap_goals_m)")
             goals.append(tuple(goal) if moved is None else moved)
         self.cfg = dataclasses.replace(self.cfg, goals_enu_m=tuple(goals))

@@ -119,16 +119,18 @@ def validate_probability(probability) -> np.ndarray:
 
 def snap_to_good_area(probability: np.ndarray, m_per_px: float, xy_m, cfg: PlannerConfig,
                       max_m: float) -> tuple[float, float] | None:
-    """The nearest point within ``max_m`` of ``xy_m`` (world metres) that lies on a good matching area
-    with the route's clearance around it (camera footprint half-width + ``clearance_m`` to the nearest
-    bad pixel, ``bad_pixel_mask``); ``xy_m`` itself when it qualifies; None when no point does. For
+    """``xy_m`` (world metres) itself when it lies on a good matching area (not ``bad_pixel_mask``);
+    otherwise the nearest point within ``max_m`` with the route's clearance around it (camera
+    footprint half-width + ``clearance_m`` to the nearest bad pixel); None when there is none. For
     goals given by place rather than by map (a mission reused on another world)."""
     prob = validate_probability(probability)
     h, w = prob.shape
     bad = bad_pixel_mask(prob, cfg)
+    u, v = world_to_pixel(float(xy_m[0]), float(xy_m[1]), w, h, m_per_px)
+    if 0 <= u < w and 0 <= v < h and not bad[min(int(v), h - 1), min(int(u), w - 1)]:
+        return float(xy_m[0]), float(xy_m[1])
     depth_px = ndimage.distance_transform_edt(~bad)
     need_px = cfg.required_distance_m / m_per_px
-    u, v = world_to_pixel(float(xy_m[0]), float(xy_m[1]), w, h, m_per_px)
     r = max_m / m_per_px
     r0, r1 = max(0, int(v - r)), min(h, int(v + r) + 1)
     c0, c1 = max(0, int(u - r)), min(w, int(u + r) + 1)
@@ -139,8 +141,6 @@ def snap_to_good_area(probability: np.ndarray, m_per_px: float, xy_m, cfg: Plann
     k = int(np.argmin(d2))
     if d2[k] > r * r:
         return None
-    if d2[k] <= 2.0:      # the point itself (its own pixel or a neighbour) qualifies
-        return float(xy_m[0]), float(xy_m[1])
     x, y = pixel_to_world(cols[k] + c0 + 0.5, rows[k] + r0 + 0.5, w, h, m_per_px)
     return float(x), float(y)
 

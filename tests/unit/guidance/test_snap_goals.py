@@ -1,5 +1,5 @@
 """``snap_to_good_area``: a goal on a bad matching area moves to the nearest point that keeps the
-route's clearance, within a limit; a good goal stays where it is."""
+route's clearance, within a limit; a goal on a good area stays where it is."""
 
 from __future__ import annotations
 
@@ -19,6 +19,8 @@ def test_a_goal_on_a_bad_area_moves_to_the_nearest_point_with_clearance():
     cfg = PlannerConfig(footprint_m=0.0, clearance_m=10.0)
     good = snap_to_good_area(prob, m_per_px, (50.0, 0.0), cfg, 100.0)
     assert good == (50.0, 0.0)                   # already good, 30 m from the bad area
+    near = snap_to_good_area(prob, m_per_px, (25.0, 0.0), cfg, 100.0)
+    assert near == (25.0, 0.0)                   # good, if nearer than the clearance: it stays
     moved = snap_to_good_area(prob, m_per_px, (0.0, 30.0), cfg, 100.0)
     assert moved is not None
     u, _v = world_to_pixel(moved[0], moved[1], 200, 200, m_per_px)
