@@ -69,6 +69,9 @@ MAX_PACE_LAG_S = 0.25
 #: Lockstep: camera frames a suspended camera member may hold unanswered (about 0.5 MB at 200 x 200);
 #: while every camera member is suspended that far behind (frozen), further frames are withheld.
 SUSPENDED_BACKLOG_FRAMES = 4
+#: Lockstep: the run ends this many ticks after the simulated time of the AutopilotStatus that
+#: reports the mission done (or a landing before it): by then that status has arrived in every run.
+END_AFTER_STATUS_TICKS = 2
 
 
 @dataclass
@@ -143,6 +146,9 @@ class SimulatorNode:
         self._stop = threading.Event()
         self._mission_done = threading.Event()
         self._landed_early = threading.Event()
+        # simulated time (us) of the AutopilotStatus that ended the mission; the run ends
+        # END_AFTER_STATUS_TICKS ticks later, so the last tick does not depend on when it arrived
+        self._end_status_us: int | None = None
         self._has_flown = False
         self.stats = SimStats()
 
@@ -189,10 +195,12 @@ class SimulatorNode:
             return   # ground-station sessions (idle) end only when the user stops them
         if msg.armed:
             self._has_flown = True
-        if msg.landed and not msg.armed:
+        if msg.landed and not msg.armed and (msg.mission_complete or self._has_flown):
+            if self._end_status_us is None:
+                self._end_status_us = msg.timestamp_us
             if msg.mission_complete:
                 self._mission_done.set()
-            elif self._has_flown:      # e.g. a failsafe landing: nothing more will happen
+            else:                      # e.g. a failsafe landing: nothing more will happen
                 self._landed_early.set()
 
     def stop(self) -> None:
@@ -244,16 +252,19 @@ class SimulatorNode:
             if self._stop.is_set():
                 reason = "stopped by signal"
                 break
-            if self._mission_done.is_set():
-                reason = "mission complete"
-                break
-            if self._landed_early.is_set():
-                reason = "landed before completing the mission"
-                break
+            t_us = core.time_us
+            if self._mission_done.is_set() or self._landed_early.is_set():
+                # The status of tick k went out before the autopilot's answer to tick k + 1 on the
+                # same link, so by tick k + 2 it is here in every run: end there, not at whichever
+                # tick it happened to arrive (in lockstep two runs ended a tick apart, 2026-12-05).
+                end_us = self._end_status_us if self._end_status_us is not None else t_us
+                if not lockstep or t_us >= end_us + END_AFTER_STATUS_TICKS * self.tick_us:
+                    reason = ("mission complete" if self._mission_done.is_set()
+                              else "landed before completing the mission")
+                    break
             if core.route_complete:
                 reason = "scripted route complete"
                 break
-            t_us = core.time_us
             t_s = t_us * 1e-6
             tp = time.perf_counter()
             out = core.sense()
