@@ -179,7 +179,6 @@ class PerceptionNode:
         self._priors: deque[tuple[int, tuple[float, float, float | None]]] = deque(maxlen=400)
         self._sensor_lock = threading.Lock()
         self._estimate_arrived = threading.Condition(self._sensor_lock)
-        self._estimate_period_us = 0      # between the last two estimates (0: fewer than two yet)
         self._queue: queue.Queue = queue.Queue(maxsize=FRAME_BACKLOG)
         self._backlog_dropped: deque[CameraFrame] = deque()     # oldest frames pushed out
         self._stop = threading.Event()
@@ -215,8 +214,6 @@ class PerceptionNode:
         radius = prior_search_radius_m(msg.position_std_m, self.pipeline.m_per_px, self.prior_margin_px,
                                        mcfg.max_search_radius_px)
         with self._sensor_lock:
-            if self._tilts:
-                self._estimate_period_us = max(0, msg.timestamp_us - self._tilts[-1][0])
             self._tilts.append((msg.timestamp_us, (roll, pitch)))
             self._priors.append((msg.timestamp_us, (msg.position_enu_m[0], msg.position_enu_m[1], radius)))
             self._estimate_arrived.notify_all()
@@ -227,12 +224,15 @@ class PerceptionNode:
         autopilot's link). Without this the frame would take whichever estimate happened to have
         arrived, and the autopilot's and the simulator's links race: two lockstep runs differed in
         3 of 900 realistic fixes (2026-12-05). Call with ``_sensor_lock`` held."""
-        if not self._tilts or self._estimate_period_us <= 0:
+        if len(self._tilts) < 2:
             return True     # the autopilot has not published two yet: nothing to wait for
         newest = self._tilts[-1][0]
-        if newest < t_us - STALLED_ESTIMATE_PERIODS * self._estimate_period_us:
+        period = newest - self._tilts[-2][0]     # between the last two estimates
+        if period <= 0:
+            return True
+        if newest < t_us - STALLED_ESTIMATE_PERIODS * period:
             return True     # the estimates stopped (the autopilot left): do not wait for each frame
-        return newest > t_us - self._estimate_period_us
+        return newest > t_us - period
 
     def _estimate_for(self, msg: CameraFrame) -> tuple[tuple[float, float] | None, tuple | None]:
         """The estimated (roll, pitch) for a fixed-mount frame's homography and the search prior, from

@@ -253,11 +253,11 @@ class SimulatorNode:
                 reason = "stopped by signal"
                 break
             t_us = core.time_us
-            if self._mission_done.is_set() or self._landed_early.is_set():
+            end_us = self._end_status_us     # set before either event below
+            if end_us is not None and (self._mission_done.is_set() or self._landed_early.is_set()):
                 # The status of tick k went out before the autopilot's answer to tick k + 1 on the
                 # same link, so by tick k + 2 it is here in every run: end there, not at whichever
                 # tick it happened to arrive (in lockstep two runs ended a tick apart, 2026-12-05).
-                end_us = self._end_status_us if self._end_status_us is not None else t_us
                 if not lockstep or t_us >= end_us + END_AFTER_STATUS_TICKS * self.tick_us:
                     reason = ("mission complete" if self._mission_done.is_set()
                               else "landed before completing the mission")
