@@ -63,7 +63,7 @@ class EkfConfig:
 
     # --- measurement noise (floors; the caller's own std/covariance is used when larger)
     baro_noise_m: float = 0.4               # EK3_ALT_M_NSE (ArduPilot default 2 m; our baro ~0.3 m)
-    compass_noise_rad: float = 0.03         # EK3_YAW_M_NSE (ArduPilot default 0.5 rad)
+    compass_noise_rad: float = 0.03         # EK3_YAW_M_NSE (set from the parameter in a flight; ArduPilot's default 0.5 rad)
     gps_position_noise_min_m: float = 0.3   # EK3_POSNE_M_NSE (0.5 m) used as a floor
     gps_velocity_noise_min_m_s: float = 0.1  # EK3_VELNE_M_NSE (0.3 m/s) used as a floor
     vision_position_noise_min_m: float = 0.3  # floor on sqrt of each vision covariance diagonal
@@ -108,8 +108,26 @@ class EkfConfig:
     # variances before it uses GPS or beacons (checkGyroCalStatus / delAngBiasLearned).
     learned_gyro_bias_ratio: float = 1.2
 
+    # --- drag fusion (ArduPilot EKF3 FuseDragForces, EK3_DRAG_*): the body x, y specific force of a
+    # multicopter is the air's drag alone (thrust is along body z), a measurement of the velocity
+    # relative to the air, hence of the wind (two more states). Off while both coefficients are 0.
+    drag_ballistic_coef_x_kg_m2: float = 0.0   # EK3_DRAG_BCOEF_X: mass / (Cd A) along body x; 0 = no term
+    drag_ballistic_coef_y_kg_m2: float = 0.0   # EK3_DRAG_BCOEF_Y
+    drag_momentum_coef_per_s: float = 0.0      # EK3_DRAG_MCOEF: rotor drag acceleration per m/s of air
+    drag_noise_m_s2: float = 0.5               # EK3_DRAG_M_NSE: noise of the averaged specific force
+    # Wind random walk (ArduPilot EK3_WIND_P_NSE 0.2 m/s^2 per step: param_binding.process_noise_density)
+    wind_noise_m_s2_per_rt_hz: float = 0.02
+    initial_wind_std_m_s: float = 10.0         # wind unknown when drag fusion starts
+    air_density_kg_m3: float = 1.225           # ISA sea level (ArduPilot scales with the baro's EAS2TAS)
+
     position_source: PositionSource = PositionSource.GPS   # EK3_SRC1_POSXY
     gravity_m_s2: float = STANDARD_GRAVITY_M_S2
+
+    @property
+    def drag_fusion(self) -> bool:
+        """Drag fusion is on: a ballistic or a momentum coefficient is set."""
+        return (self.drag_ballistic_coef_x_kg_m2 > 0.0 or self.drag_ballistic_coef_y_kg_m2 > 0.0
+                or self.drag_momentum_coef_per_s > 0.0)
 
     def __post_init__(self) -> None:
         for name in ("gyro_noise_rad_s_per_rt_hz", "accel_noise_m_s2_per_rt_hz",
@@ -123,9 +141,13 @@ class EkfConfig:
                      "max_position_std_m", "max_velocity_std_m_s", "velocity_ok_max_std_m_s",
                      "healthy_max_tilt_std_rad", "position_ok_max_std_m", "gravity_m_s2",
                      "position_reject_timeout_s", "height_reject_timeout_s", "heading_reject_timeout_s",
-                     "velocity_reject_timeout_s"):
+                     "velocity_reject_timeout_s", "drag_noise_m_s2", "wind_noise_m_s2_per_rt_hz",
+                     "initial_wind_std_m_s", "air_density_kg_m3"):
             value = getattr(self, name)
             check(_positive(value), name, value, "a positive number")
+        for name in ("drag_ballistic_coef_x_kg_m2", "drag_ballistic_coef_y_kg_m2", "drag_momentum_coef_per_s"):
+            value = getattr(self, name)
+            check(_non_negative(value), name, value, "a number >= 0 (0 = off)")
         check(math.isfinite(self.learned_gyro_bias_ratio) and self.learned_gyro_bias_ratio > 1.0,
               "learned_gyro_bias_ratio", self.learned_gyro_bias_ratio, "a number > 1")
         for name in ("position_gate_sd", "velocity_gate_sd", "height_gate_sd", "heading_gate_sd"):
@@ -281,13 +303,16 @@ class FlightCoreConfig:
     gps_velocity_std_m_s: float = 0.2     # GPS velocity accuracy (GpsSample carries none)
     ground_position_std_m: float = 0.3    # on-ground pseudo position fix without a source
     ground_fusion_period_s: float = 0.2
+    # Drag fusion (EK3_DRAG_*): the specific force averaged over this window of flight per fusion (ArduPilot
+    # EKF3 likewise averages the drag between fusions, at most one per EKF step of ~10 ms: its rate here)
+    drag_fusion_period_s: float = 0.1
     ext_nav_std_m: float = 0.5            # MAVLink external nav without a covariance
     ext_nav_fresh_s: float = 1.0          # MAVLink external nav counts as a source this long
     vision_max_age_s: float = 1.0         # older vision fixes are dropped
 
     def __post_init__(self) -> None:
         for name in ("align_time_s", "gps_wait_s", "gps_velocity_std_m_s", "ground_position_std_m",
-                     "ground_fusion_period_s", "ext_nav_std_m", "ext_nav_fresh_s",
+                     "ground_fusion_period_s", "drag_fusion_period_s", "ext_nav_std_m", "ext_nav_fresh_s",
                      "vision_max_age_s"):
             value = getattr(self, name)
             if not (math.isfinite(value) and value > 0):

@@ -1,15 +1,17 @@
-"""Navigation filter: a 15-state error-state extended Kalman filter (ESKF) for the autopilot.
+"""Navigation filter: a 17-state error-state extended Kalman filter (ESKF) for the autopilot.
 
 Nominal state (kept outside the covariance): position p (ENU m), velocity v (ENU m/s), attitude q_wxyz
-(body FLU -> world ENU), gyro bias b_g (rad/s, FLU), accelerometer bias b_a (m/s^2, FLU).
+(body FLU -> world ENU), gyro bias b_g (rad/s, FLU), accelerometer bias b_a (m/s^2, FLU), horizontal
+wind w (ENU m/s).
 
-Error state (15, the covariance ``P``; order used by ``covariance()``):
+Error state (17, the covariance ``P``; order used by ``covariance()``):
 
     0:3   dp      position error, ENU m
     3:6   dv      velocity error, ENU m/s
     6:9   dtheta  attitude error as a small rotation vector in the *world* frame: q_true = Exp(dtheta) * q
     9:12  db_g    gyro bias error, rad/s
     12:15 db_a    accel bias error, m/s^2
+    15:17 dw      horizontal wind error (east, north), m/s; a random walk, observed only by drag fusion
 
 Prediction (every IMU tick, tick-averaged specific force f and rate w):
     q <- q * Exp((w - b_g) dt)
@@ -24,6 +26,14 @@ update the error is injected into the nominal state and reset to zero; the covar
 (I - [dtheta/2]x) is taken as identity, which is accurate for the small corrections of a healthy filter.
 The covariance prediction and updates are compiled kernels (``autopilot_bridge.ekf_kernels``, numba): one
 call each instead of a dozen small numpy calls.
+
+Drag fusion (``fuse_drag``, ArduPilot EKF3's FuseDragForces with EK3_DRAG_BCOEF_X/Y, EK3_DRAG_MCOEF,
+EK3_DRAG_M_NSE): thrust acts along body z, so the body x, y specific force of a multicopter is the air's
+drag alone, a = -(mcoef v_a + 0.5 rho |v_a| v_a / bcoef) per axis with the air-relative velocity
+v_a = R^T (v - w). Fused (averaged over a window by the caller) while flying, it ties the velocity to
+the wind: between position fixes the dead-reckoned velocity cannot run away by more than the wind's
+uncertainty, and the fixes teach the filter the wind. With both coefficients 0 the wind states are
+never observed (zero rows in every measurement): the other 15 states behave as without them.
 
 Gating: with innovation nu and innovation covariance S, the normalised innovation squared NIS = nu' S^-1 nu
 is compared with gate^2 (gate in standard deviations, like ArduPilot's *_I_GATE / 100); the reported
@@ -59,7 +69,7 @@ from __future__ import annotations
 import dataclasses
 import logging
 import math
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import numpy as np
 
@@ -80,12 +90,13 @@ logger = logging.getLogger(__name__)
 
 __all__ = ["NavFilter", "NavState", "FusionResult", "PositionSource", "NUM_ERROR_STATES"]
 
-NUM_ERROR_STATES = 15
+NUM_ERROR_STATES = 17
 _POS = slice(0, 3)
 _VEL = slice(3, 6)
 _ATT = slice(6, 9)
 _BG = slice(9, 12)
 _BA = slice(12, 15)
+_WIND = slice(15, 17)
 _TWO_PI = 2.0 * math.pi
 # States the barometer and the compass correct (see fuse_baro / fuse_compass): height, vertical velocity
 # and vertical accelerometer bias; heading and vertical gyro bias.
@@ -142,6 +153,8 @@ class NavState:
     position_std_m: np.ndarray      # (3,) 1-sigma
     velocity_std_m_s: np.ndarray    # (3,) 1-sigma
     heading_rad: float              # compass, clockwise from north, [0, 2 pi)
+    # (2,) horizontal wind east, north (zero unless drag fusion is on)
+    wind_enu_m_s: np.ndarray = field(default_factory=lambda: np.zeros(2))
 
 
 class NavFilter:
@@ -158,6 +171,7 @@ class NavFilter:
         self._bg = [0.0, 0.0, 0.0]
         self._w_flu = (0.0, 0.0, 0.0)   # the last body rate, bias removed (rad/s, FLU)
         self._ba = [0.0, 0.0, 0.0]
+        self._wind = [0.0, 0.0]
         self._P = np.zeros((NUM_ERROR_STATES, NUM_ERROR_STATES))
         warm_up()           # the compiled kernels load now, not in the first control tick
         # work arrays of the compiled kernels (ekf_kernels)
@@ -165,13 +179,12 @@ class NavFilter:
         self._qd = np.zeros(NUM_ERROR_STATES)
         self._qd_dt = math.nan
         self._h = np.zeros(NUM_ERROR_STATES)
+        self._h_drag = np.zeros(NUM_ERROR_STATES)    # fuse_drag's row (self._h keeps zeros off 6:9)
         self._u = np.zeros(NUM_ERROR_STATES)
         self._dx = np.zeros(NUM_ERROR_STATES)
         self._work: dict[int, tuple[np.ndarray, ...]] = {}
-        self._q_density = np.array([0.0] * 3 + [c.accel_noise_m_s2_per_rt_hz ** 2] * 3
-                                   + [c.gyro_noise_rad_s_per_rt_hz ** 2] * 3
-                                   + [c.gyro_bias_noise_rad_s2_per_rt_hz ** 2] * 3
-                                   + [c.accel_bias_noise_m_s3_per_rt_hz ** 2] * 3)
+        self._q_density = np.zeros(NUM_ERROR_STATES)
+        self._set_q_density()
         self._max_pos_var = c.max_position_std_m ** 2
         self._max_vel_var = c.max_velocity_std_m_s ** 2
         self._baro_offset_m = 0.0
@@ -196,6 +209,17 @@ class NavFilter:
     @property
     def config(self) -> EkfConfig:
         return self._cfg
+
+    def _set_q_density(self) -> None:
+        """Process noise densities^2 of every error state from the config (the wind's only while drag
+        fusion is on: unobserved, its variance would otherwise grow without end)."""
+        c = self._cfg
+        wind = c.wind_noise_m_s2_per_rt_hz ** 2 if c.drag_fusion else 0.0
+        self._q_density[:] = ([0.0] * 3 + [c.accel_noise_m_s2_per_rt_hz ** 2] * 3
+                              + [c.gyro_noise_rad_s_per_rt_hz ** 2] * 3
+                              + [c.gyro_bias_noise_rad_s2_per_rt_hz ** 2] * 3
+                              + [c.accel_bias_noise_m_s3_per_rt_hz ** 2] * 3 + [wind] * 2)
+        self._qd_dt = math.nan
 
     def initialise(self, accel_flu_m_s2, heading_rad: float, baro_alt_m: float, *,
                    gyro_flu_rad_s=None, position_enu_m=None, gps_position_enu_m=None,
@@ -238,6 +262,7 @@ class NavFilter:
         self._bg = [float(a) for a in gyro_flu_rad_s] if gyro_flu_rad_s is not None else [0.0, 0.0, 0.0]
         self._clamp_biases()
         self._ba = [0.0, 0.0, 0.0]
+        self._wind = [0.0, 0.0]
 
         # The gyro bias seeded from the average rate at rest is known far better than an unknown one;
         # treating it as unknown makes the tilt (and, without position aiding, the position) uncertainty
@@ -253,6 +278,7 @@ class NavFilter:
                      + [tilt_std ** 2] * 2 + [c.initial_heading_std_rad ** 2]
                      + [bg_std ** 2] * 2 + [c.initial_gyro_bias_std_rad_s ** 2]
                      + [sa ** 2] * 3)
+        variances += [c.initial_wind_std_m_s ** 2 if c.drag_fusion else 0.0] * 2
         P = np.diag(np.array(variances, dtype=float))
         # Levelling on the measured specific force absorbs the horizontal accelerometer bias into the
         # tilt: with w = R b_a (world), the levelled tilt error is dtheta_x = -w_y / g, dtheta_y = w_x / g
@@ -289,8 +315,36 @@ class NavFilter:
         prediction on. It also sets how well the bias must be known before a dead-reckoned climb
         (``gyro_bias_learned``)."""
         self._cfg = dataclasses.replace(self._cfg, gyro_bias_noise_rad_s2_per_rt_hz=float(density_rad_s2_per_rt_hz))
-        self._q_density[9:12] = self._cfg.gyro_bias_noise_rad_s2_per_rt_hz ** 2
-        self._qd_dt = math.nan
+        self._set_q_density()
+
+    def set_compass_noise(self, std_rad: float) -> None:
+        """Change the compass heading's measurement noise (``EK3_YAW_M_NSE``); from the next fusion on.
+        A larger value lets position fixes and drag correct a biased compass heading."""
+        self._cfg = dataclasses.replace(self._cfg, compass_noise_rad=float(std_rad))
+
+    def set_drag_model(self, *, ballistic_x_kg_m2: float, ballistic_y_kg_m2: float, momentum_per_s: float,
+                       noise_m_s2: float, wind_noise_m_s2_per_rt_hz: float) -> None:
+        """Change the drag model of ``fuse_drag`` (EK3_DRAG_BCOEF_X/Y, EK3_DRAG_MCOEF, EK3_DRAG_M_NSE,
+        EK3_WIND_P_NSE); from the next step on. Switching drag fusion on opens the wind's uncertainty
+        (``initial_wind_std_m_s``, the wind estimate restarting at zero), switching it off freezes it.
+        Raises ValueError for values the config refuses."""
+        was_on = self._cfg.drag_fusion
+        self._cfg = dataclasses.replace(
+            self._cfg, drag_ballistic_coef_x_kg_m2=float(ballistic_x_kg_m2),
+            drag_ballistic_coef_y_kg_m2=float(ballistic_y_kg_m2), drag_momentum_coef_per_s=float(momentum_per_s),
+            drag_noise_m_s2=float(noise_m_s2), wind_noise_m_s2_per_rt_hz=float(wind_noise_m_s2_per_rt_hz))
+        self._set_q_density()
+        if self._cfg.drag_fusion and not was_on and self.aligned:
+            self._open_wind()
+
+    def _open_wind(self) -> None:
+        """Wind unknown: estimate zero, uncorrelated, ``initial_wind_std_m_s``."""
+        self._rev += 1
+        self._wind = [0.0, 0.0]
+        P = self._P
+        P[_WIND, :] = 0.0
+        P[:, _WIND] = 0.0
+        P[15, 15] = P[16, 16] = self._cfg.initial_wind_std_m_s ** 2
 
     def set_position_source(self, source: PositionSource) -> None:
         """Select the horizontal position source (EK3_SRC1_POSXY); takes effect on the next fix, no reset."""
@@ -408,6 +462,8 @@ class NavFilter:
             self._v[i] += d[3 + i]
             self._bg[i] += d[9 + i]
             self._ba[i] += d[12 + i]
+        self._wind[0] += d[15]
+        self._wind[1] += d[16]
         self._q = quat_normalise(quat_multiply(quat_from_rotation_vector(d[6], d[7], d[8]), self._q))
         self._clamp_biases()
 
@@ -514,6 +570,48 @@ class NavFilter:
             logger.warning("NavFilter: heading reset to %s (jump %.1f deg)", what, math.degrees(float(innov[0])))
             return FusionResult(True, innov, result.test_ratio, reset=True)
         return result
+
+    def fuse_drag(self, mean_accel_flu_m_s2) -> tuple[FusionResult, FusionResult]:
+        """Drag fusion (module docstring): the body x and y specific force averaged over a window of
+        flight (m/s^2, FLU, as the accelerometer reads it) as two sequential scalar measurements of
+        the air-relative velocity, each gated like a velocity; every state is corrected. Returns the
+        (x, y) results; a not-accepted pair when drag fusion is off (both coefficients 0).
+
+        Model per body axis j: f_j = b_a,j - (mcoef + 0.5 rho |v_a| / bcoef_j) v_a,j, with
+        v_a = R^T (v - w) (3-D, w horizontal). Its Jacobian: d v_a / d dv = R^T, d v_a / d dw = -R^T
+        (x, y columns), d v_a / d dtheta = R^T [v - w]x (the attitude error is a world rotation).
+        """
+        self._require_aligned("fuse_drag")
+        c = self._cfg
+        f = np.asarray(mean_accel_flu_m_s2, dtype=float).reshape(3)
+        off = FusionResult(False, np.array([math.nan]), math.nan)
+        if not c.drag_fusion or not np.all(np.isfinite(f)):
+            return off, off
+        results = []
+        for axis, bcoef in ((0, c.drag_ballistic_coef_x_kg_m2), (1, c.drag_ballistic_coef_y_kg_m2)):
+            rot = quat_to_rotation_matrix(self._q)
+            u = np.array([self._v[0] - self._wind[0], self._v[1] - self._wind[1], self._v[2]])
+            va = rot.T @ u
+            speed = float(np.linalg.norm(va))
+            kb = 0.5 * c.air_density_kg_m3 / bcoef if bcoef > 0.0 else 0.0
+            predicted = -(c.drag_momentum_coef_per_s + kb * speed) * float(va[axis]) + self._ba[axis]
+            # d predicted / d v_a (row): -(mcoef + kb |v_a|) e_j - kb v_a,j v_a / |v_a|
+            j_row = np.zeros(3)
+            j_row[axis] = -(c.drag_momentum_coef_per_s + kb * speed)
+            if speed > 1e-6:
+                j_row -= kb * float(va[axis]) * va / speed
+            jr = j_row @ rot.T                                      # d / d v (world)
+            ux = np.array([[0.0, -u[2], u[1]], [u[2], 0.0, -u[0]], [-u[1], u[0], 0.0]])
+            h = self._h_drag
+            h[:] = 0.0
+            h[3:6] = jr
+            h[6:9] = jr @ ux
+            h[12 + axis] = 1.0
+            h[15] = -jr[0]
+            h[16] = -jr[1]
+            results.append(self._update_scalar(float(f[axis]) - predicted, h, c.drag_noise_m_s2 ** 2,
+                                               c.velocity_gate_sd, None))
+        return results[0], results[1]
 
     def fuse_zero_rate(self, mean_gyro_flu_rad_s, window_s: float) -> FusionResult:
         """The vehicle is at rest (on the ground, disarmed): the body x and y rates averaged over
@@ -633,7 +731,9 @@ class NavFilter:
             self._pos_last_ok_s = self._time_s
             return result
         if self._time_s - self._pos_last_ok_s > c.position_reject_timeout_s:
+            elapsed = self._time_s - self._pos_last_ok_s
             self._reset_axes([0, 1], xy, R)
+            self._reopen_horizontal_velocity(float(np.hypot(*innov)) / elapsed)
             self._position_reset_count += 1
             self._last_position_reset_m = innov.copy()
             self._pos_last_ok_s = self._time_s
@@ -641,6 +741,19 @@ class NavFilter:
                            float(innov[0]), float(innov[1]))
             return FusionResult(True, innov, result.test_ratio, reset=True)
         return result
+
+    def _reopen_horizontal_velocity(self, speed_error_m_s: float) -> None:
+        """After a position reset onto a source whose every fix was rejected: the position ran away
+        from the fixes, so the horizontal velocity is suspect too. Decorrelate it and give it at least
+        the variance of the run-away rate (jump / time since the last accepted fix), so that the next
+        fixes correct the velocity instead of being gated out one reset after another."""
+        P = self._P
+        var = max(float(P[3, 3]), float(P[4, 4]), speed_error_m_s ** 2)
+        for i in (3, 4):
+            P[i, :] = 0.0
+            P[:, i] = 0.0
+            P[i, i] = var
+        self._rev += 1
 
     def reset_horizontal_position(self, xy_enu_m, variance_m2: float) -> None:
         """Set x, y to a measurement (external nav reset_counter change), counted as a reset."""
@@ -671,14 +784,14 @@ class NavFilter:
         return NavState(position_enu_m=np.array(self._p), velocity_enu_m_s=np.array(self._v),
                         q_wxyz=np.array(self._q), gyro_bias=np.array(self._bg), accel_bias=np.array(self._ba),
                         position_std_m=np.array(d[0:3]), velocity_std_m_s=np.array(d[3:6]),
-                        heading_rad=heading_from_quat(self._q))
+                        heading_rad=heading_from_quat(self._q), wind_enu_m_s=np.array(self._wind))
 
     def position_std_m(self) -> np.ndarray:
         """1-sigma position uncertainty (x, y, z), m."""
         return np.sqrt(np.maximum(self._P[[0, 1, 2], [0, 1, 2]], 0.0))
 
     def covariance(self) -> np.ndarray:
-        """Copy of the 15x15 error-state covariance (order: dp, dv, dtheta_world, db_g, db_a)."""
+        """Copy of the 17x17 error-state covariance (order: dp, dv, dtheta_world, db_g, db_a, dw)."""
         return self._P.copy()
 
     def attitude_std_rad(self) -> np.ndarray:

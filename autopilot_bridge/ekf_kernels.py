@@ -1,13 +1,14 @@
 """Covariance kernels of the navigation filter (``autopilot_bridge.ekf``), compiled with numba.
 
-The 15-state covariance updates were a dozen small numpy calls each (products, fancy-indexed
-diagonals, an identity, a Joseph form with 15x15 products for a one-row measurement): the calls,
+The 17-state covariance updates were a dozen small numpy calls each (products, fancy-indexed
+diagonals, an identity, a Joseph form with N x N products for a one-row measurement): the calls,
 not the arithmetic, were the cost. These kernels do the same algebra in one call each, in place,
 allocating nothing (``_nrt=False``), single-threaded and deterministic. Pure: numpy and numba only.
 
 * ``predict_covariance``: ``P <- F P F' + diag(q)`` with the error-state Jacobian ``F`` of
   ``NavFilter.predict`` (identity plus the dt, specific-force and rotation blocks, built here; the
-  zero entries are skipped), then symmetrised.
+  zero entries are skipped), then symmetrised. The wind states (15, 16) are random walks: their
+  rows of ``F`` are the identity's.
 * ``update_direct``: a gated update with a direct measurement of up to three states (horizontal
   position, velocity) and its noise covariance, every state corrected, ``P <- P - K u'``.
 * ``update_scalar``: a gated update with one measurement row ``h`` and noise variance ``r``. With
@@ -28,7 +29,7 @@ import numpy as np
 from numba import njit
 
 NO_NRT: dict[str, Any] = {"cache": True, "_nrt": False}
-N = 15
+N = 17
 VARIANCE_FLOOR = 1e-12
 
 
@@ -46,10 +47,10 @@ def _symmetrise_and_floor(P, N):  # pragma: no cover - compiled
 
 @njit(**NO_NRT)
 def predict_covariance(P, tmp, dt, fx, fy, fz, rot, qd):  # pragma: no cover - compiled
-    """In place: ``P <- F P F' + diag(qd)``, symmetrised; ``tmp`` is a 15x15 work array.
+    """In place: ``P <- F P F' + diag(qd)``, symmetrised; ``tmp`` is an N x N work array.
 
     ``(fx, fy, fz)``: specific force in the world frame (bias removed), ``rot``: body -> world at
-    mid-tick, ``qd``: process noise variances for this dt (15)."""
+    mid-tick, ``qd``: process noise variances for this dt (N)."""
     # tmp = F P, row by row: row i of F is e_i plus a few entries
     for i in range(N):
         for j in range(N):
@@ -107,7 +108,7 @@ def predict_covariance(P, tmp, dt, fx, fy, fz, rot, qd):  # pragma: no cover - c
 @njit(**NO_NRT)
 def update_scalar(P, h, r, innov, gate_sd, mask, joseph, apply, u, dx):  # pragma: no cover
     """Gated one-row update, in place (see the module docstring). Returns the test ratio
-    (NIS / gate^2; inf for a singular S). ``u`` and ``dx`` (15) are outputs: ``P h`` before the
+    (NIS / gate^2; inf for a singular S). ``u`` and ``dx`` (N) are outputs: ``P h`` before the
     update and the error-state correction (written only when applied). Applied when ``apply``
     and the ratio is finite and <= 1."""
     for i in range(N):
@@ -153,7 +154,7 @@ def update_direct(P, idx, R, nu, gate_sd, apply, S, Sinv, U, K, dx):  # pragma: 
     """Gated update with a direct measurement of the states ``idx`` (m <= 3 of them: horizontal
     position 0, 1; velocity 3, 4, 5) with the m x m noise covariance ``R`` and innovation ``nu``,
     every state corrected (``P <- P - K u'``), in place. ``S``, ``Sinv`` (m x m), ``U``, ``K``
-    (15 x m) are work arrays. Returns the test ratio (inf for a singular S); ``dx`` (15) gets the
+    (N x m) are work arrays. Returns the test ratio (inf for a singular S); ``dx`` (N) gets the
     correction when applied (``apply`` and the ratio finite and <= 1)."""
     m = idx.shape[0]
     for a in range(m):

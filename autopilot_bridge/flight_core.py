@@ -82,7 +82,7 @@ from autopilot_bridge.mixer import QuadXMixer
 from autopilot_bridge.mode_commands import ModeCommandsMixin
 from autopilot_bridge.modes import NEEDS_POSITION, POSITION_MODES, CopterMode
 from autopilot_bridge.motor_test import MotorTestMixin
-from autopilot_bridge.param_binding import ParamBindingMixin, gyro_bias_noise_density
+from autopilot_bridge.param_binding import ParamBindingMixin, drag_model, gyro_bias_noise_density
 from autopilot_bridge.params import ParameterStore
 from autopilot_bridge.pilot import PilotMixin
 from autopilot_bridge.smart_rtl import BreadcrumbPath, smart_rtl_law
@@ -146,6 +146,8 @@ class FlightCore(SensorFusionMixin, ArmingMixin, GuidedMixin, AutoMissionMixin,
         self.nav = NavFilter(dataclasses.replace(
             self._algo.ekf, position_source=source,
             gyro_bias_noise_rad_s2_per_rt_hz=gyro_bias_noise_density(params.get("EK3_GBIAS_P_NSE"))))
+        self.nav.set_drag_model(**drag_model(params))
+        self.nav.set_compass_noise(params.get("EK3_YAW_M_NSE"))
         self.fc = FlightController(self._control_config(), self.airframe)
         self.mixer = QuadXMixer(self.airframe)
         self.failsafe = FailsafeMonitor()

@@ -93,6 +93,8 @@ class SensorFusionMixin:
         self._last_ext_height_s: float | None = None
         self._last_ext_yaw_s: float | None = None
         self._rest_gyro_sum = np.zeros(3)      # body rates summed at rest (disarmed on the ground)
+        self._drag_accel_sum = np.zeros(3)     # specific force summed in flight (drag fusion)
+        self._drag_s = 0.0
         self._rest_n = 0
         self._rest_s = 0.0
 
@@ -192,6 +194,7 @@ class SensorFusionMixin:
         self._vision.clear()
         self._ground_fusion()
         self._rest_fusion()
+        self._drag_fusion()
 
     def _height_above_home(self) -> float:
         home_z = self._home[2] if self._home is not None else self.cfg.ground_z_m
@@ -248,6 +251,24 @@ class SensorFusionMixin:
         self._rest_n = 0
         self._rest_s = 0.0
         self._rest_gyro_sum[:] = 0.0
+
+    def _drag_fusion(self) -> None:
+        """Armed and in the air with a drag model set (EK3_DRAG_BCOEF_X/Y or EK3_DRAG_MCOEF > 0): the
+        specific force averaged over each ``drag_fusion_period_s`` is fused as drag
+        (``NavFilter.fuse_drag``); on the ground the rotors' thrust is not all there is."""
+        if not (self._armed and not self.fc.landed and self.nav.config.drag_fusion):
+            self._drag_accel_sum[:] = 0.0
+            self._drag_s = 0.0
+            return
+        self._drag_accel_sum += self._accel * self._imu_dt_s
+        self._drag_s += self._imu_dt_s
+        if self._drag_s < self.cfg.drag_fusion_period_s - 1e-9:
+            return
+        rx, ry = self.nav.fuse_drag(self._drag_accel_sum / self._drag_s)
+        self.stats["drag_fused"] += int(rx.accepted) + int(ry.accepted)
+        self.stats["drag_rejected"] += int(not rx.accepted) + int(not ry.accepted)
+        self._drag_accel_sum[:] = 0.0
+        self._drag_s = 0.0
 
     def _handle_position_reset(self, delta_xy) -> None:
         logger.warning("EKF position reset by (%.1f, %.1f) m", float(delta_xy[0]), float(delta_xy[1]))

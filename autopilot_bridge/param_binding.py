@@ -1,5 +1,6 @@
 """Parameter binding (part of ``FlightCore``): the ArduCopter parameters mapped onto the algorithms'
-configs (ANGLE_MAX, WPNAV_*, PILOT_*, LAND_*, RTL_*, WP_YAW_BEHAVIOR, EK3_SRC1_POSXY, EK3_GBIAS_P_NSE, the airframe
+configs (ANGLE_MAX, WPNAV_*, PILOT_*, LAND_*, RTL_*, WP_YAW_BEHAVIOR, EK3_SRC1_POSXY, EK3_GBIAS_P_NSE,
+EK3_YAW_M_NSE, EK3_DRAG_* and EK3_WIND_P_NSE, the airframe
 model), applied again whenever the parameter store reports a change.
 
 Pure module: no zenoh, no pymavlink.
@@ -20,6 +21,7 @@ from autopilot_bridge.vehicle_interface import (
     Outcome,
     SpeedType,
 )
+from scenenav.core.errors import UserError
 
 logger = logging.getLogger(__name__)
 
@@ -32,7 +34,23 @@ EKF_STEP_S = 0.01
 def gyro_bias_noise_density(p_nse_rad_s2: float) -> float:
     """``EK3_GBIAS_P_NSE`` (rad/s/s) -> the filter's gyro-bias random walk (rad/s^2/sqrt(Hz)); the
     default 1e-3 gives ``EkfConfig``'s 1e-4."""
-    return float(p_nse_rad_s2) * EKF_STEP_S ** 0.5
+    return process_noise_density(p_nse_rad_s2)
+
+
+def process_noise_density(p_nse: float) -> float:
+    """An ArduPilot EKF3 ``*_P_NSE`` (per-step standard deviation dt * P_NSE of a random walk state's
+    change) -> the continuous random-walk density P_NSE * sqrt(dt) at our 100 Hz filter step."""
+    return float(p_nse) * EKF_STEP_S ** 0.5
+
+
+def drag_model(params) -> dict[str, float]:
+    """``NavFilter.set_drag_model`` arguments from EK3_DRAG_BCOEF_X/Y, EK3_DRAG_MCOEF, EK3_DRAG_M_NSE
+    and EK3_WIND_P_NSE (ArduPilot ``AP_NavEKF3.cpp``)."""
+    return {"ballistic_x_kg_m2": params.get("EK3_DRAG_BCOEF_X"),
+            "ballistic_y_kg_m2": params.get("EK3_DRAG_BCOEF_Y"),
+            "momentum_per_s": params.get("EK3_DRAG_MCOEF"),
+            "noise_m_s2": params.get("EK3_DRAG_M_NSE"),
+            "wind_noise_m_s2_per_rt_hz": process_noise_density(params.get("EK3_WIND_P_NSE"))}
 
 
 class ParamBindingMixin:
@@ -46,13 +64,17 @@ class ParamBindingMixin:
         """Parameter observer (the store calls it after every change, from any caller)."""
         try:
             self._apply_param(name, value)
-        except (ValueError, ArithmeticError) as exc:
+        except (ValueError, ArithmeticError, UserError) as exc:
             logger.warning("parameter %s = %g not applied: %s", name, value, exc)
 
     def _apply_param(self, name: str, value: float) -> None:
         self._tel = None
         if name == "EK3_GBIAS_P_NSE":
             self.nav.set_gyro_bias_noise(gyro_bias_noise_density(value))
+        if name == "EK3_YAW_M_NSE":
+            self.nav.set_compass_noise(value)
+        if name.startswith("EK3_DRAG_") or name == "EK3_WIND_P_NSE":
+            self.nav.set_drag_model(**drag_model(self.params))
         if name == f"EK3_SRC{self._source_set}_POSXY":
             self.nav.set_position_source(self._source_param())
             self._announce(MavSeverity.INFO, f"EKF3 IMU0 is using {self._source_name()}")
