@@ -93,11 +93,13 @@ class TelemetryMixin:
             w = self._gyro - np.asarray(est.gyro_bias, dtype=float)
             std = np.asarray(est.position_std_m, dtype=float)
             vstd = np.asarray(est.velocity_std_m_s, dtype=float)
+            wind = np.array([*est.wind_enu_m_s, 0.0], dtype=float)
         else:
             pos = np.array([*self.cfg.start_enu_m, self.cfg.ground_z_m], dtype=float)
             vel = np.zeros(3)
             roll = pitch = heading = 0.0
             w = np.zeros(3)
+            wind = np.zeros(3)
             std = np.full(3, math.inf)
             vstd = np.full(3, math.inf)
         lat, lon = self.geo.to_geodetic(float(pos[0]), float(pos[1]))
@@ -122,7 +124,8 @@ class TelemetryMixin:
             body_rates_rad_s=(float(w[0]), -float(w[1]), -float(w[2])),
             heading_deg=math.degrees(heading) % 360.0,
             groundspeed_m_s=float(math.hypot(vel[0], vel[1])),
-            airspeed_m_s=float(math.hypot(vel[0], vel[1])), climb_m_s=float(vel[2]),
+            airspeed_m_s=float(math.hypot(vel[0] - wind[0], vel[1] - wind[1])), climb_m_s=float(vel[2]),
+            wind_ned_m_s=enu_to_ned(wind),
             throttle_pct=100.0 * thrust / self.airframe.max_thrust_n,
             rc_channels_pwm=self.rc_channels(), servo_pwm=motor_pwm(self._motors, self._armed or self.motor_test_state.running),
             gps_fix_type=gps_fix, gps_satellites=g.satellites if g is not None else 0,

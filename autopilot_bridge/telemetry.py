@@ -10,7 +10,7 @@ Shell module (uses pymavlink). Two request styles are honoured, per link as in A
   messages we produce (``GCS_MAVLink`` ``STREAM_*`` tables): EXTENDED_STATUS = SYS_STATUS,
   POWER_STATUS, MISSION_CURRENT, NAV_CONTROLLER_OUTPUT, GPS_RAW_INT, EXTENDED_SYS_STATE; POSITION =
   GLOBAL_POSITION_INT, LOCAL_POSITION_NED; EXTRA1 = ATTITUDE; EXTRA2 = VFR_HUD; EXTRA3 =
-  SYSTEM_TIME, BATTERY_STATUS, EKF_STATUS_REPORT. ATTITUDE_QUATERNION and GPS_GLOBAL_ORIGIN are
+  SYSTEM_TIME, BATTERY_STATUS, EKF_STATUS_REPORT, VIBRATION, WIND. ATTITUDE_QUATERNION and GPS_GLOBAL_ORIGIN are
   in no group (as in ArduPilot): SET_MESSAGE_INTERVAL or REQUEST_MESSAGE.
 
 Time is the caller's clock (``now_s`` given to :meth:`TelemetryScheduler.due`), so message
@@ -101,7 +101,8 @@ STREAM_GROUPS: Mapping[DataStream, tuple[int, ...]] = {
     DataStream.EXTRA1: (_M.MAVLINK_MSG_ID_ATTITUDE,),
     DataStream.EXTRA2: (_M.MAVLINK_MSG_ID_VFR_HUD,),
     DataStream.EXTRA3: (_M.MAVLINK_MSG_ID_SYSTEM_TIME, _M.MAVLINK_MSG_ID_BATTERY_STATUS,
-                        _M.MAVLINK_MSG_ID_EKF_STATUS_REPORT, _M.MAVLINK_MSG_ID_VIBRATION),
+                        _M.MAVLINK_MSG_ID_EKF_STATUS_REPORT, _M.MAVLINK_MSG_ID_VIBRATION,
+                        _M.MAVLINK_MSG_ID_WIND),
 }
 
 # Default rates of a new link (Hz). HEARTBEAT and HOME_POSITION belong to no stream group.
@@ -121,6 +122,7 @@ DEFAULT_RATES_HZ: Mapping[int, float] = {
     _M.MAVLINK_MSG_ID_BATTERY_STATUS: 1.0,
     _M.MAVLINK_MSG_ID_EKF_STATUS_REPORT: 1.0,
     _M.MAVLINK_MSG_ID_VIBRATION: 1.0,
+    _M.MAVLINK_MSG_ID_WIND: 1.0,
     _M.MAVLINK_MSG_ID_POSITION_TARGET_GLOBAL_INT: 2.0,
     _M.MAVLINK_MSG_ID_HOME_POSITION: 0.2,
 }
@@ -552,6 +554,15 @@ def encode_vibration(tel: VehicleTelemetry, ctx: EncodeContext) -> mavlink2.MAVL
     return mavlink2.MAVLink_vibration_message(_time_ms(tel) * 1000, vx, vy, vz, *c)
 
 
+def encode_wind(tel: VehicleTelemetry, ctx: EncodeContext) -> mavlink2.MAVLink_message:
+    """WIND (ardupilotmega) as ArduPilot's ``send_wind``: the direction the wind comes *from*
+    (degrees, 0 = from the north), its horizontal speed and its vertical component (m/s)."""
+    n, e, d = _triple(tel.wind_ned_m_s)
+    speed = math.hypot(n, e)
+    direction = math.degrees(math.atan2(-e, -n)) if speed > 0.0 else 0.0
+    return mavlink2.MAVLink_wind_message(finite_float(direction), finite_float(speed), finite_float(d))
+
+
 def encode_position_target_local_ned(tel: VehicleTelemetry, ctx: EncodeContext
                                      ) -> mavlink2.MAVLink_message | None:
     """The position controller's target (position, velocity and acceleration feed-forward, yaw);
@@ -601,6 +612,7 @@ ENCODERS: Mapping[int, Encoder] = {
     _M.MAVLINK_MSG_ID_RAW_IMU: encode_raw_imu,
     _M.MAVLINK_MSG_ID_SCALED_IMU: encode_scaled_imu,
     _M.MAVLINK_MSG_ID_VIBRATION: encode_vibration,
+    _M.MAVLINK_MSG_ID_WIND: encode_wind,
     _M.MAVLINK_MSG_ID_POSITION_TARGET_LOCAL_NED: encode_position_target_local_ned,
     _M.MAVLINK_MSG_ID_POSITION_TARGET_GLOBAL_INT: encode_position_target_global_int,
 }

@@ -477,6 +477,9 @@ class VehicleTelemetry:
     ekf_pos_vert_variance: float = 0.0
     ekf_compass_variance: float = 0.0
     ekf_terrain_alt_variance: float = 0.0
+    # WIND (ardupilotmega): the EKF's wind estimate, NED m/s, the direction it blows towards (zero
+    # unless drag fusion is on, EK3_DRAG_*)
+    wind_ned_m_s: tuple[float, float, float] = (0.0, 0.0, 0.0)
     # SYS_STATUS: SensorFlag (MAV_SYS_STATUS_SENSOR) bitmasks
     sensors_present: int = int(DEFAULT_SENSORS)
     sensors_enabled: int = int(DEFAULT_SENSORS)

@@ -56,3 +56,15 @@ def test_vibration_is_the_rms_of_the_high_passed_accelerometer():
     assert mon.clip_counts == [1, 0, 0]
     mon.add((math.nan, 0.0, 0.0), dt)          # ignored
     assert math.isfinite(mon.levels[0])
+
+
+def test_wind_says_where_the_wind_comes_from():
+    # 5 m/s blowing towards the east (NED y) comes from the west: -90 degrees (ArduPilot's atan2
+    # range, -180 .. 180)
+    wind = encode(M.MAVLINK_MSG_ID_WIND, VehicleTelemetry(wind_ned_m_s=(0.0, 5.0, 0.0)), CTX)
+    assert (wind.direction, wind.speed, wind.speed_z) == pytest.approx((-90.0, 5.0, 0.0))
+    north = encode(M.MAVLINK_MSG_ID_WIND, VehicleTelemetry(wind_ned_m_s=(-3.0, 0.0, 0.0)), CTX)
+    assert (north.direction, north.speed) == pytest.approx((0.0, 3.0))     # blowing south: from the north
+    calm = encode(M.MAVLINK_MSG_ID_WIND, VehicleTelemetry(wind_ned_m_s=(math.nan, 0.0, 0.0)), CTX)
+    assert (calm.direction, calm.speed) == (0.0, 0.0)
+    assert M.MAVLINK_MSG_ID_WIND in STREAM_GROUPS[DataStream.EXTRA3]
