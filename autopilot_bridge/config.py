@@ -76,6 +76,9 @@ class EkfConfig:
     # When every fix of the selected position source has been rejected for this long, the position is
     # reset to the source (a reported jump); same for the barometer height.
     position_reject_timeout_s: float = 5.0
+    # A reset onto vision (EXTNAV) fixes larger than this is refused: the fixes stay rejected and the
+    # timeout restarts (SN_VIS_RST_MAX; 0 = no limit, ArduPilot's behaviour).
+    vision_reset_max_m: float = 0.0
     height_reject_timeout_s: float = 5.0
     heading_reject_timeout_s: float = 5.0
     velocity_reject_timeout_s: float = 2.0
@@ -145,7 +148,8 @@ class EkfConfig:
                      "initial_wind_std_m_s", "air_density_kg_m3"):
             value = getattr(self, name)
             check(_positive(value), name, value, "a positive number")
-        for name in ("drag_ballistic_coef_x_kg_m2", "drag_ballistic_coef_y_kg_m2", "drag_momentum_coef_per_s"):
+        for name in ("drag_ballistic_coef_x_kg_m2", "drag_ballistic_coef_y_kg_m2", "drag_momentum_coef_per_s",
+                     "vision_reset_max_m"):
             value = getattr(self, name)
             check(_non_negative(value), name, value, "a number >= 0 (0 = off)")
         check(math.isfinite(self.learned_gyro_bias_ratio) and self.learned_gyro_bias_ratio > 1.0,

@@ -197,6 +197,8 @@ class NavFilter:
         self._velocity_reset_count = 0
         self._position_reset_count = 0
         self._last_position_reset_m = np.zeros(2)
+        self._refused_reset_count = 0
+        self._last_refused_reset_m = np.zeros(2)
         self._height_reset_count = 0
         self.aligned = False
         # is_healthy() is kept until the state changes: _rev counts the changes (predict, updates,
@@ -316,6 +318,10 @@ class NavFilter:
         (``gyro_bias_learned``)."""
         self._cfg = dataclasses.replace(self._cfg, gyro_bias_noise_rad_s2_per_rt_hz=float(density_rad_s2_per_rt_hz))
         self._set_q_density()
+
+    def set_vision_reset_max(self, max_m: float) -> None:
+        """Largest jump of a position reset onto vision fixes (``SN_VIS_RST_MAX``; 0 = no limit)."""
+        self._cfg = dataclasses.replace(self._cfg, vision_reset_max_m=float(max_m))
 
     def set_compass_noise(self, std_rad: float) -> None:
         """Change the compass heading's measurement noise (``EK3_YAW_M_NSE``); from the next fusion on.
@@ -732,6 +738,14 @@ class NavFilter:
             return result
         if self._time_s - self._pos_last_ok_s > c.position_reject_timeout_s:
             elapsed = self._time_s - self._pos_last_ok_s
+            limit = c.vision_reset_max_m
+            if source == PositionSource.EXTNAV and limit > 0.0 and float(np.hypot(*innov)) > limit:
+                # a jump no drift since the last accepted fix explains: a consistent false lock far
+                # off is the likelier cause; keep rejecting, restart the timeout
+                self._refused_reset_count += 1
+                self._last_refused_reset_m = innov.copy()
+                self._pos_last_ok_s = self._time_s
+                return result
             self._reset_axes([0, 1], xy, R)
             self._reopen_horizontal_velocity(float(np.hypot(*innov)) / elapsed)
             self._position_reset_count += 1
@@ -848,6 +862,16 @@ class NavFilter:
     def last_position_reset_m(self) -> np.ndarray:
         """xy jump (m) of the latest horizontal position reset (zero if none)."""
         return self._last_position_reset_m.copy()
+
+    @property
+    def refused_reset_count(self) -> int:
+        """Vision position resets refused for a jump over ``vision_reset_max_m``."""
+        return self._refused_reset_count
+
+    @property
+    def last_refused_reset_m(self) -> np.ndarray:
+        """xy jump (m) of the latest refused reset (zero if none)."""
+        return self._last_refused_reset_m.copy()
 
     @property
     def height_reset_count(self) -> int:

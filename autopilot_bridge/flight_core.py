@@ -148,6 +148,7 @@ class FlightCore(SensorFusionMixin, ArmingMixin, GuidedMixin, AutoMissionMixin,
             gyro_bias_noise_rad_s2_per_rt_hz=gyro_bias_noise_density(params.get("EK3_GBIAS_P_NSE"))))
         self.nav.set_drag_model(**drag_model(params))
         self.nav.set_compass_noise(params.get("EK3_YAW_M_NSE"))
+        self.nav.set_vision_reset_max(params.get("SN_VIS_RST_MAX"))
         self.fc = FlightController(self._control_config(), self.airframe)
         self.mixer = QuadXMixer(self.airframe)
         self.failsafe = FailsafeMonitor()
@@ -181,6 +182,7 @@ class FlightCore(SensorFusionMixin, ArmingMixin, GuidedMixin, AutoMissionMixin,
         self._gcfg = self._guidance_config()
         self._last_target: PositionTarget | None = None
         self._pos_resets = 0
+        self._refused_resets = 0
         self._init_auto()
         self._init_mode_commands()
         self._init_pilot()
@@ -333,6 +335,9 @@ class FlightCore(SensorFusionMixin, ArmingMixin, GuidedMixin, AutoMissionMixin,
         if self.nav.position_reset_count != self._pos_resets:
             self._pos_resets = self.nav.position_reset_count
             self._handle_position_reset(self.nav.last_position_reset_m)
+        if self.nav.refused_reset_count != self._refused_resets:
+            self._refused_resets = self.nav.refused_reset_count
+            self._handle_refused_reset(self.nav.last_refused_reset_m)
         self._run_failsafes(est)
         self._auto_disarm_check()
         self._record_path(est)

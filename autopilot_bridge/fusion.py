@@ -270,6 +270,14 @@ class SensorFusionMixin:
         self._drag_accel_sum[:] = 0.0
         self._drag_s = 0.0
 
+    def _handle_refused_reset(self, delta_xy) -> None:
+        """A vision position reset larger than SN_VIS_RST_MAX was refused (``NavFilter``)."""
+        self.stats["vision_resets_refused"] += 1
+        text = (f"EKF vision reset by ({float(delta_xy[0]):.0f}, {float(delta_xy[1]):.0f}) m refused: "
+                f"over SN_VIS_RST_MAX {self.params.get('SN_VIS_RST_MAX'):.0f} m")
+        logger.warning(text)
+        self._bus_text(MavSeverity.WARNING, text)
+
     def _handle_position_reset(self, delta_xy) -> None:
         logger.warning("EKF position reset by (%.1f, %.1f) m", float(delta_xy[0]), float(delta_xy[1]))
         self._bus_text(MavSeverity.WARNING, f"EKF position reset by ({float(delta_xy[0]):.1f}, "

@@ -71,6 +71,8 @@ class ParamBindingMixin:
         self._tel = None
         if name == "EK3_GBIAS_P_NSE":
             self.nav.set_gyro_bias_noise(gyro_bias_noise_density(value))
+        if name == "SN_VIS_RST_MAX":
+            self.nav.set_vision_reset_max(value)
         if name == "EK3_YAW_M_NSE":
             self.nav.set_compass_noise(value)
         if name.startswith("EK3_DRAG_") or name == "EK3_WIND_P_NSE":

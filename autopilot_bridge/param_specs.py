@@ -19,6 +19,10 @@ SN_PARAM_SPECS: tuple[ParamSpec, ...] = (
               "Vision failsafe: land after holding this long without a fix", safe_min=0.0),
     ParamSpec("SN_VIS_MIN_ALT", ParamType.REAL32, 50.0, 0.0, 1000.0, "m",
               "Vision fixes are used (and expected) only this high above home", safe_min=0.0),
+    ParamSpec("SN_VIS_RST_MAX", ParamType.REAL32, 0.0, 0.0, 10000.0, "m",
+              "Largest jump of an EKF position reset onto vision fixes that were rejected for the "
+              "reset timeout; a larger one is refused (a consistent false lock far off) and the "
+              "vision failsafe decides; 0 = no limit (ArduPilot's behaviour)", safe_min=0.0),
 )
 # EKF source sets 2 and 3 (SET_EKF_SOURCE_SET, system_commands.py): ArduPilot's defaults are 0 (None).
 _SRC_VALUES = {

@@ -188,7 +188,7 @@ class GuidanceNodeConfig:
     waypoint_spacing_m: float = 50.0   # spacing of the mission's waypoints along the route
     # A goal on a bad matching area is moved to the nearest point with the route's clearance within
     # this distance (0: refused with "no route"), e.g. a mission reused on other worlds.
-    snap_goals_m: float = 0.0          # move a goal on a bad area to the nearest good point within this (0: refuse)
+    snap_goals_m: float = 0.0          # move a goal on a bad area to the nearest good point within this, and leave a start on one straight to such a point (0: refuse)
 
     def __post_init__(self) -> None:
         check(self.snap_goals_m >= 0, "snap_goals_m", self.snap_goals_m, ">= 0 m")
@@ -217,7 +217,7 @@ class GuidanceRunConfig:
     goals_enu_m: tuple[tuple[float, float], ...] = ((0.0, 0.0),)   # via-points and goal
     assistant_map: str = ""                         # .npz with key ``probability``
     altitude_m: float = 100.0                       # cruise altitude above home
-    snap_goals_m: float = 0.0                       # move goals on bad areas up to this far (0: refuse)
+    snap_goals_m: float = 0.0                       # move goals on bad areas up to this far, and leave a start on one (0: refuse)
     end: RouteEnd = RouteEnd.LAND                   # after the last waypoint
     replan_drift_m: float = 40.0                    # replan when this far off the route
     check_period_s: float = 1.0                     # simulated seconds between checks

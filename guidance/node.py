@@ -53,7 +53,7 @@ from guidance.fence import (
     fence_from_items,
 )
 from guidance.mavlink_client import AutopilotLink, MavlinkClientError, MissionWaypoint
-from guidance.planner import PlannedRoute, join_legs, plan_through, snap_to_good_area
+from guidance.planner import PlannedRoute, plan_escaping, snap_to_good_area
 from guidance.smoothing import polyline_length
 from scenenav.core.bus import Bus, BusConfig
 from scenenav.core.contracts import (
@@ -223,9 +223,13 @@ class GuidanceNode:
         points = (start_xy, *goals)
         check_points_inside(self.fence, points, ["start"] + [f"goal {i + 1}" for i in range(len(goals))])
         probability = apply_fence(self._probability(), self.world.m_per_px, self.fence)
-        legs = plan_through(probability, self.world.m_per_px, points, self.planner_cfg)
+        legs, self.route_xy, escaped = plan_escaping(probability, self.world.m_per_px, points,
+                                                     self.planner_cfg, self.cfg.snap_goals_m)
+        if escaped is not None:
+            self.event(f"start ({start_xy[0]:.0f}, {start_xy[1]:.0f}) m lies on a bad matching area: the route "
+                       f"leaves it straight to ({escaped[0]:.0f}, {escaped[1]:.0f}) m, "
+                       f"{math.dist(start_xy, escaped):.0f} m (guidance.snap_goals_m)")
         self.legs = legs
-        self.route_xy = join_legs(legs)
         length = polyline_length(self.route_xy)
         clearance = min(leg.min_clearance_m for leg in legs)
         methods = ", ".join(sorted({leg.method.value for leg in legs}))

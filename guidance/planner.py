@@ -389,6 +389,27 @@ def plan_route(probability: np.ndarray, m_per_px: float, start_xy_m, goal_xy_m,
         shortest_path_xy_m=shortest_pts)
 
 
+def plan_escaping(probability: np.ndarray, m_per_px: float, points_xy_m, cfg: PlannerConfig,
+                  escape_m: float) -> tuple[list[PlannedRoute], np.ndarray, tuple[float, float] | None]:
+    """:func:`plan_through`, except that a start lying *on* a bad matching area (where the vehicle
+    is, not where it is asked to go: a take-off point, a position after drifting) is left by the
+    shortest way: the legs start at the nearest point with the route's clearance within ``escape_m``
+    (:func:`snap_to_good_area`) and the route begins with the straight hop there. Returns (legs,
+    route waypoints, the point the route escapes to or None). ``escape_m`` 0, or no such point
+    within it, plans from the start itself (and says why there is no route)."""
+    pts = [tuple(float(c) for c in p) for p in np.asarray(points_xy_m, dtype=float).reshape(-1, 2)]
+    escaped = None
+    if escape_m > 0.0 and len(pts) >= 2:
+        moved = snap_to_good_area(probability, m_per_px, pts[0], cfg, escape_m)
+        if moved is not None and moved != pts[0]:
+            escaped = moved
+    legs = plan_through(probability, m_per_px, [escaped or pts[0], *pts[1:]], cfg)
+    route = join_legs(legs)
+    if escaped is not None:
+        route = np.vstack([np.asarray(pts[0], dtype=float)[None, :], route])
+    return legs, route, escaped
+
+
 def plan_through(probability: np.ndarray, m_per_px: float, points_xy_m,
                  cfg: PlannerConfig | None = None) -> list[PlannedRoute]:
     """Plan one route per leg through ``points_xy_m`` (start, via-points..., goal), in order.

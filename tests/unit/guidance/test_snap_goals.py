@@ -1,4 +1,4 @@
-"""``snap_to_good_area``: a goal on a bad matching area moves to the nearest point that keeps the
+"""``snap_to_good_area`` and ``plan_escaping``: a goal on a bad matching area moves to the nearest point that keeps the
 route's clearance, within a limit; a goal on a good area stays where it is."""
 
 from __future__ import annotations
@@ -6,9 +6,11 @@ from __future__ import annotations
 import math
 
 import numpy as np
+import pytest
 
 from guidance.config import PlannerConfig
-from guidance.planner import snap_to_good_area
+from guidance.planner import plan_escaping, snap_to_good_area
+from scenenav.core.errors import UserError
 from scenenav.core.frames import world_to_pixel
 
 
@@ -28,3 +30,22 @@ def test_a_goal_on_a_bad_area_moves_to_the_nearest_point_with_clearance():
     assert abs(moved[1] - 30.0) < 1.0            # straight east: the nearest such point
     assert snap_to_good_area(prob, m_per_px, (-90.0, 0.0), cfg, 50.0) is None   # too far to move
     assert math.isfinite(moved[0])
+
+
+def test_a_start_on_a_bad_area_is_left_by_the_shortest_way():
+    m_per_px = 1.0
+    prob = np.full((200, 200), 0.9, dtype=np.float32)
+    prob[:, :120] = 0.1                          # bad west of x = 20 m
+    cfg = PlannerConfig(footprint_m=0.0, clearance_m=10.0, unvisited_weight=0.0)
+    start, goal = (0.0, 0.0), (60.0, 60.0)
+    legs, route, escaped = plan_escaping(prob, m_per_px, [start, goal], cfg, 100.0)
+    assert escaped is not None and 29.0 <= escaped[0] <= 32.0 and abs(escaped[1]) < 1.0
+    assert np.allclose(route[0], start) and np.allclose(route[1], escaped)   # the straight hop out
+    assert np.allclose(route[-1], goal) and np.allclose(legs[0].waypoints_xy_m[0], escaped)
+    # a start on a good area plans from itself; no escape within reach: the planner says why
+    _, route2, none = plan_escaping(prob, m_per_px, [(50.0, 0.0), goal], cfg, 100.0)
+    assert none is None and np.allclose(route2[0], (50.0, 0.0))
+    with pytest.raises(UserError, match="start .* lies in a bad matching area"):
+        plan_escaping(prob, m_per_px, [(-90.0, 0.0), goal], cfg, 50.0)
+    with pytest.raises(UserError, match="start .* lies in a bad matching area"):
+        plan_escaping(prob, m_per_px, [start, goal], cfg, 0.0)
