@@ -95,8 +95,9 @@ def test_decision_models_by_name_and_the_gps_denied_pin():
     for overrides in ((), ("realism=paper",), ("realism=realistic",)):
         cfg = load_scenario(root / "gps_denied.yaml", overrides)
         assert _perception_weights(cfg.perception) == str(DEFAULT_DECISION_MODEL)
-    twin = load_scenario(root / "gps_denied_realistic.yaml")
-    assert _perception_weights(twin.perception) == str(REALISTIC_DECISION_MODEL)
+    twin = load_scenario(root / "gps_denied_realistic.yaml")     # keeps gps_denied.yaml's model
+    assert _perception_weights(twin.perception) == str(DEFAULT_DECISION_MODEL)
+    assert twin.realism == "realistic"
     paper = load_scenario(None, ("realism=paper",))
     assert _perception_weights(dataclasses.replace(paper.perception, decision_rule="combined")) \
         == str(REALISTIC_DECISION_MODEL)
