@@ -200,14 +200,53 @@ def plot_confusion(cm: np.ndarray, path: Path, title: str) -> None:
     plt.close(fig)
 
 
-def record_id_for(manifest_sha256: str, cfg: TrainConfig) -> str:
-    blob = json.dumps({"data": manifest_sha256, "cfg": asdict(cfg)}, sort_keys=True).encode()
+def record_id_for(manifest_sha256: str, cfg: TrainConfig, extra_manifest_sha256: tuple[str, ...] = ()) -> str:
+    """Record id of a training run: the data (and any training-only extra data) and the config."""
+    key: dict = {"data": manifest_sha256, "cfg": asdict(cfg)}
+    if extra_manifest_sha256:          # absent without extra data: earlier record ids stay valid
+        key["extra_train_data"] = list(extra_manifest_sha256)
+    blob = json.dumps(key, sort_keys=True).encode()
     return hashlib.sha256(blob).hexdigest()[:16]
 
 
+EXTRA_DATA_MUST_MATCH = ("labelling", "crop_px", "image_px")
+"""Manifest fields in which a training-only extra dataset must agree with the main one."""
+
+
+def load_extra_training_data(main: LoadedDataset, extra_dirs: tuple[str | Path, ...],
+                             progress: bool = False) -> list[tuple[str, LoadedDataset]]:
+    """Load ``--extra-train`` datasets: training-only images from other worlds.
+
+    Refuses a dataset that shares a world seed with the main dataset (its crops could sit next to
+    validation crops) or with another extra dataset, or differs in labelling, crop size or image size.
+    """
+    seen_seeds = {int(s): str(main.manifest.get("command") or "--data") for s in main.manifest.get("world_seeds") or ()}
+    out = []
+    for d in extra_dirs:
+        ds = load_dataset(d, progress=progress)
+        for k in EXTRA_DATA_MUST_MATCH:
+            if ds.manifest.get(k) != main.manifest.get(k):
+                raise UserError(f"--extra-train {d}: {k} = {ds.manifest.get(k)!r}, but the --data dataset has "
+                                f"{main.manifest.get(k)!r}")
+        seeds = [int(s) for s in ds.manifest.get("world_seeds") or ()]
+        if not seeds:
+            raise UserError(f"--extra-train {d}: its manifest lists no world seeds")
+        clash = sorted(set(seeds) & set(seen_seeds))
+        if clash:
+            raise UserError(f"--extra-train {d}: world seed {clash[0]} is also in another dataset of this run "
+                            f"(extra training data must come from other worlds, or it leaks into validation)")
+        seen_seeds.update({s: str(d) for s in seeds})
+        out.append((str(d), ds))
+    return out
+
+
 def train(data_dir: str | Path, out_path: str | Path, cfg: TrainConfig | None = None, progress: bool = False,
-          command: str = "", data: LoadedDataset | None = None) -> TrainResult:
+          command: str = "", data: LoadedDataset | None = None,
+          extra_train: tuple[str | Path, ...] = ()) -> TrainResult:
     """Train on ``data_dir`` and write weights, training record and confusion-matrix PNG.
+
+    ``extra_train``: dataset folders of other worlds added to the training side only; the split of
+    ``data_dir`` (hence the validation set) is the same as without them.
 
     Torch's process-wide thread count and deterministic-algorithms flag are restored afterwards.
     """
@@ -221,16 +260,17 @@ def train(data_dir: str | Path, out_path: str | Path, cfg: TrainConfig | None = 
         torch.set_num_threads(cfg.num_threads)
         torch.manual_seed(cfg.seed)
         torch.use_deterministic_algorithms(True)
-        return _train(data_dir, out, cfg, progress, command, data)
+        return _train(data_dir, out, cfg, progress, command, data, tuple(extra_train))
     finally:
         torch.set_num_threads(threads)
         torch.use_deterministic_algorithms(determ)
 
 
 def _train(data_dir: str | Path, out: Path, cfg: TrainConfig, progress: bool, command: str,
-           data: LoadedDataset | None) -> TrainResult:
+           data: LoadedDataset | None, extra_train: tuple[str | Path, ...] = ()) -> TrainResult:
     t0 = time.perf_counter()
     ds = data if data is not None else load_dataset(data_dir, progress=progress)
+    extras = load_extra_training_data(ds, extra_train, progress=progress)
     rng = np.random.default_rng([cfg.seed, 8001])
     groups = ds.groups if cfg.split == SplitMethod.GROUPED.value else np.arange(len(ds.labels)).astype(str)
     tr_idx, va_idx = grouped_stratified_split(ds.labels, groups, cfg.val_share, rng)
@@ -239,6 +279,10 @@ def _train(data_dir: str | Path, out: Path, cfg: TrainConfig, progress: bool, co
     x_all = _to_input(ds.images, cfg.input_px)
     y_all = torch.from_numpy(ds.labels.astype(np.int64))
     x_tr, y_tr, x_va, y_va = x_all[tr_idx], y_all[tr_idx], x_all[va_idx], y_all[va_idx]
+    if extras:
+        x_tr = torch.cat([x_tr] + [_to_input(e.images, cfg.input_px) for _, e in extras])
+        y_tr = torch.cat([y_tr] + [torch.from_numpy(e.labels.astype(np.int64)) for _, e in extras])
+    n_extra = sum(len(e.labels) for _, e in extras)
     t_load = time.perf_counter() - t0
 
     model = SceneMatchNet(cfg.input_px)
@@ -294,11 +338,17 @@ def _train(data_dir: str | Path, out: Path, cfg: TrainConfig, progress: bool, co
         tp = int(cm[c, c])
         per_class[c.name] = {"precision": tp / max(int(cm[:, c].sum()), 1), "recall": tp / max(int(cm[c].sum()), 1),
                              "n_val": int(cm[c].sum())}
-    rid = record_id_for(ds.manifest_sha256, cfg)
+    rid = record_id_for(ds.manifest_sha256, cfg, tuple(e.manifest_sha256 for _, e in extras))
+    extra_summary = [{"data_dir": d, "data_manifest_sha256": e.manifest_sha256, "n_images": int(len(e.labels)),
+                      "command": e.manifest.get("command"), "world_seeds": e.manifest.get("world_seeds"),
+                      "counts": e.manifest.get("counts")} for d, e in extras]
+    meta_extra = {"data_manifest_sha256": ds.manifest_sha256, "epochs": cfg.epochs, "seed": cfg.seed,
+                  "val_accuracy": round(va_acc, 4), "val_loss": round(va_loss, 4)}
+    if extras:
+        meta_extra["extra_train_manifest_sha256"] = [e.manifest_sha256 for _, e in extras]
     meta = WeightsMeta(input_px=cfg.input_px, classes=tuple(c.name for c in MatchClass),
                        labelling=str(ds.manifest.get("labelling")), training_record_id=rid,
-                       extra={"data_manifest_sha256": ds.manifest_sha256, "epochs": cfg.epochs, "seed": cfg.seed,
-                              "val_accuracy": round(va_acc, 4), "val_loss": round(va_loss, 4)})
+                       extra=meta_extra)
     save_weights(model, out, meta)
     wall = time.perf_counter() - t0
     record_path, png_path = sidecar_paths(out)
@@ -314,7 +364,9 @@ def _train(data_dir: str | Path, out: Path, cfg: TrainConfig, progress: bool, co
                                                       "world_size_px", "crop_px", "image_px", "dataset_version",
                                                       "world_generator_sha256")},
         "config": asdict(cfg),
-        "split": {"train": int(len(tr_idx)), "val": int(len(va_idx)),
+        "extra_train_data": extra_summary,
+        "split": {"train": int(len(tr_idx)) + n_extra, "train_from_data": int(len(tr_idx)),
+                  "train_from_extra": n_extra, "val": int(len(va_idx)),
                   "val_per_class": {c.name: int((y_va_np == c).sum()) for c in MatchClass},
                   "method": f"{cfg.split} stratified, seeded"},
         "epochs": history,

@@ -68,7 +68,8 @@ def _train(args: argparse.Namespace) -> int:
     from perception.training import TrainConfig, format_confusion, train
     cfg = TrainConfig(epochs=args.epochs, seed=args.seed, input_px=args.input_px, batch_size=args.batch_size,
                       num_threads=args.threads, split=args.split)
-    res = train(args.data, args.out, cfg, progress=not args.quiet, command=_command_line())
+    res = train(args.data, args.out, cfg, progress=not args.quiet, command=_command_line(),
+                extra_train=tuple(args.extra_train or ()))
     fin = res.record["final"]
     print(f"training   accuracy {fin['train_accuracy']:.3f} loss {fin['train_loss']:.3f}   (paper Table 1: 0.96 / 0.08)")
     print(f"validation accuracy {fin['val_accuracy']:.3f} loss {fin['val_loss']:.3f}   (paper Table 1: 0.92 / 0.10)")
@@ -244,6 +245,10 @@ def register(subparsers) -> None:
     t.add_argument("--split", choices=["grouped", "random"], default=tc.split,
                    help="grouped: whole spatial tiles (default, no augmented copy on both sides); random: "
                         "image-level like a plain Keras validation split")
+    t.add_argument("--extra-train", action="append", metavar="DIR",
+                   help="another `scenenav dataset` folder, of other worlds (no world seed shared with --data; "
+                        "same labelling and crop size), added to the training side only: the split of --data, "
+                        "hence the validation set, stays the same (repeatable)")
     t.add_argument("--quiet", action="store_true", help="no progress bar")
     t.set_defaults(func=_train)
 
