@@ -23,12 +23,17 @@ from perception.training import (
 from scenenav.core.errors import UserError
 
 
+def _tiny_dataset(tmp_path_factory, name: str, seed: int, base_crops: int, augment_to: int):
+    """A one-world dataset of a 700 px world (seconds to build)."""
+    out = tmp_path_factory.mktemp(name) / "data"
+    build_dataset(out, DatasetConfig(n_worlds=1, seed=seed, world_width_px=700, world_height_px=700,
+                                     base_crops=base_crops, augment_to=augment_to, junction_jitter_px=10.0))
+    return out
+
+
 @pytest.fixture(scope="module")
 def tiny_data(tmp_path_factory):
-    out = tmp_path_factory.mktemp("train") / "data"
-    build_dataset(out, DatasetConfig(n_worlds=1, seed=4, world_width_px=700, world_height_px=700, base_crops=24,
-                                     augment_to=40, junction_jitter_px=10.0))
-    return out
+    return _tiny_dataset(tmp_path_factory, "train", seed=4, base_crops=24, augment_to=40)
 
 
 def test_one_epoch_writes_weights_and_record(tiny_data, tmp_path):
@@ -77,10 +82,7 @@ def test_training_user_errors(tiny_data, tmp_path):
 
 @pytest.fixture(scope="module")
 def tiny_other_worlds(tmp_path_factory):
-    out = tmp_path_factory.mktemp("train_extra") / "data"
-    build_dataset(out, DatasetConfig(n_worlds=1, seed=5, world_width_px=700, world_height_px=700, base_crops=16,
-                                     augment_to=20, junction_jitter_px=10.0))
-    return out
+    return _tiny_dataset(tmp_path_factory, "train_extra", seed=5, base_crops=16, augment_to=20)
 
 
 def test_extra_training_data_keeps_the_validation_split(tiny_data, tiny_other_worlds, tmp_path):
