@@ -48,7 +48,7 @@ def _non_negative(value: float) -> bool:
 
 @dataclass(frozen=True)
 class EkfConfig:
-    """Navigation filter (15-state error-state EKF) noise, gates and limits."""
+    """Navigation filter (17-state error-state EKF) noise, gates and limits."""
 
     # --- process noise: continuous-time spectral densities (variance added per predict = density^2 * dt)
     # Gyro white noise; ArduPilot EK3_GYRO_P_NSE is the per-step equivalent (0.015 rad/s).

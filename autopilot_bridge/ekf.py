@@ -158,7 +158,7 @@ class NavState:
 
 
 class NavFilter:
-    """15-state error-state EKF; see the module docstring for the model and the conventions."""
+    """17-state error-state EKF; see the module docstring for the model and the conventions."""
 
     def __init__(self, cfg: EkfConfig | None = None) -> None:
         self._cfg = cfg if cfg is not None else EkfConfig()
