@@ -56,6 +56,7 @@ from perception.decision import (
     decide_from_p_bad,
     split_classifier_output,
 )
+from perception.fix_covariance import pointing_covariance_m2
 from perception.heading_offset import HeadingDeviation, parabola_vertex, rotation_peaks
 from perception.match_metrics import MatchMetrics, StageTimes
 from perception.ncc_search import MatchResult, SceneMatcher, SearchMode
@@ -306,11 +307,17 @@ class PerceptionPipeline:
                 Decision.REJECT, Reason.BELOW_RATED_HEIGHT, _NAN, _NAN_CLASSES, _NAN, _NAN, (_NAN, _NAN))
         if cfg.quality_gate and not match.quality_ok and decision is Decision.ACCEPT:
             decision, reason = Decision.REJECT, Reason.LOW_QUALITY
+        covariance_m2 = match.covariance_m2
+        if cfg.pointing_attitude_std_deg > 0.0 or cfg.pointing_heading_std_deg > 0.0:
+            du, dv = aligned.centre_offset_px
+            covariance_m2 = covariance_m2 + pointing_covariance_m2(
+                altitude_m, (du * self.m_per_px, -dv * self.m_per_px),
+                math.radians(cfg.pointing_attitude_std_deg), math.radians(cfg.pointing_heading_std_deg))
         timings.total_ms = (time.perf_counter() - t_start) * _MS
         return FixResult(
             timestamp_s=t_s, valid=True, accepted=decision is Decision.ACCEPT, decision=decision,
             reason=reason, method=self.method, position_enu_m=match.position_enu_m,
-            position_px=match.position_px, covariance_m2=match.covariance_m2, p_true=p_true,
+            position_px=match.position_px, covariance_m2=covariance_m2, p_true=p_true,
             p_classes=p_classes,
             metrics=match.metrics,
             quality_ok=match.quality_ok, search=match.search, track_state=self.tracker.state,

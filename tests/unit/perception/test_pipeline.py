@@ -319,3 +319,32 @@ def test_fixes_below_the_rated_height_are_rejected_unrated(world, method):
     for r in (at_rated, off):
         assert r.valid and r.reason is not Reason.BELOW_RATED_HEIGHT
     assert calls == ([1, 1] if gated else [])
+
+
+def test_pointing_term_geometry():
+    """Attitude error: isotropic altitude * tan(sigma); heading error: |d| * sigma across the offset."""
+    from perception.fix_covariance import pointing_covariance_m2
+    c = pointing_covariance_m2(100.0, (0.0, 0.0), math.radians(1.0), math.radians(5.0))
+    assert c == pytest.approx(np.eye(2) * (100.0 * math.tan(math.radians(1.0))) ** 2)
+    c = pointing_covariance_m2(100.0, (0.0, 27.0), 0.0, math.radians(2.0))   # centre 27 m north
+    assert math.sqrt(c[0, 0]) == pytest.approx(27.0 * math.radians(2.0))     # moves east-west
+    assert c[1, 1] == pytest.approx(0.0) and c[0, 1] == pytest.approx(0.0)
+    c = pointing_covariance_m2(100.0, (10.0, 10.0), 0.0, math.radians(2.0))  # across the diagonal
+    w, v = np.linalg.eigh(c)
+    assert w[0] == pytest.approx(0.0, abs=1e-12)
+    assert abs(v[:, 1] @ np.array([1.0, -1.0]) / math.sqrt(2.0)) == pytest.approx(1.0)
+
+
+def test_pointing_errors_widen_the_published_covariance_only(world):
+    """The same captures with pointing_attitude_std_deg set: same positions and decisions, covariance
+    wider by (altitude tan sigma)^2 on each axis (nadir capture: no heading term)."""
+    ref, day = world
+    plain = fly(PerceptionPipeline(ref, MPP, FalseMatchMethod.NONE), day, 5)
+    cfg = PerceptionConfig(pointing_attitude_std_deg=1.0, pointing_heading_std_deg=3.0)
+    wide = fly(PerceptionPipeline(ref, MPP, FalseMatchMethod.NONE, cfg), day, 5)
+    extra = (ALT * math.tan(math.radians(1.0))) ** 2
+    for (a, _), (b, _) in zip(plain, wide, strict=True):
+        assert a.position_enu_m == b.position_enu_m and a.decision is b.decision
+        assert b.covariance_m2 == pytest.approx(a.covariance_m2 + np.eye(2) * extra)
+    with pytest.raises(UserError, match="pointing_attitude_std_deg"):
+        PerceptionConfig(pointing_attitude_std_deg=-1.0)
