@@ -144,6 +144,11 @@ class PerceptionConfig:
     # library default; the perception node turns it on: PerceptionNodeConfig.min_rated_footprint_share).
     rated_altitude_m: float = 100.0
     min_rated_footprint_share: float = 0.0
+    # Below that height, a match may still continue a track whose last rated fix was accepted
+    # (docs/perception.md "Track continuation below the rated height"): window search, quality-ok,
+    # within continuation_max_innovation_m of the tracker's constant-velocity prediction. Off: rejected.
+    track_below_rated: bool = False
+    continuation_max_innovation_m: float = 2.0
     matcher: MatcherConfig = field(default_factory=MatcherConfig)
     # learn the compass heading error from the matches (perception.heading_offset); off: raw compass
     heading_offset: HeadingOffsetConfig = field(default_factory=HeadingOffsetConfig)
@@ -173,6 +178,8 @@ class PerceptionConfig:
         for name in ("pointing_attitude_std_deg", "pointing_heading_std_deg"):
             value = getattr(self, name)
             check(0.0 <= value <= 30.0, f"perception.{name}", value, "a number of degrees in [0, 30]")
+        check(0.0 < self.continuation_max_innovation_m < 100.0, "perception.continuation_max_innovation_m",
+              self.continuation_max_innovation_m, "a positive number of metres below 100")
 
 
 #: ``PerceptionNodeConfig.alignment`` values: how a FIXED-mount capture is aligned with the map.
@@ -210,6 +217,8 @@ class PerceptionNodeConfig:
     # docs/perception.md "Covariance"); 0: exact inputs. Profiles set them (scenenav/app/realism.py)
     pointing_attitude_std_deg: float = 0.0   # the estimated roll / pitch (fixed mount) or the gimbal's
     pointing_heading_std_deg: float = 0.0    # the heading the capture is turned with
+    track_below_rated: bool = False    # below the rated height, accept matches that continue a track
+                                       # whose last rated fix was accepted (docs/perception.md)
 
     def __post_init__(self) -> None:
         methods = ("cnn", "assistant-map", "statistical", "none")

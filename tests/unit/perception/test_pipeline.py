@@ -32,9 +32,9 @@ def texture(h: int, w: int, seed: int, sigma: float = 2.0) -> np.ndarray:
     return ((t - t.min()) / (t.max() - t.min())).astype(np.float32)
 
 
-def render(world: np.ndarray, u: float, v: float, heading: float) -> np.ndarray:
-    """Camera image (RGB uint8) at continuous pixel (u, v): image-up = heading, right = right."""
-    g = 2.0 * ALT * math.tan(math.radians(FOV) / 2.0) / CAM / MPP
+def render(world: np.ndarray, u: float, v: float, heading: float, alt: float = ALT) -> np.ndarray:
+    """Camera image (RGB uint8) at continuous pixel (u, v) from ``alt``: image-up = heading, right = right."""
+    g = 2.0 * alt * math.tan(math.radians(FOV) / 2.0) / CAM / MPP
     jj, ii = np.meshgrid(np.arange(CAM) - (CAM - 1) / 2.0, np.arange(CAM) - (CAM - 1) / 2.0)
     c, s = math.cos(heading), math.sin(heading)
     mx = (u - 0.5 + g * (c * jj - s * ii)).astype(np.float32)
@@ -348,3 +348,33 @@ def test_pointing_errors_widen_the_published_covariance_only(world):
         assert b.covariance_m2 == pytest.approx(a.covariance_m2 + np.eye(2) * extra)
     with pytest.raises(UserError, match="pointing_attitude_std_deg"):
         PerceptionConfig(pointing_attitude_std_deg=-1.0)
+
+
+@pytest.mark.parametrize("continue_track", [False, True])
+def test_a_trusted_track_continues_below_the_rated_height(world, continue_track):
+    """Descending through the rated height over a good area: with track_below_rated the window
+    matches that continue the accepted track are accepted (track-continuation); a match far from
+    the tracker's prediction is not, and ends the continuation. Without it all are below-rated."""
+    ref, day = world
+    cfg = dataclasses.replace(PerceptionConfig(), rated_altitude_m=ALT, min_rated_footprint_share=0.5,
+                              track_below_rated=continue_track)
+    pipe = PerceptionPipeline(ref, MPP, FalseMatchMethod.CNN, cfg, classify=cnn_fake)
+    u, v, heading = 300.0, 200.0, 0.4
+    for k in range(6):                       # at the rated height: accepted
+        r = pipe.process(render(day, u + k, v, heading), heading, ALT, 0.1 * k)
+        assert r.accepted and r.reason is Reason.ACCEPTED
+    low = []
+    for k in range(6, 12):                   # 0.6 x ALT: 0.36 of the rated area
+        alt = ALT * 0.6
+        low.append(pipe.process(render(day, u + k, v, heading, alt), heading, alt, 0.1 * k))
+    assert all(r.valid for r in low)
+    if continue_track:
+        assert all(r.accepted and r.reason is Reason.TRACK_CONTINUATION for r in low)
+        assert all(err_m(r, (u + 6 + i, v)) < 0.5 for i, r in enumerate(low))
+        # a capture of another place (a false match can only land near the prediction or far away)
+        jump = pipe.process(render(day, u + 60, v + 40, heading, ALT * 0.6), heading, ALT * 0.6, 1.2)
+        assert not jump.accepted
+        back = pipe.process(render(day, u + 13, v, heading, ALT * 0.6), heading, ALT * 0.6, 1.3)
+        assert not back.accepted and back.reason is Reason.BELOW_RATED_HEIGHT   # trust is not regained
+    else:
+        assert all(not r.accepted and r.reason is Reason.BELOW_RATED_HEIGHT for r in low)
