@@ -11,7 +11,6 @@ from __future__ import annotations
 
 import math
 
-import pytest
 from support.sim_flight import CoreFlight
 
 from autopilot_bridge.modes import CopterMode
