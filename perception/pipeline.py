@@ -152,8 +152,8 @@ class PerceptionPipeline:
                  decision_model: CombinedDecisionModel | None = None) -> None:
         self.cfg = cfg if cfg is not None else PerceptionConfig()
         self._told_below_rated = False
-        #: the newest rated verdict on the current run of quality-ok matches was an acceptance
-        self._trusted_run = False
+        #: the newest rated verdict on the current window track was an acceptance (track continuation)
+        self._trusted_track = False
         try:
             self.method = FalseMatchMethod(method) if method is not None else self.cfg.method
         except ValueError:
@@ -206,7 +206,7 @@ class PerceptionPipeline:
         """Forget the track and the statistical window (keeps the assistant map)."""
         self.tracker.reset()
         self.track_evidence.reset()
-        self._trusted_run = False
+        self._trusted_track = False
         for det in self._variance:
             det.reset()
         if self._detector is not None:
@@ -295,18 +295,21 @@ class PerceptionPipeline:
             self._learn_heading(deviation, compass_rad, aligned, match,
                                 cfg.fov_deg if fov_deg is None else fov_deg, tilt_rad, intrinsics_px)
         innovation_m = innovation_px * self.m_per_px
-        if not (match.quality_ok and run > 0):
-            self._trusted_run = False           # a new run (or none): nothing rated on it yet
+        if match.search is not SearchMode.WINDOW:
+            self._trusted_track = False         # a global search or re-acquisition: a new track
         if self._rated_at(altitude_m):
             decision, reason, p_true, p_classes, variance, p_false, drone = self._decide(
                 aligned, match, t_s, timings, innovation_m, run,
                 dr_innovation_px * self.m_per_px, dr_age_s, reach_excess_px * self.m_per_px)
-            self._trusted_run = decision is Decision.ACCEPT and match.quality_ok
+            self._trusted_track = decision is Decision.ACCEPT and match.quality_ok
         elif self._continues_track(match, predicted, innovation_m):
             decision, reason, p_true, p_classes, variance, p_false, drone = (
                 Decision.ACCEPT, Reason.TRACK_CONTINUATION, _NAN, _NAN_CLASSES, _NAN, _NAN, (_NAN, _NAN))
         else:   # no classification either: a low capture's rating would be written into the map
-            self._trusted_run = False
+            if match.quality_ok:
+                # a sharp match away from the prediction: not the track that was trusted (a
+                # low-quality one is only not used; the tracker coasts and the trust stays)
+                self._trusted_track = False
             if not self._told_below_rated:
                 self._told_below_rated = True
                 log.info("capture at %.1f m: fixes from below %.1f m are rejected (below-rated-height): "
@@ -392,9 +395,9 @@ class PerceptionPipeline:
     # ------------------------------------------------------------------------------ decisions
     def _continues_track(self, match: MatchResult, predicted: bool, innovation_m: float) -> bool:
         """A capture below the rated height continues a trusted track (``cfg.track_below_rated``):
-        the newest rated verdict on this run of quality-ok matches was an acceptance, and this match
-        is a quality-ok window match within ``continuation_max_innovation_m`` of the prediction."""
-        return (self.cfg.track_below_rated and self._trusted_run and match.quality_ok and predicted
+        the newest rated verdict on this window track was an acceptance, and this match is a
+        quality-ok window match within ``continuation_max_innovation_m`` of the prediction."""
+        return (self.cfg.track_below_rated and self._trusted_track and match.quality_ok and predicted
                 and match.search is SearchMode.WINDOW
                 and innovation_m <= self.cfg.continuation_max_innovation_m)
 

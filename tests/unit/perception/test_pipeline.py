@@ -353,8 +353,9 @@ def test_pointing_errors_widen_the_published_covariance_only(world):
 @pytest.mark.parametrize("continue_track", [False, True])
 def test_a_trusted_track_continues_below_the_rated_height(world, continue_track):
     """Descending through the rated height over a good area: with track_below_rated the window
-    matches that continue the accepted track are accepted (track-continuation); a match far from
-    the tracker's prediction is not, and ends the continuation. Without it all are below-rated."""
+    matches that continue the accepted track are accepted (track-continuation); a capture of
+    somewhere else is not (the track coasts through it), and a sharp match 4 m off the prediction
+    ends the trust for good. Without it all are below-rated."""
     ref, day = world
     cfg = dataclasses.replace(PerceptionConfig(), rated_altitude_m=ALT, min_rated_footprint_share=0.5,
                               track_below_rated=continue_track)
@@ -371,10 +372,14 @@ def test_a_trusted_track_continues_below_the_rated_height(world, continue_track)
     if continue_track:
         assert all(r.accepted and r.reason is Reason.TRACK_CONTINUATION for r in low)
         assert all(err_m(r, (u + 6 + i, v)) < 0.5 for i, r in enumerate(low))
-        # a capture of another place (a false match can only land near the prediction or far away)
-        jump = pipe.process(render(day, u + 60, v + 40, heading, ALT * 0.6), heading, ALT * 0.6, 1.2)
-        assert not jump.accepted
-        back = pipe.process(render(day, u + 13, v, heading, ALT * 0.6), heading, ALT * 0.6, 1.3)
-        assert not back.accepted and back.reason is Reason.BELOW_RATED_HEIGHT   # trust is not regained
+        alt = ALT * 0.6
+        elsewhere = pipe.process(render(day, u + 60, v + 40, heading, alt), heading, alt, 1.2)
+        assert not elsewhere.accepted
+        back = pipe.process(render(day, u + 13, v, heading, alt), heading, alt, 1.3)
+        assert back.accepted and back.reason is Reason.TRACK_CONTINUATION, back.reason
+        off = pipe.process(render(day, u + 14 + 8, v, heading, alt), heading, alt, 1.4)   # 4 m off
+        assert off.valid and off.quality_ok and not off.accepted
+        again = pipe.process(render(day, u + 15 + 8, v, heading, alt), heading, alt, 1.5)
+        assert not again.accepted and again.reason is Reason.BELOW_RATED_HEIGHT   # trust is gone
     else:
         assert all(not r.accepted and r.reason is Reason.BELOW_RATED_HEIGHT for r in low)
