@@ -313,8 +313,14 @@ class FlightCoreConfig:
     ext_nav_std_m: float = 0.5            # MAVLink external nav without a covariance
     ext_nav_fresh_s: float = 1.0          # MAVLink external nav counts as a source this long
     vision_max_age_s: float = 1.0         # older vision fixes are dropped
+    # ArduPilot EKF3's final in-flight yaw alignment: the heading is reset to the compass once per
+    # flight at this height above home (EKF3_MAG_FINAL_RESET_ALT 2.5 m, AP_NavEKF3_core.h); 0 = off
+    inflight_yaw_reset_height_m: float = 2.5
 
     def __post_init__(self) -> None:
+        if not (math.isfinite(self.inflight_yaw_reset_height_m) and self.inflight_yaw_reset_height_m >= 0):
+            raise ValueError(f"FlightCoreConfig.inflight_yaw_reset_height_m = "
+                             f"{self.inflight_yaw_reset_height_m!r}: expected >= 0 (0 = off)")
         for name in ("align_time_s", "gps_wait_s", "gps_velocity_std_m_s", "ground_position_std_m",
                      "ground_fusion_period_s", "drag_fusion_period_s", "ext_nav_std_m", "ext_nav_fresh_s",
                      "vision_max_age_s"):

@@ -563,19 +563,32 @@ class NavFilter:
         if result.accepted:
             self._hdg_last_ok_s = self._time_s
         elif self._time_s - self._hdg_last_ok_s > c.heading_reject_timeout_s and math.isfinite(float(innov[0])):
-            # Rotate the attitude about world z onto the measurement (heading = pi/2 - yaw, so
-            # yaw -= innov) and restart the heading uncertainty from its noise.
-            self._q = quat_normalise(quat_multiply(quat_from_rotation_vector(0.0, 0.0, -float(innov[0])), self._q))
-            P = self._P
-            P[8, :] = 0.0
-            P[:, 8] = 0.0
-            P[8, 8] = std_rad ** 2 + c.initial_heading_std_rad ** 2
-            self._rev += 1
-            self._heading_reset_count += 1
-            self._hdg_last_ok_s = self._time_s
-            logger.warning("NavFilter: heading reset to %s (jump %.1f deg)", what, math.degrees(float(innov[0])))
+            self._reset_heading(float(innov[0]), std_rad, what)
             return FusionResult(True, innov, result.test_ratio, reset=True)
         return result
+
+    def reset_heading_to_compass(self, heading_rad: float) -> float:
+        """Set the heading to a compass reading (ArduPilot EKF3's in-flight yaw alignment,
+        ``controlMagYawReset``); returns the jump, rad."""
+        self._require_aligned("reset_heading_to_compass")
+        jump = wrap_pi(float(heading_rad) - heading_from_quat(self._q))
+        if math.isfinite(jump):
+            self._reset_heading(jump, self._cfg.compass_noise_rad, "the compass (in-flight alignment)")
+        return jump
+
+    def _reset_heading(self, innovation_rad: float, std_rad: float, what: str) -> None:
+        """Rotate the attitude about world z onto the measurement (heading = pi/2 - yaw, so
+        yaw -= innovation) and restart the heading uncertainty from its noise."""
+        c = self._cfg
+        self._q = quat_normalise(quat_multiply(quat_from_rotation_vector(0.0, 0.0, -innovation_rad), self._q))
+        P = self._P
+        P[8, :] = 0.0
+        P[:, 8] = 0.0
+        P[8, 8] = std_rad ** 2 + c.initial_heading_std_rad ** 2
+        self._rev += 1
+        self._heading_reset_count += 1
+        self._hdg_last_ok_s = self._time_s
+        logger.warning("NavFilter: heading reset to %s (jump %.1f deg)", what, math.degrees(innovation_rad))
 
     def fuse_drag(self, mean_accel_flu_m_s2) -> tuple[FusionResult, FusionResult]:
         """Drag fusion (module docstring): the body x and y specific force averaged over a window of

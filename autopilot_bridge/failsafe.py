@@ -17,9 +17,10 @@ GCS failsafe (ArduCopter ``FS_GCS_ENABLE`` / ``FS_GCS_TIMEOUT``, ``ArduCopter/ev
 
 Vision failsafe (scenenav, GPS-denied flight with EK3_SRC1_POSXY = 6):
 
-* evaluated while armed, flying, in a position-controlled mode, not landing, and high enough for
-  scene matching (``SN_VIS_MIN_ALT``); the clock starts at the newest of the last usable fix and the
-  moment these conditions began to hold (so a take-off climb below the minimum height never trips);
+* evaluated while armed, flying, in a position-controlled mode, neither taking off nor landing, and
+  high enough for scene matching (``SN_VIS_MIN_ALT``); the clock starts at the newest of the last
+  usable fix and the moment these conditions began to hold (so a take-off climb never trips: the
+  fixes may start only above SN_VIS_MIN_ALT, where perception rates them);
 * no usable fix for ``SN_VIS_TIMEOUT`` s -> HOLD: stop and hold position on dead reckoning;
 * a usable fix during the hold -> RESUME; still none ``SN_VIS_FS_LAND`` s later -> LAND;
 * ``SN_VIS_TIMEOUT`` = 0 disables it. Disarming resets both failsafes.
@@ -108,6 +109,7 @@ class FailsafeInputs:
     vision_required: bool               # the horizontal position source is external navigation
     vision_height_ok: bool              # high enough above home for scene matching
     last_vision_fix_s: float | None     # newest usable fix (None: none yet)
+    taking_off: bool = False            # in a take-off climb (AUTO NAV_TAKEOFF, GUIDED takeoff)
 
 
 @functools.lru_cache(maxsize=64)
@@ -196,7 +198,7 @@ class FailsafeMonitor:
                                             "Vision failsafe cleared: not required"))
             self._vision_since_s = None
             return
-        expected = (inp.flying and inp.position_mode and not inp.landing
+        expected = (inp.flying and inp.position_mode and not inp.landing and not inp.taking_off
                     and inp.vision_height_ok)
         if self._vision == VisionFailsafeState.LAND:
             return

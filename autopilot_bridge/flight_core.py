@@ -407,7 +407,9 @@ class FlightCore(SensorFusionMixin, ArmingMixin, GuidedMixin, AutoMissionMixin,
             gcs_last_heartbeat_s=self._gcs_heartbeat_s,
             vision_required=self.nav.position_source == PositionSource.EXTNAV,
             vision_height_ok=float(est.position_enu_m[2]) - home_z >= p.get("SN_VIS_MIN_ALT"),
-            last_vision_fix_s=self._last_usable_vision_s)
+            last_vision_fix_s=self._last_usable_vision_s,
+            taking_off=self._law_kind() == LawKind.TAKEOFF or (
+                self._mode == CopterMode.AUTO and self._auto_stage == AutoStage.TAKEOFF))
         for ev in self.failsafe.update(inputs, settings):
             self._apply_failsafe(ev, est)
         for ev in self._failsafe_checks(inputs):

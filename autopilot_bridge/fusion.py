@@ -97,6 +97,7 @@ class SensorFusionMixin:
         self._drag_s = 0.0
         self._rest_n = 0
         self._rest_s = 0.0
+        self._inflight_yaw_aligned = False     # this flight's in-flight yaw alignment is done
 
     def on_baro(self, t_s: float, altitude_m: float) -> None:
         if not all_finite(altitude_m):
@@ -177,6 +178,8 @@ class SensorFusionMixin:
                 nav.fuse_baro(alt)
         self._baro.clear()
         compass = not (ext_yaw and self._fresh(self._last_ext_yaw_s))
+        if compass and self._compass:
+            self._inflight_yaw_alignment(self._compass[-1])
         for hdg in self._compass:
             if compass:
                 nav.fuse_compass(hdg)
@@ -195,6 +198,27 @@ class SensorFusionMixin:
         self._ground_fusion()
         self._rest_fusion()
         self._drag_fusion()
+
+    def _inflight_yaw_alignment(self, heading_rad: float) -> None:
+        """ArduPilot EKF3's final in-flight yaw alignment (``controlMagYawReset``): once per flight,
+        when the estimate first climbs ``inflight_yaw_reset_height_m`` (EKF3_MAG_FINAL_RESET_ALT,
+        2.5 m) above home, the heading is reset to the compass. On the ground the compass reads the
+        magnetic field of what is around (steel, cables, rebar: sim.compass.anomaly_*); the heading
+        the filter aligned with there is wrong by that much, and once the reading clears with height
+        the filter would reject it until its rejection timeout. 0 m: off."""
+        if not self._armed or self.fc.landed:
+            if not self._armed:
+                self._inflight_yaw_aligned = False
+            return
+        limit = self.cfg.inflight_yaw_reset_height_m
+        if self._inflight_yaw_aligned or limit <= 0.0 or self._height_above_home() < limit:
+            return
+        self._inflight_yaw_aligned = True
+        jump = self.nav.reset_heading_to_compass(heading_rad)
+        self.stats["inflight_yaw_alignments"] += 1
+        text = f"EKF3 IMU0 MAG0 in-flight yaw alignment complete ({math.degrees(jump):+.1f} deg)"
+        logger.info(text)
+        self._bus_text(MavSeverity.INFO, text)
 
     def _height_above_home(self) -> float:
         home_z = self._home[2] if self._home is not None else self.cfg.ground_z_m

@@ -144,9 +144,18 @@ class PerceptionConfig:
     # library default; the perception node turns it on: PerceptionNodeConfig.min_rated_footprint_share).
     rated_altitude_m: float = 100.0
     min_rated_footprint_share: float = 0.0
+    # Below that height, a match may still continue a track whose last rated fix was accepted
+    # (docs/perception.md "Track continuation below the rated height"): window search, quality-ok,
+    # within continuation_max_innovation_m of the tracker's constant-velocity prediction. Off: rejected.
+    track_below_rated: bool = False
+    continuation_max_innovation_m: float = 2.0
     matcher: MatcherConfig = field(default_factory=MatcherConfig)
     # learn the compass heading error from the matches (perception.heading_offset); off: raw compass
     heading_offset: HeadingOffsetConfig = field(default_factory=HeadingOffsetConfig)
+    # the pointing the alignment assumes, 1 sigma: the attitude (roll, pitch) and the heading it was
+    # given. Added to every fix's covariance (fix_covariance.pointing_covariance_m2); 0 = exact inputs
+    pointing_attitude_std_deg: float = 0.0
+    pointing_heading_std_deg: float = 0.0
 
     def __post_init__(self) -> None:
         check(0.0 < self.fov_deg < 170.0, "perception.fov_deg", self.fov_deg, "a number in (0, 170)")
@@ -166,6 +175,11 @@ class PerceptionConfig:
               "perception.rated_altitude_m", self.rated_altitude_m, "a positive number of metres")
         check(0.0 <= self.min_rated_footprint_share <= 1.0, "perception.min_rated_footprint_share",
               self.min_rated_footprint_share, "a number in [0, 1] (0 = off)")
+        for name in ("pointing_attitude_std_deg", "pointing_heading_std_deg"):
+            value = getattr(self, name)
+            check(0.0 <= value <= 30.0, f"perception.{name}", value, "a number of degrees in [0, 30]")
+        check(0.0 < self.continuation_max_innovation_m < 100.0, "perception.continuation_max_innovation_m",
+              self.continuation_max_innovation_m, "a positive number of metres below 100")
 
 
 #: ``PerceptionNodeConfig.alignment`` values: how a FIXED-mount capture is aligned with the map.
@@ -199,6 +213,12 @@ class PerceptionNodeConfig:
     prior_from_estimate: bool = False  # without a track, search a window around the autopilot's estimate
                                        # (autopilot/estimate) of radius prior_margin_px + 3 sigma, not the map
     prior_margin_px: int = 24
+    # the pointing the alignment is given, 1 sigma, added to each fix's covariance (PerceptionConfig;
+    # docs/perception.md "Covariance"); 0: exact inputs. Profiles set them (scenenav/app/realism.py)
+    pointing_attitude_std_deg: float = 0.0   # the estimated roll / pitch (fixed mount) or the gimbal's
+    pointing_heading_std_deg: float = 0.0    # the heading the capture is turned with
+    track_below_rated: bool = False    # below the rated height, accept matches that continue a track
+                                       # whose last rated fix was accepted (docs/perception.md)
 
     def __post_init__(self) -> None:
         methods = ("cnn", "assistant-map", "statistical", "none")
@@ -216,6 +236,9 @@ class PerceptionNodeConfig:
         check(0.0 <= self.min_rated_footprint_share <= 1.0, "min_rated_footprint_share",
               self.min_rated_footprint_share, "a number in [0, 1] (0 = off)")
         check(self.prior_margin_px >= 0, "prior_margin_px", self.prior_margin_px, "an integer >= 0 (map px)")
+        for name in ("pointing_attitude_std_deg", "pointing_heading_std_deg"):
+            value = getattr(self, name)
+            check(0.0 <= value <= 30.0, name, value, "a number of degrees in [0, 30]")
         check(self.alignment in ALIGNMENTS, "alignment", self.alignment, "one of " + ", ".join(ALIGNMENTS))
         check(self.swap_every_s == 0 or (self.swap_every_s >= 10.0 and self.swap_at_s > 0),
               "swap_every_s", self.swap_every_s,

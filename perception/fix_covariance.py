@@ -107,3 +107,24 @@ def px_to_enu_cov(cov_px: np.ndarray, m_per_px: float) -> np.ndarray:
     out = cov_px * (m_per_px * m_per_px)
     out[0, 1] = out[1, 0] = -out[0, 1]
     return out
+
+
+def pointing_covariance_m2(altitude_m: float, centre_offset_enu_m: tuple[float, float],
+                           attitude_std_rad: float, heading_std_rad: float) -> np.ndarray:
+    """ENU m^2 covariance a fix inherits from the pointing the alignment assumed (docs/perception.md,
+    "Covariance", pointing term). The correlation surface cannot see it: a template aligned with a
+    wrong attitude or heading still matches sharply, only at the wrong place.
+
+    * Attitude (roll, pitch) error ``attitude_std_rad`` per axis: the ground point of a ray moves by
+      ``altitude * tan(error)`` in each horizontal direction (small tilts), isotropic.
+    * Heading error ``heading_std_rad``: the template centre's offset ``d`` from the nadir point
+      (``AlignedCapture.centre_offset_px`` in metres, ENU; zero for a nadir camera) turns about the
+      nadir point, so the fix moves by ``|d| * error`` perpendicular to ``d``.
+    """
+    h = max(float(altitude_m), 0.0)
+    s_att = h * math.tan(max(float(attitude_std_rad), 0.0))
+    dx, dy = float(centre_offset_enu_m[0]), float(centre_offset_enu_m[1])
+    s_hdg2 = max(float(heading_std_rad), 0.0) ** 2
+    # d_perp = (-dy, dx): s_hdg2 * d_perp d_perp^T
+    return np.array([[s_att * s_att + s_hdg2 * dy * dy, -s_hdg2 * dx * dy],
+                     [-s_hdg2 * dx * dy, s_att * s_att + s_hdg2 * dx * dx]])

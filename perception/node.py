@@ -67,7 +67,8 @@ log = logging.getLogger(__name__)
 def make_pipeline(world, method: str, assistant_map_path: str | None, weights: str | None = None,
                   fov_deg: float = PerceptionConfig.fov_deg, reference: str = "default",
                   min_rated_footprint_share: float = PerceptionConfig.min_rated_footprint_share,
-                  heading_learning: bool = False):
+                  heading_learning: bool = False, pointing_std_deg: tuple[float, float] = (0.0, 0.0),
+                  track_below_rated: bool = False):
     """The pure perception pipeline for a world and a false-match method (``fov_deg``: the camera's,
     used when a capture does not state its own).
 
@@ -78,6 +79,9 @@ def make_pipeline(world, method: str, assistant_map_path: str | None, weights: s
     names), ``orthophoto`` or ``perspective`` (``worlds.world.World.reference_map``).
     ``min_rated_footprint_share``: ``PerceptionConfig.min_rated_footprint_share`` (0: off).
     ``heading_learning``: learn the compass heading error from the matches (perception.heading_offset).
+    ``pointing_std_deg``: (attitude, heading) 1-sigma errors of the alignment's inputs, added to each
+    fix's covariance (``PerceptionConfig.pointing_attitude_std_deg``, ``pointing_heading_std_deg``).
+    ``track_below_rated``: ``PerceptionConfig.track_below_rated`` (track continuation below the rated height).
     """
     from perception.decision import CombinedDecisionModel, DecisionRule, FalseMatchMethod
     from perception.heading_offset import HeadingOffsetConfig
@@ -85,7 +89,9 @@ def make_pipeline(world, method: str, assistant_map_path: str | None, weights: s
     m = FalseMatchMethod(method)
     learning = HeadingOffsetConfig(enabled=heading_learning)
     cfg = PerceptionConfig(fov_deg=fov_deg, min_rated_footprint_share=min_rated_footprint_share,
-                           heading_offset=learning)
+                           heading_offset=learning, pointing_attitude_std_deg=pointing_std_deg[0],
+                           pointing_heading_std_deg=pointing_std_deg[1],
+                           track_below_rated=track_below_rated)
     decision_model = None
     if weights and str(weights).endswith(".json"):
         decision_model = CombinedDecisionModel.load(weights)
@@ -143,7 +149,8 @@ class PerceptionNode:
                  alignment: str = "rotation-scale",
                  min_rated_footprint_share: float = PerceptionConfig.min_rated_footprint_share,
                  heading_learning: bool = False, prior_from_estimate: bool = False,
-                 prior_margin_px: int = 24):
+                 prior_margin_px: int = 24, pointing_std_deg: tuple[float, float] = (0.0, 0.0),
+                 track_below_rated: bool = False):
         self.world = world
         self.homography = alignment == "homography"
         self.prior_from_estimate = prior_from_estimate
@@ -161,7 +168,8 @@ class PerceptionNode:
         import cv2
         cv2.setNumThreads(1)
         self.pipeline = make_pipeline(world, method, assistant_map_path, weights, self.camera.fov_deg,
-                                      reference, min_rated_footprint_share, heading_learning)
+                                      reference, min_rated_footprint_share, heading_learning,
+                                      pointing_std_deg, track_below_rated)
         self._diag = None
         if out_dir is not None:
             try:

@@ -56,6 +56,7 @@ from perception.decision import (
     decide_from_p_bad,
     split_classifier_output,
 )
+from perception.fix_covariance import pointing_covariance_m2
 from perception.heading_offset import HeadingDeviation, parabola_vertex, rotation_peaks
 from perception.match_metrics import MatchMetrics, StageTimes
 from perception.ncc_search import MatchResult, SceneMatcher, SearchMode
@@ -90,6 +91,7 @@ class Reason(str, Enum):
     CAMERA_MISMATCH = "camera-mismatch"      # the frame's FOV or size is not the configured camera's
     BAD_INPUT = "bad-input"                  # the frame or its heading / height cannot be used
     BELOW_RATED_HEIGHT = "below-rated-height"  # cnn / assistant-map: captured too low for the area rating
+    TRACK_CONTINUATION = "track-continuation"  # below the rated height, continuing an accepted track
 
 
 @dataclass(frozen=True)
@@ -150,6 +152,8 @@ class PerceptionPipeline:
                  decision_model: CombinedDecisionModel | None = None) -> None:
         self.cfg = cfg if cfg is not None else PerceptionConfig()
         self._told_below_rated = False
+        #: the newest rated verdict on the current window track was an acceptance (track continuation)
+        self._trusted_track = False
         try:
             self.method = FalseMatchMethod(method) if method is not None else self.cfg.method
         except ValueError:
@@ -202,6 +206,7 @@ class PerceptionPipeline:
         """Forget the track and the statistical window (keeps the assistant map)."""
         self.tracker.reset()
         self.track_evidence.reset()
+        self._trusted_track = False
         for det in self._variance:
             det.reset()
         if self._detector is not None:
@@ -290,11 +295,21 @@ class PerceptionPipeline:
             self._learn_heading(deviation, compass_rad, aligned, match,
                                 cfg.fov_deg if fov_deg is None else fov_deg, tilt_rad, intrinsics_px)
         innovation_m = innovation_px * self.m_per_px
+        if match.search is not SearchMode.WINDOW:
+            self._trusted_track = False         # a global search or re-acquisition: a new track
         if self._rated_at(altitude_m):
             decision, reason, p_true, p_classes, variance, p_false, drone = self._decide(
                 aligned, match, t_s, timings, innovation_m, run,
                 dr_innovation_px * self.m_per_px, dr_age_s, reach_excess_px * self.m_per_px)
+            self._trusted_track = decision is Decision.ACCEPT and match.quality_ok
+        elif self._continues_track(match, predicted, innovation_m):
+            decision, reason, p_true, p_classes, variance, p_false, drone = (
+                Decision.ACCEPT, Reason.TRACK_CONTINUATION, _NAN, _NAN_CLASSES, _NAN, _NAN, (_NAN, _NAN))
         else:   # no classification either: a low capture's rating would be written into the map
+            if match.quality_ok:
+                # a sharp match away from the prediction: not the track that was trusted (a
+                # low-quality one is only not used; the tracker coasts and the trust stays)
+                self._trusted_track = False
             if not self._told_below_rated:
                 self._told_below_rated = True
                 log.info("capture at %.1f m: fixes from below %.1f m are rejected (below-rated-height): "
@@ -306,11 +321,17 @@ class PerceptionPipeline:
                 Decision.REJECT, Reason.BELOW_RATED_HEIGHT, _NAN, _NAN_CLASSES, _NAN, _NAN, (_NAN, _NAN))
         if cfg.quality_gate and not match.quality_ok and decision is Decision.ACCEPT:
             decision, reason = Decision.REJECT, Reason.LOW_QUALITY
+        covariance_m2 = match.covariance_m2
+        if cfg.pointing_attitude_std_deg > 0.0 or cfg.pointing_heading_std_deg > 0.0:
+            du, dv = aligned.centre_offset_px
+            covariance_m2 = covariance_m2 + pointing_covariance_m2(
+                altitude_m, (du * self.m_per_px, -dv * self.m_per_px),
+                math.radians(cfg.pointing_attitude_std_deg), math.radians(cfg.pointing_heading_std_deg))
         timings.total_ms = (time.perf_counter() - t_start) * _MS
         return FixResult(
             timestamp_s=t_s, valid=True, accepted=decision is Decision.ACCEPT, decision=decision,
             reason=reason, method=self.method, position_enu_m=match.position_enu_m,
-            position_px=match.position_px, covariance_m2=match.covariance_m2, p_true=p_true,
+            position_px=match.position_px, covariance_m2=covariance_m2, p_true=p_true,
             p_classes=p_classes,
             metrics=match.metrics,
             quality_ok=match.quality_ok, search=match.search, track_state=self.tracker.state,
@@ -372,6 +393,14 @@ class PerceptionPipeline:
         return DecisionRule.COMBINED if self.decision_model is not None else DecisionRule.PAPER
 
     # ------------------------------------------------------------------------------ decisions
+    def _continues_track(self, match: MatchResult, predicted: bool, innovation_m: float) -> bool:
+        """A capture below the rated height continues a trusted track (``cfg.track_below_rated``):
+        the newest rated verdict on this window track was an acceptance, and this match is a
+        quality-ok window match within ``continuation_max_innovation_m`` of the prediction."""
+        return (self.cfg.track_below_rated and self._trusted_track and match.quality_ok and predicted
+                and match.search is SearchMode.WINDOW
+                and innovation_m <= self.cfg.continuation_max_innovation_m)
+
     def _rated_at(self, altitude_m: float) -> bool:
         """Whether the area rating applies to a capture from ``altitude_m``: always for the methods
         without one (none, statistical); for cnn and assistant-map when the capture covers at least

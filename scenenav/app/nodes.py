@@ -209,7 +209,9 @@ def run_perception(run_dir: Path | None, bus_cfg: BusConfig, method: str | None,
         out_dir=run_dir, camera=perception_camera(cfg), weights=_perception_weights(pcfg),
         reference=pcfg.reference, alignment=pcfg.alignment,
         min_rated_footprint_share=pcfg.min_rated_footprint_share, heading_learning=pcfg.heading_learning,
-        prior_from_estimate=pcfg.prior_from_estimate, prior_margin_px=pcfg.prior_margin_px)
+        prior_from_estimate=pcfg.prior_from_estimate, prior_margin_px=pcfg.prior_margin_px,
+        pointing_std_deg=(pcfg.pointing_attitude_std_deg, pcfg.pointing_heading_std_deg),
+        track_below_rated=pcfg.track_below_rated)
     stop.wait()
     node.close()
     return 0

@@ -62,6 +62,18 @@ def test_gcs_failsafe_needs_a_seen_gcs_and_flight_and_clears():
     assert not fs.any_active
 
 
+def test_vision_failsafe_ignores_the_take_off_climb_above_the_height():
+    """A take-off climb (AUTO NAV_TAKEOFF, GUIDED takeoff) above SN_VIS_MIN_ALT without fixes does
+    not trip it (perception may rate captures only from higher up); the clock starts when it ends."""
+    fs = FailsafeMonitor()
+    s = FailsafeSettings(vision_timeout_s=2.0, vision_land_after_s=3.0)
+    for t in range(0, 20):
+        assert fs.update(inputs(float(t), vision_required=True, taking_off=True), s) == []
+    assert fs.update(inputs(20.0, vision_required=True), s) == []
+    ev = fs.update(inputs(22.5, vision_required=True), s)
+    assert [e.action for e in ev] == [FailsafeAction.HOLD]
+
+
 def test_vision_failsafe_holds_then_lands_and_ignores_the_climb():
     fs = FailsafeMonitor()
     s = FailsafeSettings(vision_timeout_s=2.0, vision_land_after_s=3.0)

@@ -97,15 +97,18 @@ class CoreFlight:
     ``gps``: GPS samples are delivered (the simulator makes them either way, from its own random
     stream). ``vision``: every 10th tick a position fix (truth + ``vision_std_m`` noise from the
     test's own stream, capture time 50 ms earlier) is handed to the core, as a perception node's
-    would be.
+    would be. ``core``: ``FlightCoreConfig`` fields over the test defaults.
     """
 
     def __init__(self, seed: int = 3, gps: bool = True, sim: SimConfig | None = None,
-                 **params) -> None:
+                 core: dict | None = None, **params) -> None:
         self.plant = SimPlant(seed, sim)
         self.params = ParameterStore(PARAM_SPECS, defaults=params)
         self.core = FlightCore(self.params, FlightCoreConfig(origin_lat_deg=ORIGIN_LAT_DEG,
-                                                             origin_lon_deg=ORIGIN_LON_DEG))
+                                                             origin_lon_deg=ORIGIN_LON_DEG,
+                                                             **(core or {})))
+        #: added to every compass reading: f(height of the vehicle above the ground plane, m) -> rad
+        self.compass_error = None
         self.gps = gps
         self.vision = False
         self.vision_std_m = 0.7
@@ -132,7 +135,8 @@ class CoreFlight:
         if out.baro is not None:
             c.on_baro(t, out.baro.altitude_m)
         if out.compass is not None:
-            c.on_compass(t, out.compass.heading_rad)
+            extra = 0.0 if self.compass_error is None else self.compass_error(float(self.plant.p[2]))
+            c.on_compass(t, out.compass.heading_rad + extra)
         if out.gps is not None and self.gps:
             g = out.gps
             c.on_gps(GpsReading(t, g.lat_deg, g.lon_deg, g.alt_m, tuple(g.velocity_enu_m_s), g.eph_m,

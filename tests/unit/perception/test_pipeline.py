@@ -32,9 +32,9 @@ def texture(h: int, w: int, seed: int, sigma: float = 2.0) -> np.ndarray:
     return ((t - t.min()) / (t.max() - t.min())).astype(np.float32)
 
 
-def render(world: np.ndarray, u: float, v: float, heading: float) -> np.ndarray:
-    """Camera image (RGB uint8) at continuous pixel (u, v): image-up = heading, right = right."""
-    g = 2.0 * ALT * math.tan(math.radians(FOV) / 2.0) / CAM / MPP
+def render(world: np.ndarray, u: float, v: float, heading: float, alt: float = ALT) -> np.ndarray:
+    """Camera image (RGB uint8) at continuous pixel (u, v) from ``alt``: image-up = heading, right = right."""
+    g = 2.0 * alt * math.tan(math.radians(FOV) / 2.0) / CAM / MPP
     jj, ii = np.meshgrid(np.arange(CAM) - (CAM - 1) / 2.0, np.arange(CAM) - (CAM - 1) / 2.0)
     c, s = math.cos(heading), math.sin(heading)
     mx = (u - 0.5 + g * (c * jj - s * ii)).astype(np.float32)
@@ -319,3 +319,67 @@ def test_fixes_below_the_rated_height_are_rejected_unrated(world, method):
     for r in (at_rated, off):
         assert r.valid and r.reason is not Reason.BELOW_RATED_HEIGHT
     assert calls == ([1, 1] if gated else [])
+
+
+def test_pointing_term_geometry():
+    """Attitude error: isotropic altitude * tan(sigma); heading error: |d| * sigma across the offset."""
+    from perception.fix_covariance import pointing_covariance_m2
+    c = pointing_covariance_m2(100.0, (0.0, 0.0), math.radians(1.0), math.radians(5.0))
+    assert c == pytest.approx(np.eye(2) * (100.0 * math.tan(math.radians(1.0))) ** 2)
+    c = pointing_covariance_m2(100.0, (0.0, 27.0), 0.0, math.radians(2.0))   # centre 27 m north
+    assert math.sqrt(c[0, 0]) == pytest.approx(27.0 * math.radians(2.0))     # moves east-west
+    assert c[1, 1] == pytest.approx(0.0) and c[0, 1] == pytest.approx(0.0)
+    c = pointing_covariance_m2(100.0, (10.0, 10.0), 0.0, math.radians(2.0))  # across the diagonal
+    w, v = np.linalg.eigh(c)
+    assert w[0] == pytest.approx(0.0, abs=1e-12)
+    assert abs(v[:, 1] @ np.array([1.0, -1.0]) / math.sqrt(2.0)) == pytest.approx(1.0)
+
+
+def test_pointing_errors_widen_the_published_covariance_only(world):
+    """The same captures with pointing_attitude_std_deg set: same positions and decisions, covariance
+    wider by (altitude tan sigma)^2 on each axis (nadir capture: no heading term)."""
+    ref, day = world
+    plain = fly(PerceptionPipeline(ref, MPP, FalseMatchMethod.NONE), day, 5)
+    cfg = PerceptionConfig(pointing_attitude_std_deg=1.0, pointing_heading_std_deg=3.0)
+    wide = fly(PerceptionPipeline(ref, MPP, FalseMatchMethod.NONE, cfg), day, 5)
+    extra = (ALT * math.tan(math.radians(1.0))) ** 2
+    for (a, _), (b, _) in zip(plain, wide, strict=True):
+        assert a.position_enu_m == b.position_enu_m and a.decision is b.decision
+        assert b.covariance_m2 == pytest.approx(a.covariance_m2 + np.eye(2) * extra)
+    with pytest.raises(UserError, match="pointing_attitude_std_deg"):
+        PerceptionConfig(pointing_attitude_std_deg=-1.0)
+
+
+@pytest.mark.parametrize("continue_track", [False, True])
+def test_a_trusted_track_continues_below_the_rated_height(world, continue_track):
+    """Descending through the rated height over a good area: with track_below_rated the window
+    matches that continue the accepted track are accepted (track-continuation); a capture of
+    somewhere else is not (the track coasts through it), and a sharp match 4 m off the prediction
+    ends the trust for good. Without it all are below-rated."""
+    ref, day = world
+    cfg = dataclasses.replace(PerceptionConfig(), rated_altitude_m=ALT, min_rated_footprint_share=0.5,
+                              track_below_rated=continue_track)
+    pipe = PerceptionPipeline(ref, MPP, FalseMatchMethod.CNN, cfg, classify=cnn_fake)
+    u, v, heading = 300.0, 200.0, 0.4
+    for k in range(6):                       # at the rated height: accepted
+        r = pipe.process(render(day, u + k, v, heading), heading, ALT, 0.1 * k)
+        assert r.accepted and r.reason is Reason.ACCEPTED
+    low = []
+    for k in range(6, 12):                   # 0.6 x ALT: 0.36 of the rated area
+        alt = ALT * 0.6
+        low.append(pipe.process(render(day, u + k, v, heading, alt), heading, alt, 0.1 * k))
+    assert all(r.valid for r in low)
+    if continue_track:
+        assert all(r.accepted and r.reason is Reason.TRACK_CONTINUATION for r in low)
+        assert all(err_m(r, (u + 6 + i, v)) < 0.5 for i, r in enumerate(low))
+        alt = ALT * 0.6
+        elsewhere = pipe.process(render(day, u + 60, v + 40, heading, alt), heading, alt, 1.2)
+        assert not elsewhere.accepted
+        back = pipe.process(render(day, u + 13, v, heading, alt), heading, alt, 1.3)
+        assert back.accepted and back.reason is Reason.TRACK_CONTINUATION, back.reason
+        off = pipe.process(render(day, u + 14 + 8, v, heading, alt), heading, alt, 1.4)   # 4 m off
+        assert off.valid and off.quality_ok and not off.accepted
+        again = pipe.process(render(day, u + 15 + 8, v, heading, alt), heading, alt, 1.5)
+        assert not again.accepted and again.reason is Reason.BELOW_RATED_HEIGHT   # trust is gone
+    else:
+        assert all(not r.accepted and r.reason is Reason.BELOW_RATED_HEIGHT for r in low)
