@@ -16,7 +16,10 @@ works on a run that was interrupted. Definitions:
 * a fix is *false* when it is valid and its error exceeds ``evaluation.false_fix_threshold_m``
   (default 5 m); an invalid fix (no match computed) is neither true nor false;
 * ``rms_error_m`` / ``max_error_m`` are of the autopilot's own estimate against truth (horizontal),
-  null when the run had no autopilot; ``fix_rms_error_accepted_m`` is over accepted fixes.
+  null when the run had no autopilot, over the whole run; ``rms_error_airborne_m`` /
+  ``max_error_airborne_m`` the same over the estimates taken while the vehicle was more than
+  ``AIRBORNE_HEIGHT_M`` above where it started (the time at rest before take-off and after landing,
+  40-60 s of a GPS-denied mission, would otherwise dilute the RMS); ``fix_rms_error_accepted_m`` is over accepted fixes.
 
 Faults (docs/faults.md): ``end_reason`` says when the simulator died instead of finishing (its
 ``sim_stats.json`` is missing); ``node_failures`` lists every node that exited on its own with a
@@ -260,21 +263,38 @@ def headline_method(cfg, nodes: list[dict]) -> str | None:
     return cfg.perception.method if cfg.perception.enabled else None
 
 
-def estimate_errors(run_dir: Path) -> np.ndarray:
-    """Horizontal error of every autopilot estimate against truth (m); empty without an autopilot."""
+#: An estimate counts as airborne when the vehicle was this far above its starting height (truth).
+AIRBORNE_HEIGHT_M = 1.0
+
+
+def estimate_errors(run_dir: Path, airborne_only: bool = False) -> np.ndarray:
+    """Horizontal error of every autopilot estimate against truth (m); empty without an autopilot.
+    ``airborne_only``: only the estimates taken more than ``AIRBORNE_HEIGHT_M`` above the start."""
     est = read_csv(Path(run_dir) / "estimates.csv")
     truth = read_csv(Path(run_dir) / "truth.csv")
     if not est or not truth or len(est.get("t_s", [])) == 0 or len(truth.get("t_s", [])) < 2:
         return np.zeros(0)
     tx, ty = _interp_truth(truth, est["t_s"])
-    return np.hypot(est["x_m"] - tx, est["y_m"] - ty)
+    err = np.hypot(est["x_m"] - tx, est["y_m"] - ty)
+    if airborne_only:
+        if "z_m" not in truth:
+            return np.zeros(0)
+        z = np.interp(est["t_s"], truth["t_s"], truth["z_m"])
+        err = err[z > float(truth["z_m"][0]) + AIRBORNE_HEIGHT_M]
+    return err
+
+
+def _rms_max(e: np.ndarray) -> tuple[float | None, float | None]:
+    if len(e) == 0:
+        return None, None
+    return float(np.sqrt(np.mean(e ** 2))), float(np.max(e))
 
 
 def estimate_metrics(run_dir: Path) -> dict[str, Any]:
-    e = estimate_errors(run_dir)
-    if len(e) == 0:
-        return {"rms_error_m": None, "max_error_m": None}
-    return {"rms_error_m": float(np.sqrt(np.mean(e ** 2))), "max_error_m": float(np.max(e))}
+    rms, mx = _rms_max(estimate_errors(run_dir))
+    rms_air, max_air = _rms_max(estimate_errors(run_dir, airborne_only=True))
+    return {"rms_error_m": rms, "max_error_m": mx,
+            "rms_error_airborne_m": rms_air, "max_error_airborne_m": max_air}
 
 
 def _end_reason(sim_stats: dict, interrupted: bool, failures: tuple[NodeFailure, ...],
@@ -569,7 +589,8 @@ def format_summary(summary: dict) -> str:
     keys = ["scenario", "world", "flight_mode", "perception_method", "sim_time_s", "wall_time_s",
             "real_time_factor", "distance_flown_m", "fixes_total", "fixes_accepted", "false_fixes",
             "false_fixes_rejected", "true_fixes_rejected", "fix_rms_error_accepted_m",
-            "fix_time_ms_median", "rms_error_m", "max_error_m", "mission_completed", "gps_used",
+            "fix_time_ms_median", "rms_error_m", "max_error_m", "rms_error_airborne_m",
+            "max_error_airborne_m", "mission_completed", "gps_used",
             "end_reason", "recording_ended_early"]
     lines = ["summary:"]
     for k in keys:
@@ -625,8 +646,10 @@ def plain_summary(summary: dict, run_dir: Path | None = None) -> str:
                      f"{summary.get('false_fixes_rejected', 0)} of them rejected; the accepted fixes' "
                      f"error RMS is {_m(summary.get('fix_rms_error_accepted_m'))}.")
     if summary.get("rms_error_m") is not None:
+        air = summary.get("rms_error_airborne_m")
         lines.append(f"The autopilot's position estimate was off by {_m(summary['rms_error_m'])} RMS "
-                     f"and {_m(summary.get('max_error_m'))} at worst.")
+                     f"and {_m(summary.get('max_error_m'))} at worst"
+                     + (f" ({_m(air)} RMS in the air)." if air is not None else "."))
     if summary.get("route_length_m") is not None:
         replans = summary.get("replans", 0)
         lines.append(f"Guidance planned a {summary['route_length_m']:.0f} m route around the bad "

@@ -81,3 +81,18 @@ def test_plain_summary_says_what_happened(tmp_path):
     assert "landed at (1, -2) m east/north, 2.2 m from the goal (0, 0)" in text
     assert "mission was completed" in text
     assert str(tmp_path / "trajectory.png") in text
+
+
+def test_the_airborne_estimate_error_leaves_out_the_time_on_the_ground(tmp_path):
+    """rms_error_airborne_m: only estimates taken > 1 m above the start; the whole-run figure keeps
+    the time at rest (error 0 here), which dilutes it."""
+    from scenenav.app.evaluation import estimate_metrics
+    t = np.arange(0.0, 30.0, 0.5)
+    z = np.where((t >= 10.0) & (t < 20.0), 50.0, 0.0)          # in the air from 10 to 20 s
+    truth = ["t_s,x_m,y_m,z_m"] + [f"{a},0,0,{b}" for a, b in zip(t, z, strict=True)]
+    est = ["t_s,x_m,y_m"] + [f"{a},{3.0 if b > 0 else 0.0},0" for a, b in zip(t, z, strict=True)]
+    (tmp_path / "truth.csv").write_text("\n".join(truth) + "\n")
+    (tmp_path / "estimates.csv").write_text("\n".join(est) + "\n")
+    m = estimate_metrics(tmp_path)
+    assert m["rms_error_airborne_m"] == 3.0 and m["max_error_airborne_m"] == 3.0
+    assert m["max_error_m"] == 3.0 and abs(m["rms_error_m"] - 3.0 * np.sqrt(1 / 3)) < 1e-9
