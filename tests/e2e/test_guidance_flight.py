@@ -89,7 +89,12 @@ def test_guidance_node_flies_the_planned_route(flights):
     landed_est = np.array([est["x_m"][-1], est["y_m"][-1]])
     assert np.hypot(*(landed_est - flights["goal"])) < 5.0
     est_error = float(np.hypot(*(landed_est - landed)))
-    assert est_error < 3.0 * max(float(est["std_x_m"][-1]), float(est["std_y_m"][-1]))
+    # ... against the uncertainty the filter had in the air: once landed it fuses the landed
+    # position (std 0.3 m, ArduPilot's on-ground behaviour), and whether the last row comes before
+    # or after the first such fusion is a matter of one tick
+    z = np.interp(est["t_s"], truth["t_s"], truth["z_m"])
+    last_air = int(np.nonzero(z > float(truth["z_m"][0]) + 1.0)[0][-1])
+    assert est_error < 3.0 * max(float(est["std_x_m"][last_air]), float(est["std_y_m"][last_air]))
     assert np.hypot(*(landed - flights["goal"])) < est_error + 5.0
     assert np.hypot(*(landed - flights["goal"])) < 25.0
     assert summary["route_length_m"] == pytest.approx(route["length_m"])
