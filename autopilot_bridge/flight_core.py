@@ -76,7 +76,7 @@ from autopilot_bridge.failsafe_checks import BatteryFailsafe, BatterySettings, E
 from autopilot_bridge.flight_laws import Hold, Land, LawKind, Rtl, Tracker
 from autopilot_bridge.fusion import ImuReading, SensorFusionMixin
 from autopilot_bridge.geo_frame import GeoFrame
-from autopilot_bridge.guidance_law import GuidanceEventKind, Waypoint
+from autopilot_bridge.guidance_law import GuidanceEventKind, Waypoint, WaypointTracker
 from autopilot_bridge.guided import GuidedMixin
 from autopilot_bridge.mixer import QuadXMixer
 from autopilot_bridge.mode_commands import ModeCommandsMixin
@@ -408,14 +408,20 @@ class FlightCore(SensorFusionMixin, ArmingMixin, GuidedMixin, AutoMissionMixin,
             vision_required=self.nav.position_source == PositionSource.EXTNAV,
             vision_height_ok=float(est.position_enu_m[2]) - home_z >= p.get("SN_VIS_MIN_ALT"),
             last_vision_fix_s=self._last_usable_vision_s,
-            taking_off=self._law_kind() == LawKind.TAKEOFF or (
-                self._mode == CopterMode.AUTO and self._auto_stage == AutoStage.TAKEOFF))
+            taking_off=self._climbing_after_takeoff())
         for ev in self.failsafe.update(inputs, settings):
             self._apply_failsafe(ev, est)
         for ev in self._failsafe_checks(inputs):
             self._apply_failsafe(ev, est)
         for ev in self._fence_events(inputs.flying, inputs.landing, est.position_enu_m):
             self._apply_failsafe(ev, est)
+
+    def _climbing_after_takeoff(self) -> bool:
+        """A take-off (GUIDED takeoff or AUTO NAV_TAKEOFF) that has not reached its height yet; a
+        GUIDED takeoff's law keeps holding at the top once there, which is no longer a climb."""
+        law = self._law
+        return (self._law_kind() == LawKind.TAKEOFF and isinstance(law, WaypointTracker)
+                and not law.complete)
 
     def _failsafe_settings(self) -> FailsafeSettings:
         """The GCS / vision failsafe settings, rebuilt only after a parameter change."""
