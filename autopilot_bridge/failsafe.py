@@ -109,7 +109,7 @@ class FailsafeInputs:
     vision_required: bool               # the horizontal position source is external navigation
     vision_height_ok: bool              # high enough above home for scene matching
     last_vision_fix_s: float | None     # newest usable fix (None: none yet)
-    taking_off: bool = False            # in a take-off climb (AUTO NAV_TAKEOFF, GUIDED takeoff)
+    taking_off: bool = False            # climbing in a take-off (AUTO NAV_TAKEOFF, GUIDED takeoff)
 
 
 @functools.lru_cache(maxsize=64)
