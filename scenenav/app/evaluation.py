@@ -267,21 +267,27 @@ def headline_method(cfg, nodes: list[dict]) -> str | None:
 AIRBORNE_HEIGHT_M = 1.0
 
 
-def estimate_errors(run_dir: Path, airborne_only: bool = False) -> np.ndarray:
-    """Horizontal error of every autopilot estimate against truth (m); empty without an autopilot.
-    ``airborne_only``: only the estimates taken more than ``AIRBORNE_HEIGHT_M`` above the start."""
+def _estimate_errors_and_airborne(run_dir: Path) -> tuple[np.ndarray, np.ndarray]:
+    """Horizontal error of every autopilot estimate against truth (m), and a mask of those taken
+    more than ``AIRBORNE_HEIGHT_M`` above the start (all False without a truth height); both empty
+    without an autopilot."""
     est = read_csv(Path(run_dir) / "estimates.csv")
     truth = read_csv(Path(run_dir) / "truth.csv")
     if not est or not truth or len(est.get("t_s", [])) == 0 or len(truth.get("t_s", [])) < 2:
-        return np.zeros(0)
+        return np.zeros(0), np.zeros(0, dtype=bool)
     tx, ty = _interp_truth(truth, est["t_s"])
     err = np.hypot(est["x_m"] - tx, est["y_m"] - ty)
-    if airborne_only:
-        if "z_m" not in truth:
-            return np.zeros(0)
-        z = np.interp(est["t_s"], truth["t_s"], truth["z_m"])
-        err = err[z > float(truth["z_m"][0]) + AIRBORNE_HEIGHT_M]
-    return err
+    if "z_m" not in truth:
+        return err, np.zeros(len(err), dtype=bool)
+    z = np.interp(est["t_s"], truth["t_s"], truth["z_m"])
+    return err, z > float(truth["z_m"][0]) + AIRBORNE_HEIGHT_M
+
+
+def estimate_errors(run_dir: Path, airborne_only: bool = False) -> np.ndarray:
+    """Horizontal error of every autopilot estimate against truth (m); empty without an autopilot.
+    ``airborne_only``: only the estimates taken more than ``AIRBORNE_HEIGHT_M`` above the start."""
+    err, airborne = _estimate_errors_and_airborne(run_dir)
+    return err[airborne] if airborne_only else err
 
 
 def _rms_max(e: np.ndarray) -> tuple[float | None, float | None]:
@@ -291,8 +297,9 @@ def _rms_max(e: np.ndarray) -> tuple[float | None, float | None]:
 
 
 def estimate_metrics(run_dir: Path) -> dict[str, Any]:
-    rms, mx = _rms_max(estimate_errors(run_dir))
-    rms_air, max_air = _rms_max(estimate_errors(run_dir, airborne_only=True))
+    err, airborne = _estimate_errors_and_airborne(run_dir)
+    rms, mx = _rms_max(err)
+    rms_air, max_air = _rms_max(err[airborne])
     return {"rms_error_m": rms, "max_error_m": mx,
             "rms_error_airborne_m": rms_air, "max_error_airborne_m": max_air}
 
