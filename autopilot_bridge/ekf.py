@@ -51,6 +51,11 @@ compass heading have the same rejection-timeout reset (``height_reset_count``, `
 GPS velocity too (``velocity_reset_count``, GPS source only): the velocity is set to GPS and the tilt
 uncertainty is re-opened, because persistently rejected velocities usually mean a wrong tilt.
 
+Optical flow (``fuse_optical_flow``, ArduPilot EKF3's FuseOptFlow with EK3_FLOW_M_NSE, EK3_FLOW_I_GATE):
+a downward flow sensor's rate with the body rotation removed, over the range finder's range, measures
+the body-frame horizontal velocity over the ground; it bounds the dead-reckoned velocity, and together
+with drag fusion it makes the wind observable, while the range finder reaches the surface.
+
 Zero rate at rest (``fuse_zero_rate``): on the ground and disarmed the averaged body x, y rates are
 the gyro biases of those axes; the longer the vehicle rests, the better the bias a dead-reckoned climb
 starts with (see the method).
@@ -179,7 +184,7 @@ class NavFilter:
         self._qd = np.zeros(NUM_ERROR_STATES)
         self._qd_dt = math.nan
         self._h = np.zeros(NUM_ERROR_STATES)
-        self._h_drag = np.zeros(NUM_ERROR_STATES)    # fuse_drag's row (self._h keeps zeros off 6:9)
+        self._h_drag = np.zeros(NUM_ERROR_STATES)    # fuse_drag and fuse_optical_flow rows (self._h keeps zeros off 6:9)
         self._u = np.zeros(NUM_ERROR_STATES)
         self._dx = np.zeros(NUM_ERROR_STATES)
         self._work: dict[int, tuple[np.ndarray, ...]] = {}
@@ -630,6 +635,43 @@ class NavFilter:
             h[16] = -jr[1]
             results.append(self._update_scalar(float(f[axis]) - predicted, h, c.drag_noise_m_s2 ** 2,
                                                c.velocity_gate_sd, None))
+        return results[0], results[1]
+
+    def fuse_optical_flow(self, los_rate_flu_rad_s, range_m: float, noise_rad_s: float,
+                          gate_sd: float, range_std_m: float = 0.0) -> tuple[FusionResult, FusionResult]:
+        """Optical-flow fusion (ArduPilot EKF3's FuseOptFlow, with the range finder's range in place
+        of EKF3's terrain state): the flow of a downward sensor with the body rotation removed,
+        (x, y) rad/s about body x and y, as two sequential scalar measurements of the body velocity
+        over the range ``range_m`` along body -z: x = -v_b,y / r, y = v_b,x / r with v_b = R^T v.
+        Every state is corrected. Variance per axis: ``noise_rad_s^2`` plus the range's share,
+        (predicted rate * range_std_m / r)^2; gated at ``gate_sd`` (EK3_FLOW_I_GATE / 100). Returns
+        the (x, y) results; a not-accepted pair for a non-finite rate or a range that is not > 0.
+
+        Jacobian (the attitude error is a world rotation): d v_b / d dv = R^T,
+        d v_b / d dtheta = R^T [v]x.
+        """
+        self._require_aligned("fuse_optical_flow")
+        rate = np.asarray(los_rate_flu_rad_s, dtype=float).reshape(2)
+        r = float(range_m)
+        off = FusionResult(False, np.array([math.nan]), math.nan)
+        if not (np.all(np.isfinite(rate)) and math.isfinite(r) and r > 0.0):
+            return off, off
+        results = []
+        for axis in (0, 1):
+            rot = quat_to_rotation_matrix(self._q)
+            v = np.array(self._v)
+            vb = rot.T @ v
+            # measurement x: -v_b[1] / r; y: +v_b[0] / r
+            sign, comp = (-1.0, 1) if axis == 0 else (1.0, 0)
+            predicted = sign * float(vb[comp]) / r
+            row = sign * rot.T[comp] / r                              # d / d v (world)
+            vx = np.array([[0.0, -v[2], v[1]], [v[2], 0.0, -v[0]], [-v[1], v[0], 0.0]])
+            h = self._h_drag
+            h[:] = 0.0
+            h[3:6] = row
+            h[6:9] = row @ vx
+            var = noise_rad_s ** 2 + (predicted * range_std_m / r) ** 2
+            results.append(self._update_scalar(float(rate[axis]) - predicted, h, var, gate_sd, None))
         return results[0], results[1]
 
     def fuse_zero_rate(self, mean_gyro_flu_rad_s, window_s: float) -> FusionResult:

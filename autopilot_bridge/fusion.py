@@ -6,7 +6,11 @@ after each EKF predict. Vision fixes are fused only when valid and accepted by t
 younger than ``vision_max_age_s`` and taken at least SN_VIS_MIN_ALT above home; on the ground without
 a position source the last landed position is fused as a pseudo-measurement (as ArduPilot's EKF does
 when it is not aiding); disarmed on the ground the averaged body x, y rates are fused as the gyro
-biases (zero-rate update: a dead-reckoned climb drifts by g eps t^3 / 6 for a residual bias eps). ``on_power`` feeds the battery monitor.
+biases (zero-rate update: a dead-reckoned climb drifts by g eps t^3 / 6 for a residual bias eps).
+``on_flow`` takes the optical-flow module's samples: in the air, with FLOW_TYPE > 0 and the active
+EK3_SRCn_VELXY = 5 (OpticalFlow), a sample with a valid range, quality > 0, a tilt under 45 deg and a
+rate under EK3_MAX_FLOW is fused as body velocity (``NavFilter.fuse_optical_flow``, EK3_FLOW_M_NSE,
+EK3_FLOW_I_GATE). ``on_power`` feeds the battery monitor.
 
 Pure module: no zenoh, no pymavlink.
 """
@@ -36,13 +40,18 @@ from autopilot_bridge.vehicle_interface import (
     MavSeverity,
     Odometry,
 )
-from scenenav.core.contracts import GpsFixType
+from scenenav.core.contracts import FlowSample, GpsFixType
 from scenenav.core.numeric import all_finite
 from scenenav.core.rotations import quat_to_rotation_matrix
 
 logger = logging.getLogger(__name__)
 
 EXTNAV_SOURCE = 6            # EK3_SRCn_* value ExternalNav
+OPTFLOW_SOURCE = 5           # EK3_SRCn_VELXY value OpticalFlow
+#: ArduPilot EKF3 fuses flow only while the body z axis is within 45 deg of vertical (prevTnb.c.z > 0.7071)
+FLOW_MAX_TILT_COS = math.cos(math.radians(45.0))
+#: the flow module's range accuracy (FlowSample.distance_m), 1 % of the range: the EKF's range variance
+FLOW_RANGE_STD_FRACTION = 0.01
 _TWO_PI = 2.0 * math.pi
 
 
@@ -72,6 +81,21 @@ class VisionReading:
     source: str
 
 
+@dataclass(frozen=True)
+class FlowReading:
+    t_s: float
+    flow_flu_rad_s: tuple[float, float]
+    body_rate_flu_rad_s: tuple[float, float]
+    distance_m: float
+    quality: int
+
+
+def flow_reading(msg: FlowSample) -> FlowReading:
+    """The autopilot's view of a bus ``FlowSample``."""
+    return FlowReading(msg.timestamp_us * 1e-6, tuple(msg.flow_flu_rad_s), tuple(msg.body_rate_flu_rad_s),
+                       msg.distance_m, msg.quality)
+
+
 class SensorFusionMixin:
     """Part of ``FlightCore`` (``autopilot_bridge.flight_core``); works on its state."""
 
@@ -80,6 +104,7 @@ class SensorFusionMixin:
         self._baro: list[float] = []
         self._compass: list[float] = []
         self._gps: list[GpsReading] = []
+        self._flow: list[FlowReading] = []
         self._vision: list[VisionReading] = []
         self._last_gps: GpsReading | None = None
         self._last_gps_fused_s: float | None = None
@@ -130,6 +155,17 @@ class SensorFusionMixin:
             self._gps.append(reading)
         else:
             self.alignment.add_gps(self.geo.to_enu(reading.lat_deg, reading.lon_deg))
+
+    def on_flow(self, reading: FlowReading) -> None:
+        """An optical-flow module sample (buffered; fused after the next predict, see the module
+        docstring). A non-finite rate is counted only when the range is valid (out of range, the
+        module reports NaN by design)."""
+        if not all_finite(*reading.body_rate_flu_rad_s) or (
+                all_finite(reading.distance_m) and not all_finite(*reading.flow_flu_rad_s)):
+            self.stats["flow_nan"] += 1
+            return
+        if self.nav.aligned:
+            self._flow.append(reading)
 
     def on_power(self, t_s: float, voltage_v: float, current_a: float) -> None:
         """A power-module measurement (battery voltage and current), reported over MAVLink."""
@@ -195,6 +231,7 @@ class SensorFusionMixin:
         for v in self._vision:
             self._fuse_vision(v)
         self._vision.clear()
+        self._flow_fusion()
         self._ground_fusion()
         self._rest_fusion()
         self._drag_fusion()
@@ -240,6 +277,32 @@ class SensorFusionMixin:
             self.stats["vision_fused"] += 1
         else:
             self.stats["vision_rejected"] += 1
+
+    def _flow_fusion(self) -> None:
+        """The buffered flow samples (module docstring), each as two scalar measurements."""
+        flows, self._flow = self._flow, []
+        if not flows:
+            return
+        p = self.params
+        if (p.get_int("FLOW_TYPE") == 0 or not self._armed or self.fc.landed
+                or p.get_int(f"EK3_SRC{self._source_set}_VELXY") != OPTFLOW_SOURCE):
+            return
+        noise = p.get("EK3_FLOW_M_NSE")
+        gate = p.get("EK3_FLOW_I_GATE") / 100.0
+        max_rate = p.get("EK3_MAX_FLOW")
+        tilt_cos = float(quat_to_rotation_matrix(self.nav.state().q_wxyz)[2, 2])
+        for f in flows:
+            r = f.distance_m
+            if f.quality <= 0 or not (all_finite(r) and r > 0.0) or tilt_cos < FLOW_MAX_TILT_COS:
+                self.stats["flow_unusable"] += 1
+                continue
+            rate = (f.flow_flu_rad_s[0] + f.body_rate_flu_rad_s[0], f.flow_flu_rad_s[1] + f.body_rate_flu_rad_s[1])
+            if max(abs(rate[0]), abs(rate[1])) > max_rate:
+                self.stats["flow_too_fast"] += 1
+                continue
+            rx, ry = self.nav.fuse_optical_flow(rate, r, noise, gate, FLOW_RANGE_STD_FRACTION * r)
+            self.stats["flow_fused"] += int(rx.accepted) + int(ry.accepted)
+            self.stats["flow_rejected"] += int(not rx.accepted) + int(not ry.accepted)
 
     def _ground_fusion(self) -> None:
         """On the ground without a usable external-nav fix: fuse the landed position."""

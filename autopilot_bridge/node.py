@@ -8,6 +8,8 @@ Inputs (``scenenav/<ns>/...``)
   ``sensors/compass``                CompassSample heading (EKF)
   ``sensors/gps``                    GpsSample     GPS fixes (EKF, when EK3_SRC1_POSXY = 3)
   ``sensors/power``                  PowerSample   battery voltage and current (BATTERY_STATUS, SYS_STATUS)
+  ``sensors/flow``                   FlowSample    optical flow and range (EKF velocity, FLOW_TYPE > 0 and
+                                                   EK3_SRC1_VELXY = 5)
   ``perception/fix/*``               VisionFix     scene-matching fixes of the followed perception node
   liveliness ``nodes/perception/*``  which perception nodes are live (the newest one is followed)
   liveliness ``lockstep/member/camera/*``  which of them answer camera frames in lockstep
@@ -61,7 +63,7 @@ import zenoh
 
 from autopilot_bridge.config import AutopilotSetup, PositionSource
 from autopilot_bridge.flight_core import FlightCore
-from autopilot_bridge.fusion import GpsReading, ImuReading
+from autopilot_bridge.fusion import GpsReading, ImuReading, flow_reading
 from autopilot_bridge.mavlink_server import MavlinkServer, MavlinkServerConfig
 from autopilot_bridge.modes import CopterMode
 from autopilot_bridge.param_specs import PARAM_SPECS
@@ -78,6 +80,7 @@ from scenenav.core.contracts import (
     CompassSample,
     DecodeError,
     Event,
+    FlowSample,
     GpsSample,
     ImuSample,
     LockstepAck,
@@ -114,6 +117,7 @@ class ItemKind(Enum):
     COMPASS = "compass"
     GPS = "gps"
     POWER = "power"
+    FLOW = "flow"
     FIX = "fix"
     ACK = "ack"                    # lockstep acks (a camera member answered a frame)
     PERCEPTION = "perception"      # liveliness of nodes/perception/<id>
@@ -207,6 +211,7 @@ class AutopilotNode:
         self._subscribe_ordered(k.compass, CompassSample, ItemKind.COMPASS)
         self._subscribe_ordered(k.gps, GpsSample, ItemKind.GPS)
         self._subscribe_ordered(k.power, PowerSample, ItemKind.POWER)
+        self._subscribe_ordered(k.flow, FlowSample, ItemKind.FLOW)
         self._subscribe_ordered(k.vision_fix_all, VisionFix, ItemKind.FIX)
         self._subscribe_ordered(k.lockstep_ack_all, LockstepAck, ItemKind.ACK)
         self.bus.watch_liveliness(f"{k.root}/nodes/perception/*",
@@ -358,6 +363,8 @@ class AutopilotNode:
         elif kind == ItemKind.POWER:
             p: PowerSample = item.msg
             core.on_power(p.timestamp_us * 1e-6, p.voltage_v, p.current_a)
+        elif kind == ItemKind.FLOW:
+            core.on_flow(flow_reading(item.msg))
         elif kind == ItemKind.FIX:
             self._on_fix_item(item.node_id, item.msg)
         elif kind == ItemKind.ACK:

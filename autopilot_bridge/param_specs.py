@@ -28,7 +28,7 @@ SN_PARAM_SPECS: tuple[ParamSpec, ...] = (
 _SRC_VALUES = {
     "POSXY": ((0, "None"), (3, "GPS"), (6, "ExternalNav")),
     "POSZ": ((0, "None"), (1, "Baro"), (3, "GPS"), (6, "ExternalNav")),
-    "VELXY": ((0, "None"), (3, "GPS"), (6, "ExternalNav")),
+    "VELXY": ((0, "None"), (3, "GPS"), (5, "OpticalFlow"), (6, "ExternalNav")),
     "VELZ": ((0, "None"), (3, "GPS"), (6, "ExternalNav")),
     "YAW": ((0, "None"), (1, "Compass"), (6, "ExternalNav")),
 }

@@ -172,6 +172,14 @@ DEFAULT_PARAM_SPECS: tuple[ParamSpec, ...] = (
           safe=(0.0, None)),
     _spec("EK3_DRAG_M_NSE", _F, 0.5, 0.1, 2.0, "m/s/s",
           "Observation noise of the drag acceleration", safe=(0.1, None)),
+    _spec("EK3_FLOW_I_GATE", _I16, 300, 100, 1000, "",
+          "Optical flow innovation gate: a flow measurement more than EK3_FLOW_I_GATE / 100 standard "
+          "deviations off the prediction is rejected", safe=(100, None)),
+    _spec("EK3_FLOW_M_NSE", _F, 0.25, 0.05, 1.0, "rad/s",
+          "Optical flow measurement noise the EKF assumes (sensor noise, timing and scale errors)",
+          safe=(0.05, None)),
+    _spec("EK3_MAX_FLOW", _F, 2.5, 1.0, 4.0, "rad/s",
+          "Maximum optical flow rate the EKF uses; faster flow (low over the ground) is ignored"),
     _spec("EK3_GBIAS_P_NSE", _F, 1.0e-3, 1.0e-5, 1.0e-3, "rad/s/s",
           "Rate gyro bias stability: the EKF's gyro-bias process noise (lower: the bias learnt at "
           "rest is kept longer, e.g. for dead-reckoned climbs and landings)"),
@@ -186,12 +194,15 @@ DEFAULT_PARAM_SPECS: tuple[ParamSpec, ...] = (
           ((0, "None"), (3, "GPS"), (6, "ExternalNav"))),
     _spec("EK3_SRC1_POSZ", _I8, 1, 0, 6, "", "EKF vertical position source",
           ((0, "None"), (1, "Baro"), (3, "GPS"), (6, "ExternalNav"))),
-    _spec("EK3_SRC1_VELXY", _I8, 3, 0, 6, "", "EKF horizontal velocity source",
-          ((0, "None"), (3, "GPS"), (6, "ExternalNav"))),
+    _spec("EK3_SRC1_VELXY", _I8, 3, 0, 6, "", "EKF horizontal velocity source (5: the optical flow "
+          "sensor's velocity is fused, FLOW_TYPE > 0)",
+          ((0, "None"), (3, "GPS"), (5, "OpticalFlow"), (6, "ExternalNav"))),
     _spec("EK3_SRC1_VELZ", _I8, 3, 0, 6, "", "EKF vertical velocity source",
           ((0, "None"), (3, "GPS"), (6, "ExternalNav"))),
     _spec("EK3_SRC1_YAW", _I8, 1, 0, 6, "", "EKF yaw source",
           ((0, "None"), (1, "Compass"), (6, "ExternalNav"))),
+    _spec("FLOW_TYPE", _I8, 0, 0, 10, "", "Optical flow sensor type (the simulator's flow module, "
+          "sensors/flow, is type 10)", ((0, "None"), (10, "SITL"))),
     _spec("FRAME_CLASS", _I8, 1, 1, 1, "", "Frame class (only Quad is implemented)",
           ((1, "Quad"),)),
     _spec("FRAME_TYPE", _I8, 1, 1, 1, "", "Frame type (only X is implemented)", ((1, "X"),)),

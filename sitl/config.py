@@ -190,6 +190,33 @@ class GpsConfig:
 
 
 @dataclass(frozen=True)
+class FlowConfig:
+    """Downward optical-flow module with a time-of-flight range finder on the same axis (``FlowSample``;
+    sitl.sensors.FlowModel). Off by default: the paper's Iris carries none. The defaults describe an
+    ARK Flow (PAW3902 flow sensor, Broadcom AFBR-S50LV85D range finder); docs/realism.md gives each
+    value's basis."""
+
+    enabled: bool = False                 # the module is fitted: FlowSample on sensors/flow
+    rate_hz: float = 10.0                 # ArduPilot SITL SIM_FLOW_RATE default 10 Hz
+    noise_std_rad_s: float = 0.05         # white noise per sample and axis
+    scale_error_std: float = 0.03         # per-axis scale error drawn once per run, N(0, this)
+    gyro_noise_std_rad_s: float = 0.005   # the module's own gyro (body_rate_flu_rad_s), per sample
+    range_min_m: float = 0.1              # range finder's limits (AFBR-S50LV85D: 0.1..30 m)
+    range_max_m: float = 30.0             # beyond it: distance NaN, quality 0, no flow
+    range_noise_fraction: float = 0.01    # 1-sigma, of the range (AFBR-S50 accuracy ~1 %)
+
+    def __post_init__(self) -> None:
+        check(isinstance(self.enabled, bool), "enabled", self.enabled, "true or false")
+        check(_positive(self.rate_hz), "rate_hz", self.rate_hz, "a number > 0")
+        for name in ("noise_std_rad_s", "scale_error_std", "gyro_noise_std_rad_s", "range_noise_fraction"):
+            value = getattr(self, name)
+            check(_non_negative(value), name, value, "a number >= 0")
+        check(_non_negative(self.range_min_m), "range_min_m", self.range_min_m, "a number >= 0 (m)")
+        check(_finite(self.range_max_m) and self.range_max_m > self.range_min_m, "range_max_m",
+              self.range_max_m, f"a number > range_min_m ({self.range_min_m} m)")
+
+
+@dataclass(frozen=True)
 class CameraConfig:
     """Downward camera rendering the world's orthophoto and DSM (see sitl.camera.GroundCamera)."""
 
@@ -315,6 +342,7 @@ class SimConfig:
     baro: BaroConfig = field(default_factory=BaroConfig)
     compass: CompassConfig = field(default_factory=CompassConfig)
     gps: GpsConfig = field(default_factory=GpsConfig)
+    flow: FlowConfig = field(default_factory=FlowConfig)
     camera: CameraConfig = field(default_factory=CameraConfig)
     battery: BatteryConfig = field(default_factory=BatteryConfig)
 

@@ -39,6 +39,7 @@ from scenenav.core.contracts import (
     BaroSample,
     CameraFrame,
     CompassSample,
+    FlowSample,
     GpsSample,
     ImageEncoding,
     ImuSample,
@@ -56,14 +57,14 @@ from sitl.camera_model import jpeg_roundtrip
 from sitl.config import ScriptedFlight, SimConfig
 from sitl.physics import PhysicsWorld, VehicleState
 from sitl.scripted import ScriptedTrajectory
-from sitl.sensors import BaroModel, CameraEffects, CompassModel, GpsModel, ImuModel
+from sitl.sensors import BaroModel, CameraEffects, CompassModel, FlowModel, GpsModel, ImuModel
 from sitl.surroundings import MagneticAnomalyField, Surface
 from sitl.vehicle import VehicleParams
 
 logger = logging.getLogger(__name__)
 
 RNG_STREAMS = ("wind", "imu", "baro", "compass", "gps", "camera_effects", "power", "camera_optics",
-               "magnetic_anomaly")   # append only: earlier streams keep their seeds
+               "magnetic_anomaly", "flow")   # append only: earlier streams keep their seeds
 
 
 @dataclass(frozen=True)
@@ -113,6 +114,7 @@ class TickOutput:
     compass: CompassSample | None
     gps: GpsSample | None
     power: PowerSample | None
+    flow: FlowSample | None
     camera_request: CameraRequest | None
     camera_release: CameraRelease | None
     state: VehicleState                 # the full truth (benchmarks and tests; not published)
@@ -144,6 +146,7 @@ class SimulatorCore:
         self.baro = BaroModel(sim.baro, streams["baro"])
         self.compass = CompassModel(sim.compass, streams["compass"], anomalies)
         self.gps = GpsModel(sim.gps, streams["gps"], surface)
+        self.flow = FlowModel(sim.flow, streams["flow"], surface)
         self.effects = CameraEffects(sim.camera, streams["camera_effects"])
         self.battery = BatteryModel(sim.battery, self.params.max_rotor_speed_rad_s)
         self.power_module = PowerModuleModel(sim.battery, streams["power"])
@@ -158,6 +161,7 @@ class SimulatorCore:
         self.rate_gps = SensorRate.of(sim.gps.rate_hz, tick_rate_hz)
         self.rate_camera = SensorRate.of(sim.camera.rate_hz, tick_rate_hz)
         self.rate_power = SensorRate.of(sim.battery.rate_hz, tick_rate_hz)
+        self.rate_flow = SensorRate.of(sim.flow.rate_hz, tick_rate_hz)
 
         self.trajectory: ScriptedTrajectory | None = None
         self.tick = 0
@@ -223,7 +227,7 @@ class SimulatorCore:
                                    throttle)
         imu = ImuSample(t_us, tick, dt_tick_s, (float(acc[0]), float(acc[1]), float(acc[2])),
                         (float(gyr[0]), float(gyr[1]), float(gyr[2])))
-        baro = compass = gps = power = None
+        baro = compass = gps = power = flow = None
         if self.rate_baro.due(tick):
             surface_m = self.surface.height_at(float(pos[0]), float(pos[1])) if self.surface else 0.0
             alt, pa = self.baro.sample(float(pos[2]), float(pos[2]) - surface_m, throttle > 0.0)
@@ -239,6 +243,10 @@ class SimulatorCore:
         if self.rate_power.due(tick):
             reading = self.power_module.sample(self._power)
             power = PowerSample(t_us, float(reading.voltage_v), float(reading.current_a))
+        if self.sim.flow.enabled and self.rate_flow.due(tick):
+            f = self.flow.sample(pos, vel, state.q_wxyz, state.angular_velocity_flu_rad_s)
+            flow = FlowSample(t_us, self.rate_flow.every_ticks * self.tick_us, f.flow_flu_rad_s,
+                              f.body_rate_flu_rad_s, f.distance_m, f.quality)
         request = None
         if self.rate_camera.due(tick):
             self._capture_seq += 1
@@ -249,7 +257,7 @@ class SimulatorCore:
         release = None
         if self._pending and self._pending[0][0] == tick:
             release = self._pending.popleft()[1]
-        return TickOutput(tick, t_us, truth, imu, baro, compass, gps, power, request, release, state)
+        return TickOutput(tick, t_us, truth, imu, baro, compass, gps, power, flow, request, release, state)
 
     def advance(self, motor_command) -> VehicleState:
         """Run the tick's physics sub-steps with ``motor_command`` and move to the next tick."""

@@ -11,6 +11,7 @@ Outputs
   ``sensors/imu``                 ImuSample      (every tick)
   ``sensors/baro``, ``sensors/compass``, ``sensors/gps``   at their configured rates (GPS only if enabled)
   ``sensors/power``               PowerSample    (battery voltage and current, ``sim.battery.rate_hz``)
+  ``sensors/flow``                FlowSample     (optical flow and range, ``sim.flow.rate_hz``, if enabled)
   ``sensors/camera``              CameraFrame    (camera rate)
   ``truth/pose``                  TruthPose      (every tick; evaluation and logs only)
   ``events/<id>``, ``info/<id>``  Event, NodeInfo
@@ -101,9 +102,9 @@ class SimStats:
 
 def sensor_surface(sim, world) -> Surface | None:
     """The world's buildings for the sensor models that need them (magnetic anomalies, GPS
-    multipath, baro ground effect over roofs); None when none of them is on or the world is flat."""
+    multipath, baro ground effect over roofs, the flow module's range finder); None when none of them is on or the world is flat."""
     needed = (sim.compass.anomaly_mgauss > 0.0 or sim.gps.multipath_std_m > 0.0
-              or sim.baro.ground_effect_m != 0.0)
+              or sim.baro.ground_effect_m != 0.0 or sim.flow.enabled)
     if not needed or world.dsm_m is None:
         return None
     if world.landcover is not None:
@@ -375,6 +376,8 @@ class SimulatorNode:
             publish(keys.gps, out.gps)
         if out.power is not None:
             publish(keys.power, out.power)
+        if out.flow is not None:
+            publish(keys.flow, out.flow)
 
     def close(self) -> None:
         self.bus.close()

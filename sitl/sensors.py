@@ -16,7 +16,7 @@ import numpy as np
 from scenenav.core.contracts import GpsFixType
 from scenenav.core.frames import enu_to_geodetic
 from scenenav.core.rotations import quat_to_rotation_matrix
-from sitl.config import BaroConfig, CameraConfig, CompassConfig, GpsConfig, ImuConfig
+from sitl.config import BaroConfig, CameraConfig, CompassConfig, FlowConfig, GpsConfig, ImuConfig
 from sitl.surroundings import MagneticAnomalyField, Surface
 
 logger = logging.getLogger(__name__)
@@ -252,6 +252,64 @@ class GpsModel:
         if self.surface is None or self.cfg.multipath_std_m <= 0.0:
             return 0.0
         return self.cfg.multipath_std_m * self.surface.sky_obstruction(position_enu_m)
+
+
+@dataclass(frozen=True)
+class FlowReading:
+    """One optical-flow sample (published as ``scenenav.core.contracts.FlowSample``)."""
+
+    flow_flu_rad_s: tuple[float, float]
+    body_rate_flu_rad_s: tuple[float, float]
+    distance_m: float               # NaN outside the range finder's limits
+    quality: int                    # 0..255
+
+
+class FlowModel:
+    """Downward optical flow and range finder on the body's -z axis (``FlowConfig``).
+
+    The range is the ray from the vehicle along body -z to the first surface (the world's DSM through
+    ``Surface.range_m``; the plane z = 0 without one). The flow is the apparent angular velocity of
+    that surface point, (-vy / r - wx, vx / r - wy) with the true body velocity v, range r and body
+    rate w, times (1 + a per-run scale error per axis), plus white noise; the module's gyro reads w
+    plus white noise. The range reads r (1 + noise fraction), NaN outside [range_min_m, range_max_m]
+    (also on the ground, below the minimum). Quality is 255 while the range is valid, 0 otherwise
+    (too close to focus, or too far for a usable texture at 10 Hz). Not modelled: the flow sensor's
+    field of view averaging surfaces at different ranges (a roof edge), low light, and the interval
+    averaging (the sample is instantaneous, as ArduPilot SITL's flow).
+    """
+
+    def __init__(self, cfg: FlowConfig, rng: np.random.Generator, surface: Surface | None = None) -> None:
+        self.cfg = cfg
+        self._rng = rng
+        self.surface = surface
+        self.scale = 1.0 + cfg.scale_error_std * rng.standard_normal(2)
+
+    def true_range_m(self, position_enu_m, q_wxyz) -> float:
+        """Distance along body -z from the vehicle to the first surface (inf: the axis points up)."""
+        rot = quat_to_rotation_matrix(q_wxyz)
+        down = -rot[:, 2]
+        pos = np.asarray(position_enu_m, dtype=float)
+        if self.surface is not None:
+            return self.surface.range_m(pos, down)
+        if down[2] >= 0.0:
+            return math.inf
+        return float(max(pos[2], 0.0) / -down[2])
+
+    def sample(self, position_enu_m, velocity_enu_m_s, q_wxyz, angular_velocity_flu_rad_s) -> FlowReading:
+        cfg = self.cfg
+        r = self.true_range_m(position_enu_m, q_wxyz)
+        rot = quat_to_rotation_matrix(q_wxyz)
+        vb = rot.T @ np.asarray(velocity_enu_m_s, dtype=float)
+        w = np.asarray(angular_velocity_flu_rad_s, dtype=float)
+        noise = self._rng.standard_normal(5)
+        gyro = (float(w[0] + cfg.gyro_noise_std_rad_s * noise[2]),
+                float(w[1] + cfg.gyro_noise_std_rad_s * noise[3]))
+        if not (cfg.range_min_m <= r <= cfg.range_max_m):
+            return FlowReading((math.nan, math.nan), gyro, math.nan, 0)
+        fx = -vb[1] / r * self.scale[0] - w[0] + cfg.noise_std_rad_s * noise[0]
+        fy = vb[0] / r * self.scale[1] - w[1] + cfg.noise_std_rad_s * noise[1]
+        distance = r * (1.0 + cfg.range_noise_fraction * noise[4])
+        return FlowReading((float(fx), float(fy)), gyro, float(distance), 255)
 
 
 def gaussian_kernel(sigma_px: float) -> np.ndarray:

@@ -1,6 +1,7 @@
 """What the world's buildings do to the sensors (pure numpy): the surface height under the vehicle,
-a seeded magnetic anomaly field around the buildings, and the share of the sky the buildings hide
-from a GPS antenna. Sensor models in sitl.sensors read these; only their noisy outputs reach the bus.
+the range along a ray to the first roof, wall or ground it meets (the range finder), a seeded
+magnetic anomaly field around the buildings, and the share of the sky the buildings hide from a GPS
+antenna. Sensor models in sitl.sensors read these; only their noisy outputs reach the bus.
 
 Positions are world ENU metres around the map centre (scenenav.core.frames.world_to_pixel).
 """
@@ -13,6 +14,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from scenenav.core.frames import world_to_pixel
+from worlds.raycast import HeightField, first_hits
 
 #: GPS elevation mask: satellites below it are not used anyway (u-blox default minimum elevation
 #: 10 deg; 15 deg is the common survey-grade mask), so buildings hide sky only above it.
@@ -53,6 +55,22 @@ class Surface:
         out = np.zeros(np.shape(row), dtype=float)
         out[inside] = self.dsm_m[row[inside], col[inside]]
         return float(out) if out.ndim == 0 else out
+
+    def range_m(self, origin_enu_m, direction_enu) -> float:
+        """Distance (m) from ``origin_enu_m`` along ``direction_enu`` (any length) to the first
+        surface it meets (roof, wall or ground; the ground plane z = 0 outside the map); inf if the
+        ray never comes down. The same ray caster as the camera (worlds.raycast)."""
+        d = np.asarray(direction_enu, dtype=float)[:3]
+        norm = float(np.linalg.norm(d))
+        if not norm > 0.0:
+            return math.inf
+        field = self.__dict__.get("_field")
+        if field is None:
+            field = HeightField(self.dsm_m, self.m_per_px)
+            object.__setattr__(self, "_field", field)   # built once, on first use
+        hits = first_hits(field, np.asarray(origin_enu_m, dtype=float)[None, :3], (d / norm)[None, :])
+        s = float(hits.range_s[0])
+        return s if math.isfinite(s) and not bool(hits.miss[0]) else math.inf
 
     def sky_obstruction(self, position_enu_m) -> float:
         """Share (0..1) of azimuths in which a building rises above the GPS elevation mask as seen

@@ -26,6 +26,7 @@ def examples() -> list:
         c.CompassSample(1_250_000, 1.5708),
         c.GpsSample(1_200_000, 48.1374, 11.5755, 100.3, (2.0, 0.5, 0.0), 1.2, 2.0, 3, 12),
         c.PowerSample(1_200_000, 15.84, 21.3),
+        c.FlowSample(1_200_000, 100_000, (0.012, 0.061), (-0.004, 0.002), 24.6, 212),
         c.MotorCommand(1_230_000, 123, (0.52, 0.52, 0.51, 0.51), True, "autopilot"),
         c.LockstepAck(1_200_000, "my_matcher", "camera", 12),
         c.VisionFix(1_200_000, 12, "my_matcher", "example-ncc", True, True, (61.25, -94.8),

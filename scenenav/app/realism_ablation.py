@@ -119,7 +119,7 @@ def fly(cfg, world, *, probes: tuple[Probe, ...] = (Probe.NODE,), method: str = 
 
     from autopilot_bridge.config import PositionSource
     from autopilot_bridge.flight_core import FlightCore
-    from autopilot_bridge.fusion import GpsReading, ImuReading
+    from autopilot_bridge.fusion import GpsReading, ImuReading, flow_reading
     from autopilot_bridge.modes import CopterMode
     from autopilot_bridge.param_specs import PARAM_SPECS
     from autopilot_bridge.params import ParameterStore
@@ -192,6 +192,8 @@ def fly(cfg, world, *, probes: tuple[Probe, ...] = (Probe.NODE,), method: str = 
                                      g.eph_m, g.epv_m, g.fix_type, g.satellites))
             if out.power is not None:
                 ap.on_power(t_s, out.power.voltage_v, out.power.current_a)
+            if out.flow is not None:
+                ap.on_flow(flow_reading(out.flow))
             if out.camera_request is not None:
                 req = out.camera_request
                 camera.request(req.seq, req.position_enu_m, req.q_wxyz, capture_s=req.capture_us * 1e-6,

@@ -161,6 +161,30 @@ class GpsSample:
 
 
 @dataclass(frozen=True)
+class FlowSample:
+    """Downward optical-flow sensor with its range finder on the same axis (one module, like the ARK
+    Flow: a PAW3902 flow sensor and an AFBR-S50 time-of-flight range finder), both looking along the
+    body's -z axis. ``timestamp_us``: simulated time at the end of the integration interval.
+
+    ``flow_flu_rad_s``: the apparent angular velocity (rad/s, about body x and y, FLU) of the surface
+    point on the sensor's axis, averaged over the interval. For a vehicle moving with body velocity
+    (vx, vy, vz) at range r and turning at body rate (wx, wy, wz) it is (-vy / r - wx, vx / r - wy):
+    forward motion gives +y, rightward motion (vy < 0) +x, and a body rotation shows as its negative.
+    ``body_rate_flu_rad_s``: the module's own gyro (rad/s, body x and y) over the same interval, so
+    that ``flow + body_rate`` is the part due to translation. ``distance_m``: range along the axis to
+    the surface (roof or ground), NaN outside the range finder's limits. ``quality``: 0 (no flow
+    measured) .. 255 (MAVLink OPTICAL_FLOW's scale)."""
+
+    VERSION: ClassVar[int] = 1
+    timestamp_us: int
+    integration_time_us: int
+    flow_flu_rad_s: tuple[float, float]
+    body_rate_flu_rad_s: tuple[float, float]
+    distance_m: float
+    quality: int
+
+
+@dataclass(frozen=True)
 class CameraFrame:
     """Downward camera image. Binary payload (see module docstring).
 
@@ -326,7 +350,8 @@ class Event:
 
 
 MESSAGE_TYPES: tuple[type, ...] = (
-    ClockTick, ImuSample, BaroSample, CompassSample, GpsSample, PowerSample, CameraFrame, MotorCommand,
+    ClockTick, ImuSample, BaroSample, CompassSample, GpsSample, PowerSample, FlowSample, CameraFrame,
+    MotorCommand,
     LockstepAck, VisionFix, NavEstimate, AutopilotStatus, TruthPose, NodeInfo, Event,
 )
 _BY_NAME = {cls.__name__: cls for cls in MESSAGE_TYPES}

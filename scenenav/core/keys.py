@@ -62,6 +62,10 @@ class Keys:
         return f"{self.root}/sensors/power"
 
     @property
+    def flow(self) -> str:               # FlowSample
+        return f"{self.root}/sensors/flow"
+
+    @property
     def camera(self) -> str:             # CameraFrame (binary)
         return f"{self.root}/sensors/camera"
 
@@ -143,6 +147,7 @@ def key_types(keys: Keys) -> dict[str, str]:
         keys.compass: "CompassSample",
         keys.gps: "GpsSample",
         keys.power: "PowerSample",
+        keys.flow: "FlowSample",
         keys.camera: "CameraFrame",
         keys.motors: "MotorCommand",
         keys.lockstep_ack_all: "LockstepAck",

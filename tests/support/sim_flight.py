@@ -18,7 +18,7 @@ import numpy as np
 
 from autopilot_bridge.config import FlightCoreConfig
 from autopilot_bridge.flight_core import FlightCore
-from autopilot_bridge.fusion import GpsReading, ImuReading
+from autopilot_bridge.fusion import GpsReading, ImuReading, flow_reading
 from autopilot_bridge.param_specs import PARAM_SPECS
 from autopilot_bridge.params import ParameterStore
 from sitl.config import SimConfig, WindConfig
@@ -143,6 +143,8 @@ class CoreFlight:
                                 g.epv_m, g.fix_type, g.satellites))
         if out.power is not None:
             c.on_power(t, out.power.voltage_v, out.power.current_a)
+        if out.flow is not None:
+            c.on_flow(flow_reading(out.flow))
         if self.vision and self.k % 10 == 0:
             xy = self.plant.p[:2] + self.rng.normal(0.0, self.vision_std_m, 2)
             c.on_vision_fix(t - 0.05, xy, np.eye(2) * 0.5, True, True, "test")
