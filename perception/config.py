@@ -156,6 +156,9 @@ class PerceptionConfig:
     # given. Added to every fix's covariance (fix_covariance.pointing_covariance_m2); 0 = exact inputs
     pointing_attitude_std_deg: float = 0.0
     pointing_heading_std_deg: float = 0.0
+    # Every published covariance (the matcher's, with the pointing term) times this: a calibration
+    # of the matcher's model against measured fix errors (docs/perception.md "Covariance"); 1 = as modelled
+    covariance_scale: float = 1.0
 
     def __post_init__(self) -> None:
         check(0.0 < self.fov_deg < 170.0, "perception.fov_deg", self.fov_deg, "a number in (0, 170)")
@@ -180,6 +183,8 @@ class PerceptionConfig:
             check(0.0 <= value <= 30.0, f"perception.{name}", value, "a number of degrees in [0, 30]")
         check(0.0 < self.continuation_max_innovation_m < 100.0, "perception.continuation_max_innovation_m",
               self.continuation_max_innovation_m, "a positive number of metres below 100")
+        check(0.0 < self.covariance_scale <= 100.0, "perception.covariance_scale", self.covariance_scale,
+              "a number in (0, 100]")
 
 
 #: ``PerceptionNodeConfig.alignment`` values: how a FIXED-mount capture is aligned with the map.
@@ -219,6 +224,8 @@ class PerceptionNodeConfig:
     pointing_heading_std_deg: float = 0.0    # the heading the capture is turned with
     track_below_rated: bool = False    # below the rated height, accept matches that continue a track
                                        # whose last rated fix was accepted (docs/perception.md)
+    covariance_scale: float = 1.0      # every published fix covariance times this (a calibration;
+                                       # docs/perception.md "Covariance"); 1 = as modelled
 
     def __post_init__(self) -> None:
         methods = ("cnn", "assistant-map", "statistical", "none")
@@ -243,6 +250,8 @@ class PerceptionNodeConfig:
         check(self.swap_every_s == 0 or (self.swap_every_s >= 10.0 and self.swap_at_s > 0),
               "swap_every_s", self.swap_every_s,
               "0 (one swap at most) or >= 10 simulated s, with swap_at_s > 0 (the first swap)")
+        check(0.0 < self.covariance_scale <= 100.0, "covariance_scale", self.covariance_scale,
+              "a number in (0, 100] (1 = the covariance as modelled)")
 
 
 #: A frame's FOV may differ from the expected one by this much (JSON round trip, config rounding).

@@ -327,6 +327,8 @@ class PerceptionPipeline:
             covariance_m2 = covariance_m2 + pointing_covariance_m2(
                 altitude_m, (du * self.m_per_px, -dv * self.m_per_px),
                 math.radians(cfg.pointing_attitude_std_deg), math.radians(cfg.pointing_heading_std_deg))
+        if cfg.covariance_scale != 1.0:
+            covariance_m2 = covariance_m2 * cfg.covariance_scale
         timings.total_ms = (time.perf_counter() - t_start) * _MS
         return FixResult(
             timestamp_s=t_s, valid=True, accepted=decision is Decision.ACCEPT, decision=decision,

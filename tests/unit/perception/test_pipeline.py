@@ -350,6 +350,21 @@ def test_pointing_errors_widen_the_published_covariance_only(world):
         PerceptionConfig(pointing_attitude_std_deg=-1.0)
 
 
+def test_covariance_scale_scales_the_whole_published_covariance(world):
+    """covariance_scale multiplies the published covariance, pointing term included; positions and
+    decisions stay the same."""
+    ref, day = world
+    base = PerceptionConfig(pointing_attitude_std_deg=1.0)
+    plain = fly(PerceptionPipeline(ref, MPP, FalseMatchMethod.NONE, base), day, 5)
+    scaled = fly(PerceptionPipeline(ref, MPP, FalseMatchMethod.NONE,
+                                    dataclasses.replace(base, covariance_scale=0.25)), day, 5)
+    for (a, _), (b, _) in zip(plain, scaled, strict=True):
+        assert a.position_enu_m == b.position_enu_m and a.decision is b.decision
+        assert b.covariance_m2 == pytest.approx(a.covariance_m2 * 0.25)
+    with pytest.raises(UserError, match="covariance_scale"):
+        PerceptionConfig(covariance_scale=0.0)
+
+
 @pytest.mark.parametrize("continue_track", [False, True])
 def test_a_trusted_track_continues_below_the_rated_height(world, continue_track):
     """Descending through the rated height over a good area: with track_below_rated the window
