@@ -30,6 +30,7 @@ from scenenav.core.contracts import (
     ClockMode,
     ClockTick,
     CompassSample,
+    FlowSample,
     ImuSample,
     MotorCommand,
     PowerSample,
@@ -189,6 +190,7 @@ def test_node_survives_garbage_and_nan(tmp_path):
         for payload in (b"\xff\x00garbage", b"{}", b'{"type": "ImuSample", "version": 99}'):
             hub.put_raw(keys.imu, payload)
             hub.put_raw(keys.clock, payload)
+        hub.put_raw(keys.flow, b'{"type": "FlowSample", "version": 1}')    # fields missing
         for tick in range(200):
             t_us = tick * 10_000
             nan = tick % 7 == 3
@@ -199,6 +201,8 @@ def test_node_survives_garbage_and_nan(tmp_path):
                 hub.publish(keys.compass, CompassSample(t_us, math.nan if tick % 10 == 5 else 0.5))
             if tick % 10 == 0:
                 hub.publish(keys.power, PowerSample(t_us, math.nan if nan else 12.4, 3.0))
+                hub.publish(keys.flow, FlowSample(t_us, 100_000, (0.01, -0.02),
+                                                  (math.nan if tick % 20 == 0 else 0.0, 0.0), math.nan, 0))
             got.clear()
             hub.publish(keys.clock, ClockTick(t_us, tick, 10_000, -1, ClockMode.LOCKSTEP.value,
                                               RunState.RUNNING.value))
@@ -213,8 +217,9 @@ def test_node_survives_garbage_and_nan(tmp_path):
     finally:
         stats = node.close()
         hub.close()
-    assert sum(stats["bus_dropped"].values()) == 6
+    assert sum(stats["bus_dropped"].values()) == 7
     assert stats["core"]["imu_bad"] > 0 and stats["core"]["baro_nan"] > 0
+    assert stats["core"]["flow_nan"] == 10       # a NaN gyro; the NaN range is the module's "out of range"
     assert stats["core"]["compass_nan"] > 0
     assert (tmp_path / "autopilot_stats.json").is_file()
 
