@@ -153,8 +153,23 @@ class TelemetryMixin:
             ekf_compass_variance=float(self.nav.attitude_std_rad()[2] / 0.2) if aligned else 1.0,
             sensors_present=int(sensors[0]), sensors_enabled=int(sensors[1]),
             sensors_health=int(sensors[2]),
+            **self._flow_telemetry(),
             **self._nav_controller_output(pos, (roll, pitch, heading)),
             **self._imu_and_target(origin))
+
+    def _flow_telemetry(self) -> dict:
+        """The flow module's last sample for OPTICAL_FLOW / DISTANCE_SENSOR / RANGEFINDER, in body
+        FRD (the bus's FLU with y negated); empty (not fitted) without FLOW_TYPE or a sample."""
+        f = self._last_flow
+        if f is None or self.params.get_int("FLOW_TYPE") == 0:
+            return {}
+        r = f.distance_m
+        cx = (f.flow_flu_rad_s[0] + f.body_rate_flu_rad_s[0]) * r
+        cy = (f.flow_flu_rad_s[1] + f.body_rate_flu_rad_s[1]) * r
+        return {"flow_fitted": True, "flow_time_us": int(round(f.t_s * 1e6)),
+                "flow_rate_frd_rad_s": (f.flow_flu_rad_s[0], -f.flow_flu_rad_s[1]),
+                "flow_comp_frd_m_s": (cx, -cy), "flow_quality": int(f.quality),
+                "rangefinder_distance_m": r}
 
     def _nav_controller_output(self, pos: np.ndarray, attitude: tuple[float, float, float]
                                ) -> dict[str, float]:
@@ -244,6 +259,8 @@ class TelemetryMixin:
         present = SensorFlag(int(DEFAULT_SENSORS)) & ~SensorFlag.VISION_POSITION
         if self._last_gps is not None:
             present |= SensorFlag.GPS
+        if self._last_flow is not None and self.params.get_int("FLOW_TYPE") != 0:
+            present |= SensorFlag.OPTICAL_FLOW
         if self.nav.position_source == PositionSource.EXTNAV:
             present |= SensorFlag.VISION_POSITION
         enabled = present

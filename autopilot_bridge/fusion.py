@@ -105,6 +105,7 @@ class SensorFusionMixin:
         self._compass: list[float] = []
         self._gps: list[GpsReading] = []
         self._flow: list[FlowReading] = []
+        self._last_flow: FlowReading | None = None     # telemetry (OPTICAL_FLOW, DISTANCE_SENSOR)
         self._vision: list[VisionReading] = []
         self._last_gps: GpsReading | None = None
         self._last_gps_fused_s: float | None = None
@@ -164,6 +165,7 @@ class SensorFusionMixin:
                 all_finite(reading.distance_m) and not all_finite(*reading.flow_flu_rad_s)):
             self.stats["flow_nan"] += 1
             return
+        self._last_flow = reading
         if self.nav.aligned:
             self._flow.append(reading)
 

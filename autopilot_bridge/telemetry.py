@@ -102,7 +102,8 @@ STREAM_GROUPS: Mapping[DataStream, tuple[int, ...]] = {
     DataStream.EXTRA2: (_M.MAVLINK_MSG_ID_VFR_HUD,),
     DataStream.EXTRA3: (_M.MAVLINK_MSG_ID_SYSTEM_TIME, _M.MAVLINK_MSG_ID_BATTERY_STATUS,
                         _M.MAVLINK_MSG_ID_EKF_STATUS_REPORT, _M.MAVLINK_MSG_ID_VIBRATION,
-                        _M.MAVLINK_MSG_ID_WIND),
+                        _M.MAVLINK_MSG_ID_WIND, _M.MAVLINK_MSG_ID_OPTICAL_FLOW,
+                        _M.MAVLINK_MSG_ID_DISTANCE_SENSOR, _M.MAVLINK_MSG_ID_RANGEFINDER),
 }
 
 # Default rates of a new link (Hz). HEARTBEAT and HOME_POSITION belong to no stream group.
@@ -123,6 +124,9 @@ DEFAULT_RATES_HZ: Mapping[int, float] = {
     _M.MAVLINK_MSG_ID_EKF_STATUS_REPORT: 1.0,
     _M.MAVLINK_MSG_ID_VIBRATION: 1.0,
     _M.MAVLINK_MSG_ID_WIND: 1.0,
+    _M.MAVLINK_MSG_ID_OPTICAL_FLOW: 1.0,
+    _M.MAVLINK_MSG_ID_DISTANCE_SENSOR: 1.0,
+    _M.MAVLINK_MSG_ID_RANGEFINDER: 1.0,
     _M.MAVLINK_MSG_ID_POSITION_TARGET_GLOBAL_INT: 2.0,
     _M.MAVLINK_MSG_ID_HOME_POSITION: 0.2,
 }
@@ -563,6 +567,43 @@ def encode_wind(tel: VehicleTelemetry, ctx: EncodeContext) -> mavlink2.MAVLink_m
     return mavlink2.MAVLink_wind_message(finite_float(direction), finite_float(speed), finite_float(d))
 
 
+def encode_optical_flow(tel: VehicleTelemetry, ctx: EncodeContext) -> mavlink2.MAVLink_message | None:
+    """OPTICAL_FLOW as ArduPilot's ``send_opticalflow`` fills it: the raw flow rate (rad/s, about
+    body x and y, FRD) in flow_rate_x/y, the flow with the body rotation removed times the range in
+    flow_comp_m_x/y (m/s), quality, the range (m; -1 unknown); flow_x/y (dezi-pixels) 0. None without
+    the sensor."""
+    if not tel.flow_fitted:
+        return None
+    rx, ry = (finite_float(v) for v in tel.flow_rate_frd_rad_s)
+    cx, cy = (finite_float(v) for v in tel.flow_comp_frd_m_s)
+    d = tel.rangefinder_distance_m
+    return mavlink2.MAVLink_optical_flow_message(
+        max(0, tel.flow_time_us), 0, 0, 0, cx, cy, clamp_int(tel.flow_quality, 0, 255, 0),
+        float(d) if math.isfinite(d) else -1.0, rx, ry)
+
+
+def encode_distance_sensor(tel: VehicleTelemetry, ctx: EncodeContext) -> mavlink2.MAVLink_message | None:
+    """DISTANCE_SENSOR of the flow module's range finder, facing down (MAV_SENSOR_ROTATION_PITCH_270),
+    type laser; the current distance in cm (0 out of range, the limits unknown here: 0). None without
+    the sensor."""
+    if not tel.flow_fitted:
+        return None
+    d = tel.rangefinder_distance_m
+    cm = clamp_int(d * 100.0, 0, 65535, 0) if math.isfinite(d) else 0
+    return mavlink2.MAVLink_distance_sensor_message(
+        _time_ms(tel), 0, 0, cm, mavlink2.MAV_DISTANCE_SENSOR_LASER, 0, mavlink2.MAV_SENSOR_ROTATION_PITCH_270,
+        255)
+
+
+def encode_rangefinder(tel: VehicleTelemetry, ctx: EncodeContext) -> mavlink2.MAVLink_message | None:
+    """RANGEFINDER (ardupilotmega): the range finder's distance (m; 0 out of range) and voltage (0).
+    None without the sensor."""
+    if not tel.flow_fitted:
+        return None
+    d = tel.rangefinder_distance_m
+    return mavlink2.MAVLink_rangefinder_message(float(d) if math.isfinite(d) else 0.0, 0.0)
+
+
 def encode_position_target_local_ned(tel: VehicleTelemetry, ctx: EncodeContext
                                      ) -> mavlink2.MAVLink_message | None:
     """The position controller's target (position, velocity and acceleration feed-forward, yaw);
@@ -613,6 +654,9 @@ ENCODERS: Mapping[int, Encoder] = {
     _M.MAVLINK_MSG_ID_SCALED_IMU: encode_scaled_imu,
     _M.MAVLINK_MSG_ID_VIBRATION: encode_vibration,
     _M.MAVLINK_MSG_ID_WIND: encode_wind,
+    _M.MAVLINK_MSG_ID_OPTICAL_FLOW: encode_optical_flow,
+    _M.MAVLINK_MSG_ID_DISTANCE_SENSOR: encode_distance_sensor,
+    _M.MAVLINK_MSG_ID_RANGEFINDER: encode_rangefinder,
     _M.MAVLINK_MSG_ID_POSITION_TARGET_LOCAL_NED: encode_position_target_local_ned,
     _M.MAVLINK_MSG_ID_POSITION_TARGET_GLOBAL_INT: encode_position_target_global_int,
 }
@@ -620,12 +664,14 @@ ENCODERS: Mapping[int, Encoder] = {
 STREAMABLE_MSG_IDS: frozenset[int] = frozenset(ENCODERS)
 # Messages ArduPilot has an ap_message for but this autopilot does not send (the "not implemented"
 # telemetry rows of docs/mavlink.md): SET_MESSAGE_INTERVAL of one is ACCEPTED and nothing is sent,
-# as ArduPilot answers for a sensor that is not fitted (no rangefinder: no DISTANCE_SENSOR).
+# as ArduPilot answers for a sensor that is not fitted (no second barometer: no SCALED_PRESSURE2).
+# OPTICAL_FLOW, DISTANCE_SENSOR and RANGEFINDER are encoded, and likewise send nothing without the
+# flow module.
 ARDUPILOT_UNSENT_MSG_IDS: frozenset[int] = frozenset(getattr(_M, f"MAVLINK_MSG_ID_{name}") for name in (
     "MEMINFO", "GPS2_RAW", "GPS_RTK", "SIMSTATE", "AHRS", "AHRS2", "SCALED_IMU2", "SCALED_IMU3",
-    "SCALED_PRESSURE", "SCALED_PRESSURE2", "RC_CHANNELS_RAW", "RANGEFINDER", "DISTANCE_SENSOR",
+    "SCALED_PRESSURE", "SCALED_PRESSURE2", "RC_CHANNELS_RAW",
     "ESC_TELEMETRY_1_TO_4", "PID_TUNING", "MCU_STATUS", "FENCE_STATUS", "ATTITUDE_TARGET",
-    "HWSTATUS", "OPTICAL_FLOW", "TERRAIN_REQUEST", "TERRAIN_REPORT"))
+    "HWSTATUS", "TERRAIN_REQUEST", "TERRAIN_REPORT"))
 
 
 def encode(msg_id: int, tel: VehicleTelemetry, ctx: EncodeContext
