@@ -286,7 +286,9 @@ class FlowModel:
 
     def true_range_m(self, position_enu_m, q_wxyz) -> float:
         """Distance along body -z from the vehicle to the first surface (inf: the axis points up)."""
-        rot = quat_to_rotation_matrix(q_wxyz)
+        return self._range_m(position_enu_m, quat_to_rotation_matrix(q_wxyz))
+
+    def _range_m(self, position_enu_m, rot: np.ndarray) -> float:
         down = -rot[:, 2]
         pos = np.asarray(position_enu_m, dtype=float)
         if self.surface is not None:
@@ -297,8 +299,8 @@ class FlowModel:
 
     def sample(self, position_enu_m, velocity_enu_m_s, q_wxyz, angular_velocity_flu_rad_s) -> FlowReading:
         cfg = self.cfg
-        r = self.true_range_m(position_enu_m, q_wxyz)
         rot = quat_to_rotation_matrix(q_wxyz)
+        r = self._range_m(position_enu_m, rot)
         vb = rot.T @ np.asarray(velocity_enu_m_s, dtype=float)
         w = np.asarray(angular_velocity_flu_rad_s, dtype=float)
         noise = self._rng.standard_normal(5)
