@@ -578,8 +578,8 @@ def encode_optical_flow(tel: VehicleTelemetry, ctx: EncodeContext) -> mavlink2.M
     cx, cy = (finite_float(v) for v in tel.flow_comp_frd_m_s)
     d = tel.rangefinder_distance_m
     return mavlink2.MAVLink_optical_flow_message(
-        max(0, tel.flow_time_us), 0, 0, 0, cx, cy, clamp_int(tel.flow_quality, 0, 255, 0),
-        float(d) if math.isfinite(d) else -1.0, rx, ry)
+        clamp_int(tel.flow_time_us, 0, 2 ** 63 - 1, 0), 0, 0, 0, cx, cy, clamp_int(tel.flow_quality, 0, 255, 0),
+        finite_float(d, -1.0), rx, ry)
 
 
 def encode_distance_sensor(tel: VehicleTelemetry, ctx: EncodeContext) -> mavlink2.MAVLink_message | None:
@@ -600,8 +600,7 @@ def encode_rangefinder(tel: VehicleTelemetry, ctx: EncodeContext) -> mavlink2.MA
     None without the sensor."""
     if not tel.flow_fitted:
         return None
-    d = tel.rangefinder_distance_m
-    return mavlink2.MAVLink_rangefinder_message(float(d) if math.isfinite(d) else 0.0, 0.0)
+    return mavlink2.MAVLink_rangefinder_message(finite_float(tel.rangefinder_distance_m), 0.0)
 
 
 def encode_position_target_local_ned(tel: VehicleTelemetry, ctx: EncodeContext

@@ -329,7 +329,9 @@ def test_encoders_survive_absurd_telemetry():
         ekf_flags=1 << 40, sensors_present=-1, cpu_load_pct=math.nan,
         imu_accel_frd_m_s2=(math.inf, -1e9, math.nan), vibration_m_s2=(math.nan, -1.0, 1e40),
         accel_clipping=(-5, 2 ** 40, 0), target_position_ned_m=(math.nan, math.inf, 1e40),
-        target_lat_deg=math.nan, target_lon_deg=1e9, target_alt_amsl_m=math.inf)
+        target_lat_deg=math.nan, target_lon_deg=1e9, target_alt_amsl_m=math.inf,
+        flow_fitted=True, flow_time_us=-5, flow_rate_frd_rad_s=(math.nan, math.inf),
+        flow_comp_frd_m_s=(1e40, -math.inf), flow_quality=999, rangefinder_distance_m=1e40)
     mav = M.MAVLink(None, 1, 1)
     ctx = telemetry.EncodeContext(mission_item_count=3, battery_monitor=4)
     for msg_id in telemetry.STREAMABLE_MSG_IDS:

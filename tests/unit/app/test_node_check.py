@@ -141,3 +141,41 @@ def test_external_nodes_in_the_scenario():
         load_scenario(None, external=("perception:a", "guidance:a"))
     with pytest.raises(UserError, match="join_timeout_s"):
         load_scenario(None, ("external.join_timeout_s=0",))
+
+
+class _Proc:
+    """A process that has exited (``poll`` gives its code) from ``exits_after`` polls on."""
+
+    def __init__(self, exits_after: int) -> None:
+        self.polls = 0
+        self.exits_after = exits_after
+        self.returncode = None
+
+    def poll(self):
+        self.polls += 1
+        if self.polls > self.exits_after:
+            self.returncode = 0
+        return self.returncode
+
+
+class _Observer:
+    def __init__(self, seen: Observed) -> None:
+        self.seen = seen
+
+
+@pytest.mark.parametrize("node_exits_before_end", [False, True])
+def test_a_run_that_ends_right_after_the_malformed_frames(node_exits_before_end):
+    """The run's clock finished within a second of the malformed frames (it raced on without the node
+    after an ack timeout): a node that left after the run's end survived them; one that left before
+    did not."""
+    import time
+
+    from scenenav.app.node_check import _watch
+    seen = Observed()
+    now = time.monotonic()
+    seen.injected_at = now
+    seen.tokens.append((now - 1.0, "x", True))
+    seen.finished_at = now + (10.0 if node_exits_before_end else -1.0)
+    alive, exited_at = _watch(_Proc(exits_after=2), _Proc(exits_after=0), _Observer(seen))
+    assert exited_at is not None
+    assert alive is (not node_exits_before_end)
