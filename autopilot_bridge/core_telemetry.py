@@ -161,11 +161,11 @@ class TelemetryMixin:
         """The flow module's last sample for OPTICAL_FLOW / DISTANCE_SENSOR / RANGEFINDER, in body
         FRD (the bus's FLU with y negated); empty (not fitted) without FLOW_TYPE or a sample."""
         f = self._last_flow
-        if f is None or self.params.get_int("FLOW_TYPE") == 0:
+        if f is None or not self._flow_fitted():
             return {}
         r = f.distance_m
-        cx = (f.flow_flu_rad_s[0] + f.body_rate_flu_rad_s[0]) * r
-        cy = (f.flow_flu_rad_s[1] + f.body_rate_flu_rad_s[1]) * r
+        tx, ty = f.translation_rate_flu_rad_s
+        cx, cy = tx * r, ty * r
         return {"flow_fitted": True, "flow_time_us": int(round(f.t_s * 1e6)),
                 "flow_rate_frd_rad_s": (f.flow_flu_rad_s[0], -f.flow_flu_rad_s[1]),
                 "flow_comp_frd_m_s": (cx, -cy), "flow_quality": int(f.quality),
@@ -259,7 +259,7 @@ class TelemetryMixin:
         present = SensorFlag(int(DEFAULT_SENSORS)) & ~SensorFlag.VISION_POSITION
         if self._last_gps is not None:
             present |= SensorFlag.GPS
-        if self._last_flow is not None and self.params.get_int("FLOW_TYPE") != 0:
+        if self._flow_fitted():
             present |= SensorFlag.OPTICAL_FLOW
         if self.nav.position_source == PositionSource.EXTNAV:
             present |= SensorFlag.VISION_POSITION

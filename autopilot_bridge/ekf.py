@@ -110,6 +110,11 @@ _COMPASS_STATES = np.array([8, 11])
 _EXT_HEIGHT_STATES = np.array([2, 5])     # external-navigation height: height, vertical velocity
 
 
+def _skew(a: np.ndarray) -> np.ndarray:
+    """[a]x: the matrix of the cross product a x (.)."""
+    return np.array([[0.0, -a[2], a[1]], [a[2], 0.0, -a[0]], [-a[1], a[0], 0.0]])
+
+
 def _mask(states: np.ndarray) -> np.ndarray:
     m = np.zeros(NUM_ERROR_STATES)
     m[states] = 1.0
@@ -625,7 +630,7 @@ class NavFilter:
             if speed > 1e-6:
                 j_row -= kb * float(va[axis]) * va / speed
             jr = j_row @ rot.T                                      # d / d v (world)
-            ux = np.array([[0.0, -u[2], u[1]], [u[2], 0.0, -u[0]], [-u[1], u[0], 0.0]])
+            ux = _skew(u)
             h = self._h_drag
             h[:] = 0.0
             h[3:6] = jr
@@ -665,7 +670,7 @@ class NavFilter:
             sign, comp = (-1.0, 1) if axis == 0 else (1.0, 0)
             predicted = sign * float(vb[comp]) / r
             row = sign * rot.T[comp] / r                              # d / d v (world)
-            vx = np.array([[0.0, -v[2], v[1]], [v[2], 0.0, -v[0]], [-v[1], v[0], 0.0]])
+            vx = _skew(v)
             h = self._h_drag
             h[:] = 0.0
             h[3:6] = row

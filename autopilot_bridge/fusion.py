@@ -89,6 +89,12 @@ class FlowReading:
     distance_m: float
     quality: int
 
+    @property
+    def translation_rate_flu_rad_s(self) -> tuple[float, float]:
+        """The flow with the body rotation removed (flow + the module's gyro): the translation's part."""
+        return (self.flow_flu_rad_s[0] + self.body_rate_flu_rad_s[0],
+                self.flow_flu_rad_s[1] + self.body_rate_flu_rad_s[1])
+
 
 def flow_reading(msg: FlowSample) -> FlowReading:
     """The autopilot's view of a bus ``FlowSample``."""
@@ -280,6 +286,10 @@ class SensorFusionMixin:
         else:
             self.stats["vision_rejected"] += 1
 
+    def _flow_fitted(self) -> bool:
+        """FLOW_TYPE is set and the module has sent a sample (telemetry and SYS_STATUS)."""
+        return self._last_flow is not None and self.params.get_int("FLOW_TYPE") != 0
+
     def _flow_fusion(self) -> None:
         """The buffered flow samples (module docstring), each as two scalar measurements."""
         flows, self._flow = self._flow, []
@@ -298,7 +308,7 @@ class SensorFusionMixin:
             if f.quality <= 0 or not (all_finite(r) and r > 0.0) or tilt_cos < FLOW_MAX_TILT_COS:
                 self.stats["flow_unusable"] += 1
                 continue
-            rate = (f.flow_flu_rad_s[0] + f.body_rate_flu_rad_s[0], f.flow_flu_rad_s[1] + f.body_rate_flu_rad_s[1])
+            rate = f.translation_rate_flu_rad_s
             if max(abs(rate[0]), abs(rate[1])) > max_rate:
                 self.stats["flow_too_fast"] += 1
                 continue

@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
+from functools import cached_property
 
 import numpy as np
 
@@ -56,6 +57,11 @@ class Surface:
         out[inside] = self.dsm_m[row[inside], col[inside]]
         return float(out) if out.ndim == 0 else out
 
+    @cached_property
+    def height_field(self) -> HeightField:
+        """The DSM ready for ray casting, built on first use."""
+        return HeightField(self.dsm_m, self.m_per_px)
+
     def range_m(self, origin_enu_m, direction_enu) -> float:
         """Distance (m) from ``origin_enu_m`` along ``direction_enu`` (any length) to the first
         surface it meets (roof, wall or ground; the ground plane z = 0 outside the map); inf if the
@@ -64,11 +70,7 @@ class Surface:
         norm = float(np.linalg.norm(d))
         if not norm > 0.0:
             return math.inf
-        field = self.__dict__.get("_field")
-        if field is None:
-            field = HeightField(self.dsm_m, self.m_per_px)
-            object.__setattr__(self, "_field", field)   # built once, on first use
-        hits = first_hits(field, np.asarray(origin_enu_m, dtype=float)[None, :3], (d / norm)[None, :])
+        hits = first_hits(self.height_field, np.asarray(origin_enu_m, dtype=float)[None, :3], (d / norm)[None, :])
         s = float(hits.range_s[0])
         return s if math.isfinite(s) and not bool(hits.miss[0]) else math.inf
 
