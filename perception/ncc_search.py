@@ -10,6 +10,7 @@ where to search.
 
 from __future__ import annotations
 
+import dataclasses
 import logging
 import math
 import time
@@ -57,7 +58,9 @@ class MatchResult:
     ``position_px`` is in continuous map pixels (u column, v row; see scenenav/core/frames.py),
     ``position_enu_m`` in world ENU metres. ``covariance_m2`` is 2x2 (x east, y north).
     ``window_px`` = (u0, v0, width, height) of the reference area searched. ``timings``: wall-clock
-    time of the window crop, the correlation and the peak refinement.
+    time of the window crop, the correlation and the peak refinement. ``gradient_shift_px``: how far
+    the gradient refinement (``MatcherConfig.gradient_refine_radius_px``) moved the position from the
+    intensity peak (NaN: not refined: off, a flat template, or no gradient peak inside the window).
     """
 
     position_px: tuple[float, float]
@@ -72,6 +75,7 @@ class MatchResult:
     search: SearchMode
     window_px: tuple[int, int, int, int]
     timings: SearchTimes = field(default_factory=SearchTimes)
+    gradient_shift_px: float = math.nan
 
     @property
     def metrics(self) -> MatchMetrics:
@@ -81,6 +85,18 @@ class MatchResult:
 
 def _timer() -> float:
     return time.perf_counter()
+
+
+def gradient_magnitude(image: np.ndarray) -> np.ndarray:
+    """Sobel (3 x 3) gradient magnitude of a float32 grey image, float32, same shape."""
+    gx = cv2.Sobel(image, cv2.CV_32F, 1, 0, ksize=3)
+    gy = cv2.Sobel(image, cv2.CV_32F, 0, 1, ksize=3)
+    return cv2.magnitude(gx, gy)
+
+
+#: A template pixel enters the gradient NCC only if its whole 3 x 3 Sobel support, and one pixel more,
+#: is valid: the mask is eroded by this kernel (the edge of the mask is not an edge of the scene).
+_GRADIENT_MASK_KERNEL = np.ones((5, 5), np.uint8)
 
 
 def _is_flat(template: np.ndarray) -> bool:
@@ -120,6 +136,8 @@ class SceneMatcher:
         self._levels: list[tuple[int, np.ndarray]] = []   # (factor, level image), factor ascending
         if max(ref.shape) > self.cfg.coarse_above_px:
             self._build_pyramid()
+        self._gradient_reference = (gradient_magnitude(ref) if self.cfg.gradient_refine_radius_px > 0
+                                    else None)
 
     # ------------------------------------------------------------------------------ geometry
     def pixel_to_world(self, u: float, v: float) -> tuple[float, float]:
@@ -158,12 +176,47 @@ class SceneMatcher:
         mask_f = self._mask_or_none(mask, template.shape)
         flat = _is_flat(template)
         if predicted_uv is None:
-            return self._global(template, mask_f, flat, t0)
-        radius = self.cfg.min_window_margin_px if search_radius_px is None else search_radius_px
-        if not (math.isfinite(predicted_uv[0]) and math.isfinite(predicted_uv[1])
-                and math.isfinite(radius) and radius >= 0.0):
-            raise ValueError(f"predicted_uv={predicted_uv}, search_radius_px={radius}: expected finite")
-        return self._windowed(template, mask_f, predicted_uv, radius, flat, t0)
+            result = self._global(template, mask_f, flat, t0)
+        else:
+            radius = self.cfg.min_window_margin_px if search_radius_px is None else search_radius_px
+            if not (math.isfinite(predicted_uv[0]) and math.isfinite(predicted_uv[1])
+                    and math.isfinite(radius) and radius >= 0.0):
+                raise ValueError(f"predicted_uv={predicted_uv}, search_radius_px={radius}: expected finite")
+            result = self._windowed(template, mask_f, predicted_uv, radius, flat, t0)
+        if self._gradient_reference is None or flat:
+            return result
+        return self._gradient_refined(result, template, mask_f)
+
+    def _gradient_refined(self, result: MatchResult, template: np.ndarray,
+                          mask: np.ndarray | None) -> MatchResult:
+        """``result`` with its position from the gradient-magnitude NCC within
+        ``gradient_refine_radius_px`` of its intensity peak (MatcherConfig); unchanged when the
+        gradient surface has no peak inside that window (its maximum on the window's border)."""
+        t0 = _timer()
+        th, tw = template.shape
+        gradient = gradient_magnitude(template)
+        gmask = None
+        if mask is not None:
+            gmask = cv2.erode(mask, _GRADIENT_MASK_KERNEL)
+            if not gmask.any():
+                return result
+        if float(cv2.meanStdDev(gradient, mask=None if gmask is None else gmask.astype(np.uint8))[1][0, 0]) \
+                < FLAT_TEMPLATE_STD:
+            return result
+        x0, y0, x1, y1 = self._window_bounds(result.position_px, self.cfg.gradient_refine_radius_px, tw, th)
+        values = self._correlate(self._gradient_reference[y0:y1, x0:x1], gradient, gmask)
+        pk = surface_peak_metrics(values, (x0 == 0, x1 == self.width_px, y0 == 0, y1 == self.height_px),
+                                  self.cfg.exclusion_radius_px)
+        timings = dataclasses.replace(result.timings,
+                                      refine_ms=result.timings.refine_ms + (_timer() - t0) * _MS)
+        if pk.at_border:
+            return dataclasses.replace(result, timings=timings)
+        u = x0 + pk.ix + pk.dx + tw / 2.0
+        v = y0 + pk.iy + pk.dy + th / 2.0
+        shift = math.hypot(u - result.position_px[0], v - result.position_px[1])
+        return dataclasses.replace(result, position_px=(float(u), float(v)),
+                                   position_enu_m=self.pixel_to_world(u, v), timings=timings,
+                                   gradient_shift_px=float(shift))
 
     # ------------------------------------------------------------------------------ checks
     def _check_template(self, template: np.ndarray) -> np.ndarray:

@@ -40,7 +40,7 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
-from perception.config import ExpectedCamera, PerceptionConfig
+from perception.config import ExpectedCamera, MatcherConfig, PerceptionConfig
 from perception.match_metrics import MatchMetrics
 from scenenav.core.bus import Bus, BusConfig
 from scenenav.core.contracts import (
@@ -68,7 +68,8 @@ def make_pipeline(world, method: str, assistant_map_path: str | None, weights: s
                   fov_deg: float = PerceptionConfig.fov_deg, reference: str = "default",
                   min_rated_footprint_share: float = PerceptionConfig.min_rated_footprint_share,
                   heading_learning: bool = False, pointing_std_deg: tuple[float, float] = (0.0, 0.0),
-                  track_below_rated: bool = False, covariance_scale: float = 1.0):
+                  track_below_rated: bool = False, covariance_scale: float = 1.0,
+                  gradient_refine_radius_px: int = 0):
     """The pure perception pipeline for a world and a false-match method (``fov_deg``: the camera's,
     used when a capture does not state its own).
 
@@ -83,6 +84,7 @@ def make_pipeline(world, method: str, assistant_map_path: str | None, weights: s
     fix's covariance (``PerceptionConfig.pointing_attitude_std_deg``, ``pointing_heading_std_deg``).
     ``track_below_rated``: ``PerceptionConfig.track_below_rated`` (track continuation below the rated height).
     ``covariance_scale``: ``PerceptionConfig.covariance_scale`` (every published covariance times it).
+    ``gradient_refine_radius_px``: ``MatcherConfig.gradient_refine_radius_px`` (0: off).
     """
     from perception.decision import CombinedDecisionModel, DecisionRule, FalseMatchMethod
     from perception.heading_offset import HeadingOffsetConfig
@@ -92,7 +94,8 @@ def make_pipeline(world, method: str, assistant_map_path: str | None, weights: s
     cfg = PerceptionConfig(fov_deg=fov_deg, min_rated_footprint_share=min_rated_footprint_share,
                            heading_offset=learning, pointing_attitude_std_deg=pointing_std_deg[0],
                            pointing_heading_std_deg=pointing_std_deg[1],
-                           track_below_rated=track_below_rated, covariance_scale=covariance_scale)
+                           track_below_rated=track_below_rated, covariance_scale=covariance_scale,
+                           matcher=MatcherConfig(gradient_refine_radius_px=gradient_refine_radius_px))
     decision_model = None
     if weights and str(weights).endswith(".json"):
         decision_model = CombinedDecisionModel.load(weights)
@@ -151,7 +154,8 @@ class PerceptionNode:
                  min_rated_footprint_share: float = PerceptionConfig.min_rated_footprint_share,
                  heading_learning: bool = False, prior_from_estimate: bool = False,
                  prior_margin_px: int = 24, pointing_std_deg: tuple[float, float] = (0.0, 0.0),
-                 track_below_rated: bool = False, covariance_scale: float = 1.0):
+                 track_below_rated: bool = False, covariance_scale: float = 1.0,
+                 gradient_refine_radius_px: int = 0):
         self.world = world
         self.homography = alignment == "homography"
         self.prior_from_estimate = prior_from_estimate
@@ -170,7 +174,8 @@ class PerceptionNode:
         cv2.setNumThreads(1)
         self.pipeline = make_pipeline(world, method, assistant_map_path, weights, self.camera.fov_deg,
                                       reference, min_rated_footprint_share, heading_learning,
-                                      pointing_std_deg, track_below_rated, covariance_scale)
+                                      pointing_std_deg, track_below_rated, covariance_scale,
+                                      gradient_refine_radius_px)
         self._diag = None
         if out_dir is not None:
             try:

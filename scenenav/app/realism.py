@@ -52,6 +52,10 @@ PAPER_SETTINGS: Mapping[str, Any] = MappingProxyType({
     # it serves paper's autopilot flights better than a fit on paper flights or the shipped model
     # fitted on ideal scripted flights (docs/perception.md, "Refit on `realistic`"); realistic inherits it
     "perception.decision_model": "realistic",     # perception.decision.REALISTIC_DECISION_MODEL
+    # the match position from the gradient-magnitude NCC within 24 px of the intensity peak: the
+    # reference is another day's (sun, shadows, exposure) and edges move less than shading
+    # (docs/perception.md "Gradient refinement"); not the paper's, ours, like the decision model
+    "perception.gradient_refine_radius_px": 24,
 })
 
 #: ``realistic``: everything of ``paper`` plus these (docs/realism.md gives each basis).
