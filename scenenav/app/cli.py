@@ -90,7 +90,8 @@ def _bench(args: argparse.Namespace) -> int:
     elif args.what == "perception":
         from scenenav.app.bench.perception import format_table, run_perception_bench
         result = run_perception_bench(n_frames=args.frames, sizes_px=args.map_sizes,
-                                      stride_px=args.stride_px)
+                                      stride_px=args.stride_px,
+                                      gradient_refine_px=args.gradient_refine_px)
     else:
         raise UserError(f"unknown benchmark {args.what!r}")
     if args.json:
@@ -368,6 +369,10 @@ def build_parser(domain_commands: bool | str = True) -> argparse.ArgumentParser:
                     help="stride of the whole assistant-map build, px (default 5)")
     bp.add_argument("--map-sizes", type=_side_list, default=(1000, 4000, 8000), metavar="N,N,...",
                     help="square map sides for the per-fix time vs map size, px (default 1000,4000,8000)")
+    bp.add_argument("--gradient-refine-px", type=nonneg_int, default=0, metavar="R",
+                    help="refine each match on gradient magnitude within R px "
+                         "(matcher.gradient_refine_radius_px; the paper and realistic profiles use 24; "
+                         "default 0: off, as the ideal profile)")
     bp.set_defaults(func=_bench)
     if domain_commands is True:
         _register_domain_commands(sub, _ALL_COMMAND_MODULES)

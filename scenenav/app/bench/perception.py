@@ -77,18 +77,20 @@ def _raw_match_ms(reference: np.ndarray, window_px: tuple[int, int, int, int],
     return (time.perf_counter() - t0) * 1000.0, (time.thread_time() - c0) * 1000.0
 
 
-def _pipeline(world, method: str, classifier, amap):
-    from perception.config import PerceptionConfig
+def _pipeline(world, method: str, classifier, amap, gradient_refine_px: int = 0):
+    from perception.config import MatcherConfig, PerceptionConfig
     from perception.decision import FalseMatchMethod
     from perception.pipeline import PerceptionPipeline
     m = FalseMatchMethod(method)
-    return PerceptionPipeline(world.reference, world.m_per_px, m, PerceptionConfig(),
+    cfg = PerceptionConfig(matcher=MatcherConfig(gradient_refine_radius_px=gradient_refine_px))
+    return PerceptionPipeline(world.reference, world.m_per_px, m, cfg,
                               classify=classifier.predict_proba if classifier is not None and m in (
                                   FalseMatchMethod.CNN, FalseMatchMethod.ASSISTANT_MAP) else None,
                               assistant_map=None if amap is None else amap.copy())
 
 
-def _run_method(world, frames, method: str, classifier, amap, rounds: int = 3) -> dict:
+def _run_method(world, frames, method: str, classifier, amap, rounds: int = 3,
+                gradient_refine_px: int = 0) -> dict:
     """Per-fix stage times and CPU of ``method`` beside the raw ``cv2.matchTemplate`` of each fix's
     own template on its own window, measured fairly: a first pass (untimed) records every fix's
     template and window (the pipeline is deterministic, so every round repeats them); then
@@ -98,7 +100,7 @@ def _run_method(world, frames, method: str, classifier, amap, rounds: int = 3) -
     settings for both (the caller's). Medians over all rounds; global searches (the first frame,
     re-acquisitions) are excluded from the raw comparison, their fix times are in the stages."""
     record = []
-    pipe = _pipeline(world, method, classifier, amap)
+    pipe = _pipeline(world, method, classifier, amap, gradient_refine_px)
     for t, img, heading in frames:
         r = pipe.process(img, heading, 100.0, t)
         window = r.valid and pipe.last_match is not None and pipe.last_match.search.value == "window"
@@ -107,7 +109,7 @@ def _run_method(world, frames, method: str, classifier, amap, rounds: int = 3) -
     raw, raw_cpu, cpu, wall = [], [], [], []
     split = {k: [] for k in ("crop", "correlate", "refine", "rest")}   # the window fixes' matcher stages
     for rnd in range(rounds):
-        pipe = _pipeline(world, method, classifier, amap)
+        pipe = _pipeline(world, method, classifier, amap, gradient_refine_px)
         reference = pipe.matcher.reference          # the very map (and window memory) the fix reads
         for i, (t, img, heading) in enumerate(frames):
             rec = record[i]
@@ -154,7 +156,8 @@ def _run_method(world, frames, method: str, classifier, amap, rounds: int = 3) -
 
 
 def run_perception_bench(n_frames: int = 60, sizes_px: tuple[int, ...] = (1000, 4000, 8000),
-                         stride_px: int = 5) -> dict:
+                         stride_px: int = 5, gradient_refine_px: int = 0) -> dict:
+    """``gradient_refine_px``: ``MatcherConfig.gradient_refine_radius_px`` of every pipeline (0: off)."""
     import torch
 
     from perception.assistant_map import AssistantMap, build_assistant_map
@@ -162,6 +165,8 @@ def run_perception_bench(n_frames: int = 60, sizes_px: tuple[int, ...] = (1000, 
     from worlds.default import load_default_world
     if n_frames < 5:
         raise UserError(f"--frames {n_frames}: expected at least 5")
+    from perception.config import MatcherConfig
+    MatcherConfig(gradient_refine_radius_px=gradient_refine_px)   # a bad radius: one line, before any work
     cv2.setNumThreads(1)
     torch.set_num_threads(1)
     world = load_default_world()
@@ -181,7 +186,8 @@ def run_perception_bench(n_frames: int = 60, sizes_px: tuple[int, ...] = (1000, 
         elif method == "cnn":
             amap = AssistantMap.empty(world.width_px, world.height_px, world.m_per_px,
                                       world_name=world.manifest.name)
-        rows.append(_run_method(world, frames, method, clf if method in ("cnn", "assistant-map") else None, amap))
+        rows.append(_run_method(world, frames, method, clf if method in ("cnn", "assistant-map") else None, amap,
+                                gradient_refine_px=gradient_refine_px))
     # flatness with map size: tile the reference to bigger maps, track the same frames
     scaling = []
     for side in sizes_px:
@@ -190,13 +196,14 @@ def run_perception_bench(n_frames: int = 60, sizes_px: tuple[int, ...] = (1000, 
         big = SimpleNamespace(reference=big_ref, m_per_px=world.m_per_px, width_px=side, height_px=side)
         # place the path at the same place relative to the first tile: shift frames' truth is irrelevant,
         # the tracker acquires globally once and then tracks.
-        r = _run_method(big, frames, "none", None, None, rounds=2)
+        r = _run_method(big, frames, "none", None, None, rounds=2, gradient_refine_px=gradient_refine_px)
         scaling.append({"map_px": f"{side}x{side}", "fix_time_ms_median": r["fix_time_ms_median"],
                         "ncc_ms_median": r["stages_ms_median"]["ncc"], "fix_cpu_ms_median": r["fix_cpu_ms_median"]})
     paper = {"cnn": 140.0, "assistant-map": 41.0, "statistical": 41.0, "none": 40.0}
     return {"methods": {r["method"]: r for r in rows}, "assistant_map_build_s": round(build_s, 2),
             "assistant_map_stride_px": stride_px, "scaling": scaling,
-            "paper_ms": paper, "world_px": f"{world.width_px}x{world.height_px}"}
+            "paper_ms": paper, "world_px": f"{world.width_px}x{world.height_px}",
+            "gradient_refine_px": gradient_refine_px}
 
 
 def _ms(value: float | None, digits: int = 2) -> str:
@@ -208,7 +215,8 @@ def format_table(result: dict) -> str:
     rows = list(result["methods"].values())
     paper = result["paper_ms"]
     lines = [f"perception per-fix time, one core, default world {result['world_px']}, "
-             f"{rows[0]['fixes']} fixes (median ms: wall clock, then this thread's CPU time)",
+             f"{rows[0]['fixes']} fixes (median ms: wall clock, then this thread's CPU time), "
+             f"gradient refinement {result.get('gradient_refine_px', 0)} px",
              f"{'method':>14} {'align':>7} {'ncc':>7} {'cnn':>7} {'lookup':>7} {'total':>7} "
              f"{'window':>7} {'raw mT':>7} {'x raw':>6} {'cpu':>7} {'raw cpu':>7} {'x raw':>6} {'paper':>6}"]
     for r in rows:
