@@ -236,6 +236,8 @@ class PerceptionNodeConfig:
                                        # docs/perception.md "Covariance"); 1 = as modelled
     gradient_refine_radius_px: int = 0  # refine each match's position on gradient magnitude within this
                                        # many map px (MatcherConfig; docs/perception.md); 0 = off
+    dr_from_estimate: bool = False     # dead-reckon the track evidence's anchor with the autopilot's
+                                       # estimated velocity, not at constant velocity (docs/perception.md)
 
     def __post_init__(self) -> None:
         methods = ("cnn", "assistant-map", "statistical", "none")

@@ -157,11 +157,14 @@ class TrackEvidence:
         self._run: list[tuple[float, float, float]] = []
         self.count = 0
         self._anchor: tuple[float, float, float, float, float] | None = None
+        # [t, u, v]: the anchor dead-reckoned with the velocities given to ``observe`` (None: unused)
+        self._dr: list[float] | None = None
 
     def reset(self) -> None:
         self._run = []
         self.count = 0
         self._anchor = None
+        self._dr = None
 
     def predict(self, t_s: float) -> tuple[tuple[float, float], float] | None:
         """The anchor dead-reckoned to ``t_s`` and its age in seconds (None: none yet)."""
@@ -171,12 +174,36 @@ class TrackEvidence:
         dt = max(0.0, t_s - t0)
         return (u + vu * dt, v + vv * dt), dt
 
+    def _dead_reckoned(self, t_s: float, velocity_px_s: tuple[float, float] | None
+                       ) -> tuple[tuple[float, float], float] | None:
+        """The anchor moved on to ``t_s`` by the given velocity (px/s) since the last call, or by the
+        anchor's own velocity when none is given; and the anchor's age."""
+        if self._anchor is None:
+            return None
+        t0, ua, va, vu, vv = self._anchor
+        if self._dr is None:
+            self._dr = [t0, ua, va]
+        dt = t_s - self._dr[0]
+        if dt > 0.0:
+            du, dv = velocity_px_s if velocity_px_s is not None else (vu, vv)
+            self._dr = [t_s, self._dr[1] + du * dt, self._dr[2] + dv * dt]
+        return (self._dr[1], self._dr[2]), max(0.0, t_s - t0)
+
     def observe(self, t_s: float, uv: tuple[float, float], quality_ok: bool,
-                reacquired: bool) -> tuple[int, float, float, float]:
+                reacquired: bool, velocity_px_s: tuple[float, float] | None = None
+                ) -> tuple[int, float, float, float]:
         """Add a match; return (run length before it, distance to the dead-reckoned anchor px,
-        anchor age s, reachability excess px)."""
+        anchor age s, reachability excess px).
+
+        ``velocity_px_s``: the vehicle's velocity now (map px/s, e.g. the autopilot's estimate;
+        ``perception.dr_from_estimate``). Once one is given the anchor is dead-reckoned by these
+        velocities, step by step from the last match, instead of at the established run's constant
+        velocity: through a turn or a hold it stays with the vehicle. None throughout: as before."""
         run_before = self.count
-        pred = self.predict(t_s)
+        if velocity_px_s is not None or self._dr is not None:
+            pred = self._dead_reckoned(t_s, velocity_px_s)
+        else:
+            pred = self.predict(t_s)
         dist, age, excess = math.nan, math.nan, math.nan
         if pred is not None:
             dist = math.hypot(uv[0] - pred[0][0], uv[1] - pred[0][1])
@@ -197,6 +224,8 @@ class TrackEvidence:
             (ta, ua, va), (tb, ub, vb) = self._run[0], self._run[-1]
             if tb > ta:
                 self._anchor = (tb, ub, vb, (ub - ua) / (tb - ta), (vb - va) / (tb - ta))
+                if self._dr is not None:
+                    self._dr = [tb, ub, vb]
         return run_before, dist, age, excess
 
 

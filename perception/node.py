@@ -8,7 +8,9 @@ Inputs
   ``autopilot/estimate`` NavEstimate    (alignment homography: the estimated roll and pitch at or just
                                          before the frame, for FIXED-mount frames; never truth; the
                                          worker waits, at most ESTIMATE_WAIT_S, until that estimate
-                                         is sure to have arrived, so lockstep runs are repeatable)
+                                         is sure to have arrived, so lockstep runs are repeatable;
+                                         also its position with prior_from_estimate and its velocity
+                                         with dr_from_estimate)
 Outputs
   ``perception/fix/<node_id>``   VisionFix  (one per frame; ``valid`` false when no match)
   ``lockstep/ack/<node_id>``     LockstepAck (role camera, after the fix) when in lockstep
@@ -155,8 +157,9 @@ class PerceptionNode:
                  heading_learning: bool = False, prior_from_estimate: bool = False,
                  prior_margin_px: int = 24, pointing_std_deg: tuple[float, float] = (0.0, 0.0),
                  track_below_rated: bool = False, covariance_scale: float = 1.0,
-                 gradient_refine_radius_px: int = 0):
+                 gradient_refine_radius_px: int = 0, dr_from_estimate: bool = False):
         self.world = world
+        self.dr_from_estimate = dr_from_estimate
         self.homography = alignment == "homography"
         self.prior_from_estimate = prior_from_estimate
         self.prior_margin_px = prior_margin_px
@@ -191,6 +194,7 @@ class PerceptionNode:
         self._altitudes: deque[tuple[int, float]] = deque(maxlen=200)
         self._tilts: deque[tuple[int, tuple[float, float]]] = deque(maxlen=400)
         self._priors: deque[tuple[int, tuple[float, float, float | None]]] = deque(maxlen=400)
+        self._velocities: deque[tuple[int, tuple[float, float]]] = deque(maxlen=400)
         self._sensor_lock = threading.Lock()
         self._estimate_arrived = threading.Condition(self._sensor_lock)
         self._queue: queue.Queue = queue.Queue(maxsize=FRAME_BACKLOG)
@@ -201,7 +205,7 @@ class PerceptionNode:
         self._worker.start()
         self.bus.subscribe(self.keys.compass, CompassSample, self._on_compass)
         self.bus.subscribe(self.keys.baro, BaroSample, self._on_baro)
-        if self.homography or self.prior_from_estimate:
+        if self.homography or self.prior_from_estimate or self.dr_from_estimate:
             self.bus.subscribe(self.keys.nav_estimate, NavEstimate, self._on_estimate)
         self.bus.subscribe(self.keys.camera, CameraFrame, self._on_frame)
         # Announce only once subscribed, so nothing addressed to us is lost.
@@ -230,6 +234,7 @@ class PerceptionNode:
         with self._sensor_lock:
             self._tilts.append((msg.timestamp_us, (roll, pitch)))
             self._priors.append((msg.timestamp_us, (msg.position_enu_m[0], msg.position_enu_m[1], radius)))
+            self._velocities.append((msg.timestamp_us, (msg.velocity_enu_m_s[0], msg.velocity_enu_m_s[1])))
             self._estimate_arrived.notify_all()
 
     def _estimate_settled(self, t_us: int) -> bool:
@@ -248,13 +253,14 @@ class PerceptionNode:
             return True     # the estimates stopped (the autopilot left): do not wait for each frame
         return newest > t_us - period
 
-    def _estimate_for(self, msg: CameraFrame) -> tuple[tuple[float, float] | None, tuple | None]:
-        """The estimated (roll, pitch) for a fixed-mount frame's homography and the search prior, from
-        the autopilot estimate at or before the frame's time, once it is settled (at most
-        ``ESTIMATE_WAIT_S``)."""
+    def _estimate_for(self, msg: CameraFrame) -> tuple[tuple[float, float] | None, tuple | None,
+                                                      tuple[float, float] | None]:
+        """The estimated (roll, pitch) for a fixed-mount frame's homography, the search prior and the
+        horizontal velocity (``dr_from_estimate``), from the autopilot estimate at or before the
+        frame's time, once it is settled (at most ``ESTIMATE_WAIT_S``)."""
         want_tilt = self.homography and msg.mount == "fixed"
-        if not (want_tilt or self.prior_from_estimate):
-            return None, None
+        if not (want_tilt or self.prior_from_estimate or self.dr_from_estimate):
+            return None, None, None
         t = msg.timestamp_us
         with self._estimate_arrived:
             if not self._estimate_arrived.wait_for(lambda: self._estimate_settled(t) or self._stop.is_set(),
@@ -262,7 +268,8 @@ class PerceptionNode:
                 self.stats["estimate_late"] += 1
             tilt = self._at(self._tilts, t) if want_tilt else None
             prior = self._at(self._priors, t) if self.prior_from_estimate else None
-        return tilt, prior
+            velocity = self._at(self._velocities, t) if self.dr_from_estimate else None
+        return tilt, prior, velocity
 
     @staticmethod
     def _at(history, t_us: int) -> float | None:
@@ -331,7 +338,7 @@ class PerceptionNode:
             except queue.Empty:
                 continue
             msg, heading, altitude = item
-            tilt, prior = self._estimate_for(msg)
+            tilt, prior, velocity = self._estimate_for(msg)
             if not self._info_repeated:
                 # the first put can leave before the recorder's subscription reached this session
                 self.bus.publish(self.keys.node_info(self.node_id), self._info)
@@ -360,7 +367,8 @@ class PerceptionNode:
                                                     msg.timestamp_us * 1e-6, prior_xy, fov_deg=msg.fov_deg,
                                                     tilt_rad=tilt, intrinsics_px=msg.intrinsics_fx_fy_cx_cy_px,
                                                     distortion=msg.distortion_k1_k2_p1_p2,
-                                                    prior_radius_m=None if prior_xy is None else prior[2])
+                                                    prior_radius_m=None if prior_xy is None else prior[2],
+                                                    velocity_enu_m_s=velocity)
                     except BadInput as exc:
                         self._drop("bad_input", msg, str(exc))
                         self._answer_invalid(msg)

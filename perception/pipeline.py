@@ -218,7 +218,8 @@ class PerceptionPipeline:
                 fov_deg: float | None = None, tilt_rad: tuple[float, float] | None = None,
                 intrinsics_px: tuple[float, float, float, float] | None = None,
                 distortion: Distortion = NO_DISTORTION,
-                prior_radius_m: float | None = None) -> FixResult:
+                prior_radius_m: float | None = None,
+                velocity_enu_m_s: tuple[float, float] | None = None) -> FixResult:
         """One capture -> FixResult. Raises BadInput for unusable inputs (the node drops those).
 
         ``prior_enu_m`` (optional, e.g. the autopilot's estimate) seeds the search window when the
@@ -228,6 +229,9 @@ class PerceptionPipeline:
         with the ground homography (``perception.alignment``); None: rotation and scale (nadir).
         ``intrinsics_px``, ``distortion``: the frame's calibration (the capture is undistorted first).
         ``prior_radius_m``: the search radius around ``prior_enu_m`` (None: ``max_search_radius_px``).
+        ``velocity_enu_m_s``: the vehicle's horizontal velocity at the capture (the autopilot's
+        estimate, ``perception.dr_from_estimate``): the track evidence dead-reckons its anchor with it
+        (``TrackEvidence.observe``); None: at the last established run's constant velocity.
         """
         t_start = time.perf_counter()
         t_s = finite_number("timestamp_s", timestamp_s)
@@ -287,8 +291,12 @@ class PerceptionPipeline:
             timings.total_ms = (time.perf_counter() - t_start) * _MS
             return self._invalid(t_s, Reason.FLAT_CAPTURE, side, timings)
 
+        velocity_px_s = None
+        if velocity_enu_m_s is not None and all(math.isfinite(c) for c in velocity_enu_m_s):
+            velocity_px_s = (velocity_enu_m_s[0] / self.m_per_px, -velocity_enu_m_s[1] / self.m_per_px)
         run, dr_innovation_px, dr_age_s, reach_excess_px = self.track_evidence.observe(
-            t_s, match.position_px, match.quality_ok, match.search is not SearchMode.WINDOW)
+            t_s, match.position_px, match.quality_ok, match.search is not SearchMode.WINDOW,
+            velocity_px_s)
         if (deviation is not None and match.quality_ok and run >= deviation.cfg.min_run
                 and side >= deviation.cfg.min_template_px and match.search is SearchMode.WINDOW
                 and deviation.due(compass_rad)):

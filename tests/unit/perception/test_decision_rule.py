@@ -127,6 +127,58 @@ def test_track_evidence_runs_and_dead_reckoned_anchor():
     assert ev.predict(0.6) is None and ev.count == 0
 
 
+def _established_run(ev, velocity=None):
+    """Three good matches moving 10 px/s east from (10, 20): an anchor at (12, 20) at t = 0.2 s."""
+    for i in range(3):
+        ev.observe(0.1 * i, (10.0 + i, 20.0), True, i == 0, velocity)
+
+
+def test_track_evidence_dead_reckons_with_the_given_velocity():
+    """A hold after the run: with the estimated velocity (0 px/s) the anchor stays with the vehicle
+    and a match where the vehicle is measures 0 px; at the run's constant velocity it measured 18."""
+    held = TrackEvidence(min_run=3)
+    _established_run(held, (10.0, 0.0))
+    old = TrackEvidence(min_run=3)
+    _established_run(old)
+    for t in (0.5, 1.0, 2.0):
+        _, dist_held, age, _ = held.observe(t, (12.0, 20.0), False, False, (0.0, 0.0))
+        _, dist_old, age_old, _ = old.observe(t, (12.0, 20.0), False, False)
+        assert dist_held == pytest.approx(0.0, abs=1e-9)
+        assert dist_old == pytest.approx(10.0 * (t - 0.2))
+        assert age == pytest.approx(t - 0.2) == age_old
+
+
+def test_track_evidence_follows_a_turn_step_by_step():
+    """North at 5 px/s for 1 s after the run, then west at 5 px/s for 1 s: the anchor follows the
+    velocities given, integrated from one match to the next."""
+    ev = TrackEvidence(min_run=3)
+    _established_run(ev, (10.0, 0.0))
+    pos = [12.0, 20.0]
+    t = 0.2
+    for step in range(20):
+        vel = (0.0, -5.0) if step < 10 else (-5.0, 0.0)
+        t += 0.1
+        pos = [pos[0] + vel[0] * 0.1, pos[1] + vel[1] * 0.1]
+        _, dist, _, _ = ev.observe(t, tuple(pos), False, False, vel)
+        assert dist == pytest.approx(0.0, abs=1e-6)
+    assert pos == pytest.approx([7.0, 15.0])
+
+
+def test_track_evidence_without_velocity_keeps_the_run_velocity():
+    """A frame without an estimate (None) after velocities were given moves the anchor at the run's
+    own velocity over that step; a new established run puts the anchor on its newest match."""
+    ev = TrackEvidence(min_run=3)
+    _established_run(ev, (10.0, 0.0))
+    _, dist, _, _ = ev.observe(0.3, (12.0, 20.0), False, False, (0.0, 0.0))
+    assert dist == pytest.approx(0.0, abs=1e-9)
+    _, dist, _, _ = ev.observe(0.5, (12.0, 20.0), False, False, None)     # 10 px/s x 0.2 s
+    assert dist == pytest.approx(2.0)
+    for i, t in enumerate((0.6, 0.7, 0.8)):
+        ev.observe(t, (50.0 + i, 0.0), True, i == 0, (10.0, 0.0))
+    _, dist, _, _ = ev.observe(0.9, (53.0, 0.0), False, False, (10.0, 0.0))
+    assert dist == pytest.approx(0.0, abs=1e-9)
+
+
 def test_pipeline_paper_rule_is_the_default(world):
     ref, day = world
     pipe = PerceptionPipeline(ref, MPP, FalseMatchMethod.CNN, classify=cnn_fake)
