@@ -167,6 +167,11 @@ class PerceptionConfig:
     # Every published covariance (the matcher's, with the pointing term) times this: a calibration
     # of the matcher's model against measured fix errors (docs/perception.md "Covariance"); 1 = as modelled
     covariance_scale: float = 1.0
+    # A window track whose quality-ok matches the decision rule has rejected for this long, with no
+    # acceptance between, is dropped; the next search is around the position the caller gives for a
+    # re-acquisition (``process(reacquire_prior=...)``, the autopilot's estimate) or, without one, the
+    # whole map (docs/perception.md "Dropping a rejected track"). 0 = off: the tracker keeps it.
+    drop_rejected_track_s: float = 0.0
 
     def __post_init__(self) -> None:
         check(0.0 < self.fov_deg < 170.0, "perception.fov_deg", self.fov_deg, "a number in (0, 170)")
@@ -193,6 +198,9 @@ class PerceptionConfig:
               self.continuation_max_innovation_m, "a positive number of metres below 100")
         check(0.0 < self.covariance_scale <= 100.0, "perception.covariance_scale", self.covariance_scale,
               "a number in (0, 100]")
+        check(0.0 <= self.drop_rejected_track_s <= 600.0 and math.isfinite(self.drop_rejected_track_s),
+              "perception.drop_rejected_track_s", self.drop_rejected_track_s,
+              "a number of seconds in [0, 600] (0 = off)")
 
 
 #: ``PerceptionNodeConfig.alignment`` values: how a FIXED-mount capture is aligned with the map.
@@ -238,6 +246,10 @@ class PerceptionNodeConfig:
                                        # many map px (MatcherConfig; docs/perception.md); 0 = off
     dr_from_estimate: bool = False     # dead-reckon the track evidence's anchor with the autopilot's
                                        # estimated velocity, not at constant velocity (docs/perception.md)
+    drop_rejected_track_s: float = 0.0  # drop a track the decision rule has rejected this long and search
+                                       # again around the autopilot's estimate (docs/perception.md); 0 = off
+    reacquire_min_radius_m: float = 30.0  # that search's radius: prior_margin_px + 3 sigma of the
+                                       # estimate, at least this (the estimate's sigma is optimistic)
 
     def __post_init__(self) -> None:
         methods = ("cnn", "assistant-map", "statistical", "none")
@@ -266,6 +278,10 @@ class PerceptionNodeConfig:
               "a number in (0, 100] (1 = the covariance as modelled)")
         check(0 <= self.gradient_refine_radius_px <= 200, "gradient_refine_radius_px",
               self.gradient_refine_radius_px, "an integer of map px in [0, 200] (0 = off)")
+        check(0.0 <= self.drop_rejected_track_s <= 600.0, "drop_rejected_track_s", self.drop_rejected_track_s,
+              "a number of seconds in [0, 600] (0 = off)")
+        check(0.0 <= self.reacquire_min_radius_m <= 1000.0, "reacquire_min_radius_m",
+              self.reacquire_min_radius_m, "a number of metres in [0, 1000]")
 
 
 #: A frame's FOV may differ from the expected one by this much (JSON round trip, config rounding).

@@ -159,12 +159,26 @@ class TrackEvidence:
         self._anchor: tuple[float, float, float, float, float] | None = None
         # [t, u, v]: the anchor dead-reckoned with the velocities given to ``observe`` (None: unused)
         self._dr: list[float] | None = None
+        # (anchor, dr) when ``mark_accepted`` was last called: what ``drop_run`` returns to
+        self._accepted: tuple[tuple[float, float, float, float, float] | None, list[float] | None] = (None, None)
 
     def reset(self) -> None:
         self._run = []
         self.count = 0
         self._anchor = None
         self._dr = None
+        self._accepted = (None, None)
+
+    def mark_accepted(self) -> None:
+        """Remember the anchor as it is now: the newest match was accepted (``drop_run`` returns here)."""
+        self._accepted = (self._anchor, None if self._dr is None else list(self._dr))
+
+    def drop_run(self) -> None:
+        """End the current run and return the anchor to where it was at the last ``mark_accepted``:
+        a run the decision rule kept rejecting (a false lock) must not leave its anchor behind."""
+        self._run, self.count = [], 0
+        anchor, dr = self._accepted
+        self._anchor, self._dr = anchor, None if dr is None else list(dr)
 
     def predict(self, t_s: float) -> tuple[tuple[float, float], float] | None:
         """The anchor dead-reckoned to ``t_s`` and its age in seconds (None: none yet)."""

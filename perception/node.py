@@ -9,8 +9,9 @@ Inputs
                                          before the frame, for FIXED-mount frames; never truth; the
                                          worker waits, at most ESTIMATE_WAIT_S, until that estimate
                                          is sure to have arrived, so lockstep runs are repeatable;
-                                         also its position with prior_from_estimate and its velocity
-                                         with dr_from_estimate)
+                                         also its position with prior_from_estimate, or for the
+                                         search after a dropped track with drop_rejected_track_s, and
+                                         its velocity with dr_from_estimate)
 Outputs
   ``perception/fix/<node_id>``   VisionFix  (one per frame; ``valid`` false when no match)
   ``lockstep/ack/<node_id>``     LockstepAck (role camera, after the fix) when in lockstep
@@ -71,7 +72,7 @@ def make_pipeline(world, method: str, assistant_map_path: str | None, weights: s
                   min_rated_footprint_share: float = PerceptionConfig.min_rated_footprint_share,
                   heading_learning: bool = False, pointing_std_deg: tuple[float, float] = (0.0, 0.0),
                   track_below_rated: bool = False, covariance_scale: float = 1.0,
-                  gradient_refine_radius_px: int = 0):
+                  gradient_refine_radius_px: int = 0, drop_rejected_track_s: float = 0.0):
     """The pure perception pipeline for a world and a false-match method (``fov_deg``: the camera's,
     used when a capture does not state its own).
 
@@ -87,6 +88,7 @@ def make_pipeline(world, method: str, assistant_map_path: str | None, weights: s
     ``track_below_rated``: ``PerceptionConfig.track_below_rated`` (track continuation below the rated height).
     ``covariance_scale``: ``PerceptionConfig.covariance_scale`` (every published covariance times it).
     ``gradient_refine_radius_px``: ``MatcherConfig.gradient_refine_radius_px`` (0: off).
+    ``drop_rejected_track_s``: ``PerceptionConfig.drop_rejected_track_s`` (0: off).
     """
     from perception.decision import CombinedDecisionModel, DecisionRule, FalseMatchMethod
     from perception.heading_offset import HeadingOffsetConfig
@@ -97,6 +99,7 @@ def make_pipeline(world, method: str, assistant_map_path: str | None, weights: s
                            heading_offset=learning, pointing_attitude_std_deg=pointing_std_deg[0],
                            pointing_heading_std_deg=pointing_std_deg[1],
                            track_below_rated=track_below_rated, covariance_scale=covariance_scale,
+                           drop_rejected_track_s=drop_rejected_track_s,
                            matcher=MatcherConfig(gradient_refine_radius_px=gradient_refine_radius_px))
     decision_model = None
     if weights and str(weights).endswith(".json"):
@@ -131,7 +134,7 @@ def make_pipeline(world, method: str, assistant_map_path: str | None, weights: s
 DIAG_COLUMNS = ("t_s", "frame_seq", "valid", "accepted", "rule", "reason", "search", "track_state",
                 "quality_ok", "u_px", "v_px", "drone_u_px", "drone_v_px", "innovation_px", "track_fixes", "run",
                 "dr_innovation_px", "dr_age_s", "reach_excess_px",
-                "p_true", "p_false", "ncc_peak", "ncc_psr", "ncc_second_peak_ratio")
+                "p_true", "p_false", "ncc_peak", "ncc_psr", "ncc_second_peak_ratio", "dropped_tracks")
 
 
 #: Camera frames waiting for the worker. In lockstep one or two wait; more pile up only after the node
@@ -157,9 +160,12 @@ class PerceptionNode:
                  heading_learning: bool = False, prior_from_estimate: bool = False,
                  prior_margin_px: int = 24, pointing_std_deg: tuple[float, float] = (0.0, 0.0),
                  track_below_rated: bool = False, covariance_scale: float = 1.0,
-                 gradient_refine_radius_px: int = 0, dr_from_estimate: bool = False):
+                 gradient_refine_radius_px: int = 0, dr_from_estimate: bool = False,
+                 drop_rejected_track_s: float = 0.0, reacquire_min_radius_m: float = 30.0):
         self.world = world
         self.dr_from_estimate = dr_from_estimate
+        self.reacquire = drop_rejected_track_s > 0.0
+        self.reacquire_min_radius_m = reacquire_min_radius_m
         self.homography = alignment == "homography"
         self.prior_from_estimate = prior_from_estimate
         self.prior_margin_px = prior_margin_px
@@ -178,7 +184,7 @@ class PerceptionNode:
         self.pipeline = make_pipeline(world, method, assistant_map_path, weights, self.camera.fov_deg,
                                       reference, min_rated_footprint_share, heading_learning,
                                       pointing_std_deg, track_below_rated, covariance_scale,
-                                      gradient_refine_radius_px)
+                                      gradient_refine_radius_px, drop_rejected_track_s)
         self._diag = None
         if out_dir is not None:
             try:
@@ -193,7 +199,8 @@ class PerceptionNode:
         self._headings: deque[tuple[int, float]] = deque(maxlen=200)
         self._altitudes: deque[tuple[int, float]] = deque(maxlen=200)
         self._tilts: deque[tuple[int, tuple[float, float]]] = deque(maxlen=400)
-        self._priors: deque[tuple[int, tuple[float, float, float | None]]] = deque(maxlen=400)
+        # (east, north, prior radius, re-acquisition radius): metres, None = the whole map
+        self._priors: deque[tuple[int, tuple[float, float, float | None, float | None]]] = deque(maxlen=400)
         self._velocities: deque[tuple[int, tuple[float, float]]] = deque(maxlen=400)
         self._sensor_lock = threading.Lock()
         self._estimate_arrived = threading.Condition(self._sensor_lock)
@@ -205,7 +212,7 @@ class PerceptionNode:
         self._worker.start()
         self.bus.subscribe(self.keys.compass, CompassSample, self._on_compass)
         self.bus.subscribe(self.keys.baro, BaroSample, self._on_baro)
-        if self.homography or self.prior_from_estimate or self.dr_from_estimate:
+        if self.homography or self.prior_from_estimate or self.dr_from_estimate or self.reacquire:
             self.bus.subscribe(self.keys.nav_estimate, NavEstimate, self._on_estimate)
         self.bus.subscribe(self.keys.camera, CameraFrame, self._on_frame)
         # Announce only once subscribed, so nothing addressed to us is lost.
@@ -231,9 +238,13 @@ class PerceptionNode:
         mcfg = self.pipeline.cfg.matcher
         radius = prior_search_radius_m(msg.position_std_m, self.pipeline.m_per_px, self.prior_margin_px,
                                        mcfg.max_search_radius_px)
+        reacquire_radius = prior_search_radius_m(msg.position_std_m, self.pipeline.m_per_px,
+                                                 self.prior_margin_px, mcfg.max_search_radius_px,
+                                                 self.reacquire_min_radius_m)
         with self._sensor_lock:
             self._tilts.append((msg.timestamp_us, (roll, pitch)))
-            self._priors.append((msg.timestamp_us, (msg.position_enu_m[0], msg.position_enu_m[1], radius)))
+            self._priors.append((msg.timestamp_us, (msg.position_enu_m[0], msg.position_enu_m[1], radius,
+                                                    reacquire_radius)))
             self._velocities.append((msg.timestamp_us, (msg.velocity_enu_m_s[0], msg.velocity_enu_m_s[1])))
             self._estimate_arrived.notify_all()
 
@@ -259,7 +270,7 @@ class PerceptionNode:
         horizontal velocity (``dr_from_estimate``), from the autopilot estimate at or before the
         frame's time, once it is settled (at most ``ESTIMATE_WAIT_S``)."""
         want_tilt = self.homography and msg.mount == "fixed"
-        if not (want_tilt or self.prior_from_estimate or self.dr_from_estimate):
+        if not (want_tilt or self.prior_from_estimate or self.dr_from_estimate or self.reacquire):
             return None, None, None
         t = msg.timestamp_us
         with self._estimate_arrived:
@@ -267,7 +278,7 @@ class PerceptionNode:
                                                    ESTIMATE_WAIT_S):
                 self.stats["estimate_late"] += 1
             tilt = self._at(self._tilts, t) if want_tilt else None
-            prior = self._at(self._priors, t) if self.prior_from_estimate else None
+            prior = self._at(self._priors, t) if self.prior_from_estimate or self.reacquire else None
             velocity = self._at(self._velocities, t) if self.dr_from_estimate else None
         return tilt, prior, velocity
 
@@ -361,14 +372,18 @@ class PerceptionNode:
                 else:
                     if self.homography and msg.mount == "fixed" and tilt is None:
                         self.stats["homography_without_estimate"] += 1
-                    prior_xy = None if prior is None or prior[2] is None else (prior[0], prior[1])
+                    prior_xy = None
+                    if self.prior_from_estimate and prior is not None and prior[2] is not None:
+                        prior_xy = (prior[0], prior[1])
+                    reacquire_prior = None if prior is None else (prior[0], prior[1], prior[3])
                     try:
                         res = self.pipeline.process(msg.pixels, heading, altitude,
                                                     msg.timestamp_us * 1e-6, prior_xy, fov_deg=msg.fov_deg,
                                                     tilt_rad=tilt, intrinsics_px=msg.intrinsics_fx_fy_cx_cy_px,
                                                     distortion=msg.distortion_k1_k2_p1_p2,
                                                     prior_radius_m=None if prior_xy is None else prior[2],
-                                                    velocity_enu_m_s=velocity)
+                                                    velocity_enu_m_s=velocity,
+                                                    reacquire_prior=reacquire_prior)
                     except BadInput as exc:
                         self._drop("bad_input", msg, str(exc))
                         self._answer_invalid(msg)
@@ -411,7 +426,7 @@ class PerceptionNode:
                 r.track_state.value, int(r.quality_ok), r.position_px[0], r.position_px[1],
                 r.drone_px[0], r.drone_px[1], r.innovation_px, r.track_fixes, r.run,
                 r.dr_innovation_px, r.dr_age_s, r.reach_excess_px, r.p_true, r.p_false,
-                m.peak, m.psr, m.second_peak_ratio)
+                m.peak, m.psr, m.second_peak_ratio, self.pipeline.dropped_tracks)
         self._diag.write(",".join(f"{v:.6g}" if isinstance(v, float) else str(v) for v in vals) + "\n")
 
     def close(self) -> None:
@@ -425,5 +440,7 @@ class PerceptionNode:
                 self.pipeline.assistant_map.save(Path(self.out_dir) / f"assistant_map_{self.node_id}.npz")
             except OSError as exc:
                 log.warning("could not save the assistant map: %s", exc)
+        if self.pipeline.dropped_tracks:
+            self.stats["dropped_rejected_tracks"] = self.pipeline.dropped_tracks
         log.info("perception node %s stats: %s", self.node_id, dict(self.stats))
         self.bus.close()

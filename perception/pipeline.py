@@ -140,6 +140,9 @@ class FixResult:
 
 
 _NAN_CLASSES = (_NAN,) * N_PAPER_CLASSES
+#: Rejections by the area rating or the combined rule: what ``drop_rejected_track_s`` counts.
+_RULE_REJECTIONS = frozenset({Reason.LIKELY_FALSE, Reason.CNN_BAD_AREA, Reason.MAP_BAD_AREA,
+                              Reason.STATISTICAL_VARIANCE})
 
 
 class PerceptionPipeline:
@@ -154,6 +157,12 @@ class PerceptionPipeline:
         self._told_below_rated = False
         #: the newest rated verdict on the current window track was an acceptance (track continuation)
         self._trusted_track = False
+        #: when the current streak of rated rejections of quality-ok matches began (None: no streak)
+        self._rejected_since_s: float | None = None
+        #: a rejected track was dropped and no fix has been accepted since (``cfg.drop_rejected_track_s``)
+        self.reacquiring = False
+        #: tracks dropped so far (``cfg.drop_rejected_track_s``)
+        self.dropped_tracks = 0
         try:
             self.method = FalseMatchMethod(method) if method is not None else self.cfg.method
         except ValueError:
@@ -207,6 +216,8 @@ class PerceptionPipeline:
         self.tracker.reset()
         self.track_evidence.reset()
         self._trusted_track = False
+        self._rejected_since_s = None
+        self.reacquiring = False
         for det in self._variance:
             det.reset()
         if self._detector is not None:
@@ -219,7 +230,8 @@ class PerceptionPipeline:
                 intrinsics_px: tuple[float, float, float, float] | None = None,
                 distortion: Distortion = NO_DISTORTION,
                 prior_radius_m: float | None = None,
-                velocity_enu_m_s: tuple[float, float] | None = None) -> FixResult:
+                velocity_enu_m_s: tuple[float, float] | None = None,
+                reacquire_prior: tuple[float, float, float | None] | None = None) -> FixResult:
         """One capture -> FixResult. Raises BadInput for unusable inputs (the node drops those).
 
         ``prior_enu_m`` (optional, e.g. the autopilot's estimate) seeds the search window when the
@@ -232,6 +244,9 @@ class PerceptionPipeline:
         ``velocity_enu_m_s``: the vehicle's horizontal velocity at the capture (the autopilot's
         estimate, ``perception.dr_from_estimate``): the track evidence dead-reckons its anchor with it
         (``TrackEvidence.observe``); None: at the last established run's constant velocity.
+        ``reacquire_prior``: (east m, north m, radius m or None) where to search after a rejected track
+        was dropped (``cfg.drop_rejected_track_s``; the node gives the autopilot's estimate); used only
+        while ``reacquiring`` and the tracker has no prediction. None, or a None radius: the whole map.
         """
         t_start = time.perf_counter()
         t_s = finite_number("timestamp_s", timestamp_s)
@@ -265,6 +280,9 @@ class PerceptionPipeline:
         timings.align_ms = (t_align - t_start) * _MS
         side = aligned.side_px
 
+        if (self.reacquiring and reacquire_prior is not None and reacquire_prior[2] is not None
+                and self.tracker.state is not TrackState.TRACKING):
+            prior_enu_m, prior_radius_m = (reacquire_prior[0], reacquire_prior[1]), reacquire_prior[2]
         prior_uv = None
         if prior_enu_m is not None and all(math.isfinite(c) for c in prior_enu_m):
             prior_uv = self.matcher.world_to_pixel(prior_enu_m[0], prior_enu_m[1])
@@ -276,6 +294,7 @@ class PerceptionPipeline:
         predicted = (self.tracker.state is TrackState.TRACKING
                      and self.tracker.velocity_px_s is not None)
         track_fixes = self.tracker.track_fixes if predicted else 0
+        continuing = self.tracker.state is TrackState.TRACKING   # a window match continues this track
         prior_radius_px = None if prior_radius_m is None else prior_radius_m / self.m_per_px
         match = self.tracker.match(aligned.template, t_s, mask=mask, prior_uv=prior_uv,
                                    prior_radius_px=prior_radius_px, offset_px=aligned.centre_offset_px)
@@ -294,16 +313,16 @@ class PerceptionPipeline:
         velocity_px_s = None
         if velocity_enu_m_s is not None and all(math.isfinite(c) for c in velocity_enu_m_s):
             velocity_px_s = (velocity_enu_m_s[0] / self.m_per_px, -velocity_enu_m_s[1] / self.m_per_px)
+        new_track = match.search is not SearchMode.WINDOW or not continuing
         run, dr_innovation_px, dr_age_s, reach_excess_px = self.track_evidence.observe(
-            t_s, match.position_px, match.quality_ok, match.search is not SearchMode.WINDOW,
-            velocity_px_s)
+            t_s, match.position_px, match.quality_ok, new_track, velocity_px_s)
         if (deviation is not None and match.quality_ok and run >= deviation.cfg.min_run
                 and side >= deviation.cfg.min_template_px and match.search is SearchMode.WINDOW
                 and deviation.due(compass_rad)):
             self._learn_heading(deviation, compass_rad, aligned, match,
                                 cfg.fov_deg if fov_deg is None else fov_deg, tilt_rad, intrinsics_px)
         innovation_m = innovation_px * self.m_per_px
-        if match.search is not SearchMode.WINDOW:
+        if new_track:
             self._trusted_track = False         # a global search or re-acquisition: a new track
         if self._rated_at(altitude_m):
             decision, reason, p_true, p_classes, variance, p_false, drone = self._decide(
@@ -329,6 +348,7 @@ class PerceptionPipeline:
                 Decision.REJECT, Reason.BELOW_RATED_HEIGHT, _NAN, _NAN_CLASSES, _NAN, _NAN, (_NAN, _NAN))
         if cfg.quality_gate and not match.quality_ok and decision is Decision.ACCEPT:
             decision, reason = Decision.REJECT, Reason.LOW_QUALITY
+        self._follow_verdict(t_s, match, decision, reason)
         covariance_m2 = match.covariance_m2
         if cfg.pointing_attitude_std_deg > 0.0 or cfg.pointing_heading_std_deg > 0.0:
             du, dv = aligned.centre_offset_px
@@ -350,6 +370,33 @@ class PerceptionPipeline:
             dr_innovation_px=dr_innovation_px, dr_age_s=dr_age_s,
             reach_excess_px=reach_excess_px, drone_px=drone, p_false=p_false,
             decision_rule=self.rule)
+
+    def _follow_verdict(self, t_s: float, match: MatchResult, decision: Decision, reason: Reason) -> None:
+        """Drop the track when the rule has rejected its quality-ok matches for
+        ``cfg.drop_rejected_track_s`` with no acceptance between (a false lock the tracker would
+        otherwise follow for good): the tracker forgets it, the track evidence ends its run and
+        returns to its anchor at the last acceptance, and ``reacquiring`` asks for a search around
+        the re-acquisition prior. Any acceptance ends the streak and the re-acquisition."""
+        if decision is Decision.ACCEPT:
+            self._rejected_since_s = None
+            self.reacquiring = False
+            self.track_evidence.mark_accepted()
+            return
+        limit = self.cfg.drop_rejected_track_s
+        if limit <= 0.0 or not match.quality_ok or reason not in _RULE_REJECTIONS:
+            return
+        if self._rejected_since_s is None:
+            self._rejected_since_s = t_s
+        elif t_s - self._rejected_since_s >= limit and self.tracker.state is TrackState.TRACKING:
+            self.dropped_tracks += 1
+            log.log(logging.INFO if self.dropped_tracks == 1 else logging.DEBUG,
+                    "dropping a track the decision rule rejected for %.1f s (drop %d): searching "
+                    "around the re-acquisition prior", t_s - self._rejected_since_s, self.dropped_tracks)
+            self.tracker.reset()
+            self.track_evidence.drop_run()
+            self._trusted_track = False
+            self._rejected_since_s = None
+            self.reacquiring = True
 
     def _seed_heading(self, deviation: HeadingDeviation, image, heading_rad: float, altitude_m: float,
                       t_s: float, fov_deg: float, tilt_rad, intrinsics_px, distortion) -> float:

@@ -158,12 +158,13 @@ PRIOR_SIGMAS = 3.0
 
 
 def prior_search_radius_m(position_std_m, m_per_px: float, margin_px: float,
-                          max_radius_px: float) -> float | None:
+                          max_radius_px: float, min_radius_m: float = 0.0) -> float | None:
     """Search radius (m) around a position estimate of horizontal 1-sigma ``position_std_m`` (x, y,
-    ...): ``margin_px`` map pixels plus ``PRIOR_SIGMAS`` sigmas of the horizontal error; None (search
-    the whole map) when that exceeds ``max_radius_px`` or the std is not finite."""
+    ...): ``margin_px`` map pixels plus ``PRIOR_SIGMAS`` sigmas of the horizontal error, at least
+    ``min_radius_m``; None (search the whole map) when that exceeds ``max_radius_px`` or the std is
+    not finite."""
     sx, sy = float(position_std_m[0]), float(position_std_m[1])
     if not (math.isfinite(sx) and math.isfinite(sy)):
         return None
-    radius_m = margin_px * m_per_px + PRIOR_SIGMAS * math.hypot(sx, sy)
+    radius_m = max(margin_px * m_per_px + PRIOR_SIGMAS * math.hypot(sx, sy), min_radius_m)
     return radius_m if radius_m <= max_radius_px * m_per_px else None
