@@ -172,6 +172,11 @@ class PerceptionConfig:
     # re-acquisition (``process(reacquire_prior=...)``, the autopilot's estimate) or, without one, the
     # whole map (docs/perception.md "Dropping a rejected track"). 0 = off: the tracker keeps it.
     drop_rejected_track_s: float = 0.0
+    # For this long after the last accepted fix, a search without a track (the tracker lost it after
+    # low-quality matches, or dropped it) goes around the re-acquisition prior instead of the whole map:
+    # the estimate the accepted fixes kept is better than any global match (docs/perception.md
+    # "Dropping a rejected track"). 0 = off (only a dropped track is searched for around the prior).
+    reacquire_window_s: float = 0.0
 
     def __post_init__(self) -> None:
         check(0.0 < self.fov_deg < 170.0, "perception.fov_deg", self.fov_deg, "a number in (0, 170)")
@@ -201,6 +206,8 @@ class PerceptionConfig:
         check(0.0 <= self.drop_rejected_track_s <= 600.0 and math.isfinite(self.drop_rejected_track_s),
               "perception.drop_rejected_track_s", self.drop_rejected_track_s,
               "a number of seconds in [0, 600] (0 = off)")
+        check(0.0 <= self.reacquire_window_s <= 3600.0, "perception.reacquire_window_s",
+              self.reacquire_window_s, "a number of seconds in [0, 3600] (0 = off)")
 
 
 #: ``PerceptionNodeConfig.alignment`` values: how a FIXED-mount capture is aligned with the map.
@@ -248,6 +255,8 @@ class PerceptionNodeConfig:
                                        # estimated velocity, not at constant velocity (docs/perception.md)
     drop_rejected_track_s: float = 0.0  # drop a track the decision rule has rejected this long and search
                                        # again around the autopilot's estimate (docs/perception.md); 0 = off
+    reacquire_window_s: float = 0.0    # for this long after the last accepted fix, search around the
+                                       # estimate, not the whole map, when the track is lost (0 = off)
     reacquire_min_radius_m: float = 30.0  # that search's radius: prior_margin_px + 3 sigma of the
                                        # estimate, at least this (the estimate's sigma is optimistic)
 
@@ -280,6 +289,8 @@ class PerceptionNodeConfig:
               self.gradient_refine_radius_px, "an integer of map px in [0, 200] (0 = off)")
         check(0.0 <= self.drop_rejected_track_s <= 600.0, "drop_rejected_track_s", self.drop_rejected_track_s,
               "a number of seconds in [0, 600] (0 = off)")
+        check(0.0 <= self.reacquire_window_s <= 3600.0, "reacquire_window_s", self.reacquire_window_s,
+              "a number of seconds in [0, 3600] (0 = off)")
         check(0.0 <= self.reacquire_min_radius_m <= 1000.0, "reacquire_min_radius_m",
               self.reacquire_min_radius_m, "a number of metres in [0, 1000]")
 

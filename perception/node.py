@@ -10,7 +10,8 @@ Inputs
                                          worker waits, at most ESTIMATE_WAIT_S, until that estimate
                                          is sure to have arrived, so lockstep runs are repeatable;
                                          also its position with prior_from_estimate, or for the
-                                         search after a dropped track with drop_rejected_track_s, and
+                                         search without a track with drop_rejected_track_s and
+                                         reacquire_window_s, and
                                          its velocity with dr_from_estimate)
 Outputs
   ``perception/fix/<node_id>``   VisionFix  (one per frame; ``valid`` false when no match)
@@ -72,7 +73,8 @@ def make_pipeline(world, method: str, assistant_map_path: str | None, weights: s
                   min_rated_footprint_share: float = PerceptionConfig.min_rated_footprint_share,
                   heading_learning: bool = False, pointing_std_deg: tuple[float, float] = (0.0, 0.0),
                   track_below_rated: bool = False, covariance_scale: float = 1.0,
-                  gradient_refine_radius_px: int = 0, drop_rejected_track_s: float = 0.0):
+                  gradient_refine_radius_px: int = 0, drop_rejected_track_s: float = 0.0,
+                  reacquire_window_s: float = 0.0):
     """The pure perception pipeline for a world and a false-match method (``fov_deg``: the camera's,
     used when a capture does not state its own).
 
@@ -88,7 +90,7 @@ def make_pipeline(world, method: str, assistant_map_path: str | None, weights: s
     ``track_below_rated``: ``PerceptionConfig.track_below_rated`` (track continuation below the rated height).
     ``covariance_scale``: ``PerceptionConfig.covariance_scale`` (every published covariance times it).
     ``gradient_refine_radius_px``: ``MatcherConfig.gradient_refine_radius_px`` (0: off).
-    ``drop_rejected_track_s``: ``PerceptionConfig.drop_rejected_track_s`` (0: off).
+    ``drop_rejected_track_s``, ``reacquire_window_s``: ``PerceptionConfig``'s (0: off).
     """
     from perception.decision import CombinedDecisionModel, DecisionRule, FalseMatchMethod
     from perception.heading_offset import HeadingOffsetConfig
@@ -100,6 +102,7 @@ def make_pipeline(world, method: str, assistant_map_path: str | None, weights: s
                            pointing_heading_std_deg=pointing_std_deg[1],
                            track_below_rated=track_below_rated, covariance_scale=covariance_scale,
                            drop_rejected_track_s=drop_rejected_track_s,
+                           reacquire_window_s=reacquire_window_s,
                            matcher=MatcherConfig(gradient_refine_radius_px=gradient_refine_radius_px))
     decision_model = None
     if weights and str(weights).endswith(".json"):
@@ -161,10 +164,11 @@ class PerceptionNode:
                  prior_margin_px: int = 24, pointing_std_deg: tuple[float, float] = (0.0, 0.0),
                  track_below_rated: bool = False, covariance_scale: float = 1.0,
                  gradient_refine_radius_px: int = 0, dr_from_estimate: bool = False,
-                 drop_rejected_track_s: float = 0.0, reacquire_min_radius_m: float = 30.0):
+                 drop_rejected_track_s: float = 0.0, reacquire_window_s: float = 0.0,
+                 reacquire_min_radius_m: float = 30.0):
         self.world = world
         self.dr_from_estimate = dr_from_estimate
-        self.reacquire = drop_rejected_track_s > 0.0
+        self.reacquire = drop_rejected_track_s > 0.0 or reacquire_window_s > 0.0
         self.reacquire_min_radius_m = reacquire_min_radius_m
         self.homography = alignment == "homography"
         self.prior_from_estimate = prior_from_estimate
@@ -184,7 +188,8 @@ class PerceptionNode:
         self.pipeline = make_pipeline(world, method, assistant_map_path, weights, self.camera.fov_deg,
                                       reference, min_rated_footprint_share, heading_learning,
                                       pointing_std_deg, track_below_rated, covariance_scale,
-                                      gradient_refine_radius_px, drop_rejected_track_s)
+                                      gradient_refine_radius_px, drop_rejected_track_s,
+                                      reacquire_window_s)
         self._diag = None
         if out_dir is not None:
             try:

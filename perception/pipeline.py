@@ -163,6 +163,8 @@ class PerceptionPipeline:
         self.reacquiring = False
         #: tracks dropped so far (``cfg.drop_rejected_track_s``)
         self.dropped_tracks = 0
+        #: the time of the last accepted fix (``cfg.reacquire_window_s``)
+        self._last_accept_s: float | None = None
         try:
             self.method = FalseMatchMethod(method) if method is not None else self.cfg.method
         except ValueError:
@@ -218,6 +220,7 @@ class PerceptionPipeline:
         self._trusted_track = False
         self._rejected_since_s = None
         self.reacquiring = False
+        self._last_accept_s = None
         for det in self._variance:
             det.reset()
         if self._detector is not None:
@@ -244,9 +247,10 @@ class PerceptionPipeline:
         ``velocity_enu_m_s``: the vehicle's horizontal velocity at the capture (the autopilot's
         estimate, ``perception.dr_from_estimate``): the track evidence dead-reckons its anchor with it
         (``TrackEvidence.observe``); None: at the last established run's constant velocity.
-        ``reacquire_prior``: (east m, north m, radius m or None) where to search after a rejected track
-        was dropped (``cfg.drop_rejected_track_s``; the node gives the autopilot's estimate); used only
-        while ``reacquiring`` and the tracker has no prediction. None, or a None radius: the whole map.
+        ``reacquire_prior``: (east m, north m, radius m or None) where to search when the tracker has
+        no track, after a rejected track was dropped (``cfg.drop_rejected_track_s``) or within
+        ``cfg.reacquire_window_s`` of the last accepted fix (the node gives the autopilot's estimate).
+        None, or a None radius: the whole map.
         """
         t_start = time.perf_counter()
         t_s = finite_number("timestamp_s", timestamp_s)
@@ -280,8 +284,8 @@ class PerceptionPipeline:
         timings.align_ms = (t_align - t_start) * _MS
         side = aligned.side_px
 
-        if (self.reacquiring and reacquire_prior is not None and reacquire_prior[2] is not None
-                and self.tracker.state is not TrackState.TRACKING):
+        if (reacquire_prior is not None and reacquire_prior[2] is not None
+                and self.tracker.state is not TrackState.TRACKING and self._reacquires(t_s)):
             prior_enu_m, prior_radius_m = (reacquire_prior[0], reacquire_prior[1]), reacquire_prior[2]
         prior_uv = None
         if prior_enu_m is not None and all(math.isfinite(c) for c in prior_enu_m):
@@ -380,6 +384,7 @@ class PerceptionPipeline:
         if decision is Decision.ACCEPT:
             self._rejected_since_s = None
             self.reacquiring = False
+            self._last_accept_s = t_s
             self.track_evidence.mark_accepted()
             return
         limit = self.cfg.drop_rejected_track_s
@@ -397,6 +402,13 @@ class PerceptionPipeline:
             self._trusted_track = False
             self._rejected_since_s = None
             self.reacquiring = True
+
+    def _reacquires(self, t_s: float) -> bool:
+        """Whether a search without a track goes around the re-acquisition prior now: after a dropped
+        track until the next acceptance, and within ``cfg.reacquire_window_s`` of the last one."""
+        window = self.cfg.reacquire_window_s
+        return self.reacquiring or (window > 0.0 and self._last_accept_s is not None
+                                    and t_s - self._last_accept_s <= window)
 
     def _seed_heading(self, deviation: HeadingDeviation, image, heading_rad: float, altitude_m: float,
                       t_s: float, fov_deg: float, tilt_rad, intrinsics_px, distortion) -> float:
