@@ -1,11 +1,13 @@
 """Dropping a track the decision rule keeps rejecting (``PerceptionConfig.drop_rejected_track_s``):
 the tracker forgets it, the next search is around the re-acquisition prior (the autopilot's estimate
-in the node), and the track evidence returns to its anchor at the last acceptance."""
+in the node), and the track evidence returns to its anchor at the last acceptance. And a lost track
+searched for around that prior within ``reacquire_window_s`` of the last accepted fix."""
 
 from __future__ import annotations
 
 import dataclasses
 
+import numpy as np
 import pytest
 from test_pipeline import ALT, MPP, H, W, err_m, fly, render
 
@@ -143,3 +145,38 @@ def test_bad_drop_times_are_refused(value):
 def test_bad_reacquisition_radius_is_refused():
     with pytest.raises(ConfigError, match="reacquire_min_radius_m"):
         PerceptionNodeConfig(reacquire_min_radius_m=-5.0)
+
+
+def _lose_track(pipe: PerceptionPipeline, t0: float) -> None:
+    """Low-quality matches (noise captures) until the tracker gives the track up."""
+    noise = np.random.default_rng(3).integers(0, 256, (200, 200, 3), dtype=np.uint8)
+    for k in range(pipe.cfg.matcher.lost_after_n):
+        assert not pipe.process(noise, 0.4, ALT, t0 + 0.1 * k).quality_ok
+    assert pipe.tracker.state is TrackState.LOST
+
+
+@pytest.mark.parametrize(("window_s", "t_s", "around_prior"),
+                         [(20.0, 5.0, True), (20.0, 30.0, False), (0.0, 5.0, False)])
+def test_a_lost_track_is_searched_for_around_the_prior_within_the_window(world, window_s, t_s,
+                                                                       around_prior):
+    ref, day = world
+    amap = AssistantMap(W, H, MPP)
+    amap.probability[:] = 0.9
+    cfg = dataclasses.replace(PerceptionConfig(), reacquire_window_s=window_s)
+    pipe = PerceptionPipeline(ref, MPP, FalseMatchMethod.ASSISTANT_MAP, cfg, assistant_map=amap)
+    assert all(r.accepted for r, _ in fly(pipe, day, 3))     # last accepted at t = 0.2 s
+    _lose_track(pipe, 0.3)
+    u, v = 320.0, 205.0
+    x, y = _world_xy(u, v)
+    r = pipe.process(render(day, u, v, 0.4), 0.4, ALT, t_s, reacquire_prior=(x + 30.0, y, 10.0))
+    if around_prior:      # the window around the prior cannot reach the truth 30 m away
+        assert r.search is SearchMode.WINDOW and err_m(r, (u, v)) > 15.0 and r.run == 0
+    else:                 # the whole map: the truth
+        assert r.search is not SearchMode.WINDOW and err_m(r, (u, v)) < 0.5
+
+
+def test_bad_reacquisition_window_is_refused():
+    with pytest.raises(ConfigError, match="reacquire_window_s"):
+        PerceptionConfig(reacquire_window_s=-1.0)
+    with pytest.raises(ConfigError, match="reacquire_window_s"):
+        PerceptionNodeConfig(reacquire_window_s=float("nan"))
