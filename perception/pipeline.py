@@ -352,6 +352,11 @@ class PerceptionPipeline:
                 Decision.REJECT, Reason.BELOW_RATED_HEIGHT, _NAN, _NAN_CLASSES, _NAN, _NAN, (_NAN, _NAN))
         if cfg.quality_gate and not match.quality_ok and decision is Decision.ACCEPT:
             decision, reason = Decision.REJECT, Reason.LOW_QUALITY
+        elif new_track and match.search is SearchMode.WINDOW and not match.quality_ok:
+            # a window around a prior (the estimate), not the track's own prediction: the match lies
+            # near the estimate by construction, so the rule's position features vouch for anything;
+            # only a sharp match may start a track there (docs/perception.md "Dropping a rejected track")
+            decision, reason = Decision.REJECT, Reason.LOW_QUALITY
         self._follow_verdict(t_s, match, decision, reason)
         covariance_m2 = match.covariance_m2
         if cfg.pointing_attitude_std_deg > 0.0 or cfg.pointing_heading_std_deg > 0.0:
