@@ -149,6 +149,12 @@ class PlannerConfig:
         return ground_footprint_m(self.altitude_m, self.camera_fov_deg)
 
     @property
+    def camera_footprint_radius_m(self) -> float:
+        """Half the camera's ground footprint from altitude and FOV, whatever ``footprint_m`` says:
+        how far inside the reference map a capture's centre must be for the whole capture to be in it."""
+        return ground_footprint_m(self.altitude_m, self.camera_fov_deg) / 2.0
+
+    @property
     def required_distance_m(self) -> float:
         """Distance from the drone (footprint centre) to the nearest bad cell that the route keeps."""
         return self.footprint_width_m / 2.0 + self.clearance_m

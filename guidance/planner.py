@@ -121,7 +121,9 @@ def snap_to_good_area(probability: np.ndarray, m_per_px: float, xy_m, cfg: Plann
                       max_m: float) -> tuple[float, float] | None:
     """``xy_m`` (world metres) itself when it lies on a good matching area (not ``bad_pixel_mask``);
     otherwise the nearest point within ``max_m`` with the route's clearance around it (camera
-    footprint half-width + ``clearance_m`` to the nearest bad pixel); None when there is none. For
+    footprint half-width + ``clearance_m`` to the nearest bad pixel) whose camera footprint lies
+    inside the map (``camera_footprint_radius_m`` from every edge: beyond it there is nothing to
+    match, and a goal there is hovered over while the vehicle turns); None when there is none. For
     goals given by place rather than by map (a mission reused on another world)."""
     prob = validate_probability(probability)
     h, w = prob.shape
@@ -134,7 +136,10 @@ def snap_to_good_area(probability: np.ndarray, m_per_px: float, xy_m, cfg: Plann
     r = max_m / m_per_px
     r0, r1 = max(0, int(v - r)), min(h, int(v + r) + 1)
     c0, c1 = max(0, int(u - r)), min(w, int(u + r) + 1)
-    rows, cols = np.nonzero(depth_px[r0:r1, c0:c1] >= need_px)
+    edge_px = int(math.ceil(cfg.camera_footprint_radius_m / m_per_px))
+    inside = np.zeros_like(bad)
+    inside[edge_px:h - edge_px, edge_px:w - edge_px] = True
+    rows, cols = np.nonzero((depth_px >= need_px)[r0:r1, c0:c1] & inside[r0:r1, c0:c1])
     if rows.size == 0:
         return None
     d2 = (rows + r0 + 0.5 - v) ** 2 + (cols + c0 + 0.5 - u) ** 2

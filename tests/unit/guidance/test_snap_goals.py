@@ -49,3 +49,24 @@ def test_a_start_on_a_bad_area_is_left_by_the_shortest_way():
         plan_escaping(prob, m_per_px, [(-90.0, 0.0), goal], cfg, 50.0)
     with pytest.raises(UserError, match="start .* lies in a bad matching area"):
         plan_escaping(prob, m_per_px, [start, goal], cfg, 0.0)
+
+
+def test_a_snapped_goal_keeps_the_camera_footprint_inside_the_map():
+    m_per_px = 1.0
+    prob = np.full((300, 300), 0.9, dtype=np.float32)
+    prob[100:, :] = 0.1                          # bad south of y = 50 m: good only in a northern strip
+    cfg = PlannerConfig(footprint_m=0.0, clearance_m=10.0, altitude_m=50.0)   # footprint radius 28.9 m
+    radius = cfg.camera_footprint_radius_m
+    assert radius == pytest.approx(50.0 * math.tan(math.radians(30.0)))
+    moved = snap_to_good_area(prob, m_per_px, (0.0, 40.0), cfg, 200.0)
+    assert moved is not None
+    assert abs(moved[1] - 60.0) < 1.0            # 10 m clear of the bad area, straight north
+    # west of it the good strip reaches the map's west edge: the nearest good point there would
+    # put half the capture off the map; the snapped goal keeps the whole footprint on it
+    edge = snap_to_good_area(prob, m_per_px, (-149.0, 40.0), cfg, 200.0)
+    assert edge is not None and edge[0] >= -150.0 + radius - 1.0 and abs(edge[1] - 60.0) < 1.5
+    # a strip narrower than the footprint near the north edge: nothing qualifies
+    thin = np.full((300, 300), 0.1, dtype=np.float32)
+    thin[:20, :] = 0.9
+    assert snap_to_good_area(thin, m_per_px, (0.0, 100.0), PlannerConfig(footprint_m=0.0, clearance_m=1.0,
+                                                                         altitude_m=50.0), 200.0) is None
