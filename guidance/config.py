@@ -80,6 +80,10 @@ class PlannerConfig:
     bad_probability_threshold: float = DEFAULT_BAD_PROBABILITY_THRESHOLD
     # Weight of unvisited (NaN) cells as obstacles: 0 = free, 1 = as hard as bad cells.
     unvisited_weight: float = 0.5
+    # Keep the whole camera footprint (camera_footprint_radius_m, from altitude and FOV whatever
+    # footprint_m says) on the map: beyond its edge there is nothing to match. Off: only the
+    # unvisited-ground cost keeps the route off the edge (with footprint_m 0, nothing does).
+    keep_footprint_on_map: bool = False
     # --- planning grid --------------------------------------------------------------------------
     grid_cell_m: float = 2.0
     max_grid_cells: int = 1_200_000
@@ -190,6 +194,7 @@ class GuidanceNodeConfig:
     replan_drift_m: float = 40.0       # replan when the estimate is this far from the route
     footprint_m: float | None = None   # camera-footprint width kept clear; None: from altitude and FOV
     clearance_m: float = 10.0          # extra distance kept between footprint edge and bad area
+    keep_footprint_on_map: bool = False  # keep the whole camera footprint on the map (route and goals)
     unvisited_weight: float = 0.5      # unvisited map cells as obstacles: 0 free .. 1 hard
     waypoint_spacing_m: float = 50.0   # spacing of the mission's waypoints along the route
     # A goal on a bad matching area is moved to the nearest point with the route's clearance within

@@ -83,6 +83,7 @@ class PlannedRoute:
             "required_distance_m": round(c.required_distance_m, 3),
             "bad_probability_threshold": c.bad_probability_threshold,
             "unvisited_weight": c.unvisited_weight,
+            "keep_footprint_on_map": c.keep_footprint_on_map,
             "altitude_m": c.altitude_m,
             "cruise_speed_m_s": c.cruise_speed_m_s,
             "max_lateral_accel_m_s2": c.max_lateral_accel_m_s2,
@@ -298,6 +299,9 @@ def plan_route(probability: np.ndarray, m_per_px: float, start_xy_m, goal_xy_m,
     radius = cfg.footprint_width_m / 2.0
     half_sample = grid.cell_m / 4.0  # FieldChecker samples every cell_m / 2
     clearance = grid.clearance_lb_m(radius)
+    if cfg.keep_footprint_on_map:    # the map's edge as one more obstacle, kept the camera footprint away
+        clearance = np.minimum(clearance, grid.edge_distance_lb_m() - cfg.camera_footprint_radius_m
+                               + cfg.clearance_m)
     cfree = grid.inside & ~grid.bad & (clearance - half_sample >= cfg.clearance_m)
     s_rc = tuple(int(a) for a in grid.cells_of_xy(start))
     g_rc = tuple(int(a) for a in grid.cells_of_xy(goal))

@@ -123,6 +123,15 @@ class PlanningGrid:
         """Per cell: lower bound of the distance from the footprint edge to the nearest bad pixel."""
         return self.dist_bad_m - self.margin_m - footprint_radius_m
 
+    def edge_distance_lb_m(self) -> np.ndarray:
+        """Per cell: lower bound of the distance from any point of the cell to the nearest map edge."""
+        rows, cols = self.shape
+        v = (np.arange(rows) + 0.5) * self.factor
+        u = (np.arange(cols) + 0.5) * self.factor
+        dv = np.minimum(v, self.height_px - v)[:, None]
+        du = np.minimum(u, self.width_px - u)[None, :]
+        return np.minimum(dv, du) * self.m_per_px - self.margin_m
+
 
 def choose_factor(height_px: int, width_px: int, m_per_px: float, cfg: PlannerConfig) -> int:
     """Pixels per cell: the cell is at least ``grid_cell_m`` and the grid at most ``max_grid_cells``."""

@@ -234,6 +234,7 @@ def guidance_config_from_scenario(cfg: ScenarioConfig, mavlink_port: int, lockst
     planner_cfg = dataclasses.replace(
         PlannerConfig(), altitude_m=cfg.flight.altitude_m, camera_fov_deg=cfg.sim.camera.fov_deg,
         footprint_m=g.footprint_m, clearance_m=g.clearance_m, unvisited_weight=g.unvisited_weight,
+        keep_footprint_on_map=g.keep_footprint_on_map,
         cruise_speed_m_s=cfg.flight.speed_m_s, waypoint_spacing_m=g.waypoint_spacing_m)
     return node_cfg, planner_cfg
 

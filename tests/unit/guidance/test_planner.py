@@ -196,3 +196,27 @@ def test_offset_lake_is_passed_by_the_potential_field_itself():
     assert clearance.min() >= cfg.clearance_m - 1e-6
     assert float(route.waypoints_xy_m[:, 1].max()) < 1e-6    # went around the south side
     assert route.length_m <= 1.5 * route.shortest_free_length_m
+
+
+def _edge_distance_m(points: np.ndarray, half_w: float, half_h: float) -> float:
+    return float(np.min(np.minimum(half_w - np.abs(points[:, 0]), half_h - np.abs(points[:, 1]))))
+
+
+def test_keep_footprint_on_map_steers_the_route_away_from_the_edge():
+    # 300 x 300 m at 1 m/px; a bad band across the middle from x = -110 to x = 60 m leaves a
+    # corridor along the west edge (the short way) and a wider one on the east side
+    prob = np.full((300, 300), 0.9, dtype=np.float32)
+    prob[130:170, 40:210] = 0.1
+    start, goal = (-100.0, -100.0), (-100.0, 100.0)
+    base = dict(footprint_m=0.0, clearance_m=10.0, altitude_m=50.0, unvisited_weight=0.0)
+    near = plan_route(prob, 1.0, start, goal, PlannerConfig(**base))
+    kept = plan_route(prob, 1.0, start, goal, PlannerConfig(**base, keep_footprint_on_map=True))
+    radius = PlannerConfig(**base).camera_footprint_radius_m        # 28.9 m
+    near_pts = densify(near.waypoints_xy_m, 0.5)
+    kept_pts = densify(kept.waypoints_xy_m, 0.5)
+    assert _edge_distance_m(near_pts, 150.0, 150.0) < radius        # hugs the west edge
+    assert float(np.min(near_pts[:, 0])) < -110.0
+    assert _edge_distance_m(kept_pts, 150.0, 150.0) >= radius - 1e-6  # the footprint stays on the map
+    assert float(np.max(kept_pts[:, 0])) > 60.0                     # round the east end instead
+    assert kept.min_clearance_m >= 10.0 - 1e-6 and kept.length_m > near.length_m
+    assert kept.planner_params()["keep_footprint_on_map"] is True
