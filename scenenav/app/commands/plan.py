@@ -3,6 +3,7 @@
     scenenav plan --world DIR --assistant-map FILE --start X,Y --goal X,Y --out ROUTE.json
                   [--format {json,wpl}] [--end {none,land,rtl}] [--altitude-m 100] [--speed-m-s 10]
                   [--footprint-m W] [--clearance-m 10] [--unvisited-weight 0.5] [--home-alt-m 0]
+                  [--keep-footprint-on-map]
                   [--spacing-m 50] [--set KEY=VALUE ...]
 
 ``register(subparsers)`` adds the command to the ``scenenav`` parser; ``main(argv)`` runs it
@@ -63,6 +64,9 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                    help="distance kept between footprint edge and bad cells (default 10)")
     p.add_argument("--unvisited-weight", type=float, default=None,
                    help="unvisited cells as obstacles: 0 free .. 1 hard (default 0.5)")
+    p.add_argument("--keep-footprint-on-map", action="store_true", default=None,
+                   help="keep the whole camera footprint (from --altitude-m and the 60 deg FOV) on the "
+                        "map: the edge becomes an obstacle (default off)")
     p.add_argument("--spacing-m", type=float, default=None, help="max distance between waypoints (default 50)")
     p.add_argument("--home-alt-m", type=float, default=0.0, help="home altitude AMSL for the WPL home item")
     p.add_argument("--set", action="append", default=None, metavar="KEY=VALUE",
@@ -82,7 +86,8 @@ def planner_config_from_args(args: argparse.Namespace) -> PlannerConfig:
     mapping = {}
     for flag, key in (("altitude_m", "altitude_m"), ("speed_m_s", "cruise_speed_m_s"),
                       ("footprint_m", "footprint_m"), ("clearance_m", "clearance_m"),
-                      ("unvisited_weight", "unvisited_weight"), ("spacing_m", "waypoint_spacing_m")):
+                      ("unvisited_weight", "unvisited_weight"), ("spacing_m", "waypoint_spacing_m"),
+                      ("keep_footprint_on_map", "keep_footprint_on_map")):
         value = getattr(args, flag, None)
         if value is not None:
             mapping[key] = value

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import io
 import json
+import math
 import subprocess
 import sys
 from pathlib import Path
@@ -184,3 +185,14 @@ def test_glue_negative_values_only_touches_number_lists():
         ["plan", "--start=-1,2", "--goal", "3,-4"]
     assert glue_negative_values(["run", "--out", "x", "-h"]) == ["run", "--out", "x", "-h"]
     assert glue_negative_values(["--set", "-1"]) == ["--set", "-1"]
+
+
+def test_keep_footprint_on_map_flag_reaches_the_planner(world):
+    assert main(plan_args(world, out="off.json")) == 0
+    assert json.loads((world["tmp"] / "off.json").read_text())["planner"]["keep_footprint_on_map"] is False
+    assert main(plan_args(world, "--keep-footprint-on-map", "--altitude-m", "60", out="on.json")) == 0
+    doc = json.loads((world["tmp"] / "on.json").read_text())
+    assert doc["planner"]["keep_footprint_on_map"] is True
+    radius = 60.0 * math.tan(math.radians(30.0))
+    for wp in doc["waypoints"]:
+        assert min(W * M_PER_PX / 2 - abs(wp["x_m"]), H * M_PER_PX / 2 - abs(wp["y_m"])) >= radius - 1e-6
