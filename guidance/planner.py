@@ -27,7 +27,15 @@ from scipy.spatial import cKDTree
 
 from guidance import navigation_function as navfn
 from guidance.config import FallbackReason, PlannerConfig, PlannerMethod
-from guidance.potential_field import DescentStatus, PlanningGrid, PotentialField, bad_pixel_mask, build_grid, descend
+from guidance.potential_field import (
+    DescentStatus,
+    PlanningGrid,
+    PotentialField,
+    bad_pixel_mask,
+    build_grid,
+    choose_factor,
+    descend,
+)
 from guidance.smoothing import FieldChecker, densify, polyline_length, round_corners, shortcut, subdivide
 from scenenav.core.errors import UserError
 from scenenav.core.formats.route_file import round_or_none
@@ -118,11 +126,20 @@ def validate_probability(probability) -> np.ndarray:
     return arr
 
 
+def snap_slack_m(height_px: int, width_px: int, m_per_px: float, cfg: PlannerConfig) -> float:
+    """How much further in than the clearance (and the map edge) ``snap_to_good_area`` moves a point:
+    the planning grid judges a point by conservative bounds (``PlanningGrid.margin_m``, and a quarter
+    cell for the checker's samples), and a moved point this much further in is free there, so the
+    route reaches it without an escape through the clearance zone (which can run along the edge)."""
+    return choose_factor(height_px, width_px, m_per_px, cfg) * m_per_px * (math.sqrt(2.0) + 0.25) + m_per_px
+
+
 def snap_to_good_area(probability: np.ndarray, m_per_px: float, xy_m, cfg: PlannerConfig,
                       max_m: float) -> tuple[float, float] | None:
     """``xy_m`` (world metres) itself when it lies on a good matching area (not ``bad_pixel_mask``);
     otherwise the nearest point within ``max_m`` with the route's clearance around it (camera
-    footprint half-width + ``clearance_m`` to the nearest bad pixel) whose camera footprint lies
+    footprint half-width + ``clearance_m`` to the nearest bad pixel, plus the planning grid's
+    conservative margin, so that the planner counts it free) whose camera footprint lies
     inside the map (``camera_footprint_radius_m`` from every edge: beyond it there is nothing to
     match, and a goal there is hovered over while the vehicle turns); None when there is none. For
     goals given by place rather than by map (a mission reused on another world)."""
@@ -133,11 +150,12 @@ def snap_to_good_area(probability: np.ndarray, m_per_px: float, xy_m, cfg: Plann
     if 0 <= u < w and 0 <= v < h and not bad[min(int(v), h - 1), min(int(u), w - 1)]:
         return float(xy_m[0]), float(xy_m[1])
     depth_px = ndimage.distance_transform_edt(~bad)
-    need_px = cfg.required_distance_m / m_per_px
+    slack_m = snap_slack_m(h, w, m_per_px, cfg)
+    need_px = (cfg.required_distance_m + slack_m) / m_per_px
     r = max_m / m_per_px
     r0, r1 = max(0, int(v - r)), min(h, int(v + r) + 1)
     c0, c1 = max(0, int(u - r)), min(w, int(u + r) + 1)
-    edge_px = int(math.ceil(cfg.camera_footprint_radius_m / m_per_px))
+    edge_px = int(math.ceil((cfg.camera_footprint_radius_m + slack_m) / m_per_px))
     inside = np.zeros_like(bad)
     inside[edge_px:h - edge_px, edge_px:w - edge_px] = True
     rows, cols = np.nonzero((depth_px >= need_px)[r0:r1, c0:c1] & inside[r0:r1, c0:c1])
