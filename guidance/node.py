@@ -53,7 +53,7 @@ from guidance.fence import (
     fence_from_items,
 )
 from guidance.mavlink_client import AutopilotLink, MavlinkClientError, MissionWaypoint
-from guidance.planner import PlannedRoute, plan_escaping, snap_to_good_area
+from guidance.planner import PlannedRoute, plan_keeping_on_map, snap_to_good_area
 from guidance.smoothing import polyline_length
 from scenenav.core.bus import Bus, BusConfig
 from scenenav.core.contracts import (
@@ -223,8 +223,11 @@ class GuidanceNode:
         points = (start_xy, *goals)
         check_points_inside(self.fence, points, ["start"] + [f"goal {i + 1}" for i in range(len(goals))])
         probability = apply_fence(self._probability(), self.world.m_per_px, self.fence)
-        legs, self.route_xy, escaped = plan_escaping(probability, self.world.m_per_px, points,
-                                                     self.planner_cfg, self.cfg.snap_goals_m)
+        legs, self.route_xy, escaped, kept = plan_keeping_on_map(probability, self.world.m_per_px, points,
+                                                                 self.planner_cfg, self.cfg.snap_goals_m)
+        if self.planner_cfg.keep_footprint_on_map and not kept:
+            self.event("no route keeps the camera footprint on the map: planned one that may leave it "
+                       "(guidance.keep_footprint_on_map)")
         if escaped is not None:
             self.event(f"start ({start_xy[0]:.0f}, {start_xy[1]:.0f}) m lies on a bad matching area: the route "
                        f"leaves it straight to ({escaped[0]:.0f}, {escaped[1]:.0f}) m, "

@@ -16,6 +16,7 @@ half pixel); the planner's own checks use conservative coarse-grid bounds.
 
 from __future__ import annotations
 
+import dataclasses
 import logging
 import math
 import time
@@ -435,6 +436,23 @@ def plan_escaping(probability: np.ndarray, m_per_px: float, points_xy_m, cfg: Pl
     if escaped is not None:
         route = np.vstack([np.asarray(pts[0], dtype=float)[None, :], route])
     return legs, route, escaped
+
+
+def plan_keeping_on_map(probability: np.ndarray, m_per_px: float, points_xy_m, cfg: PlannerConfig,
+                        escape_m: float) -> tuple[list[PlannedRoute], np.ndarray, tuple[float, float] | None, bool]:
+    """:func:`plan_escaping`; when ``cfg.keep_footprint_on_map`` leaves no route (a goal reachable only
+    along the map's edge), plan again without it: a route whose captures may leave the map for a
+    while is better than none. Returns (legs, route, escape point or None, whether the footprint was
+    kept on the map). ``NoPathError`` only when there is no route either way."""
+    try:
+        legs, route, escaped = plan_escaping(probability, m_per_px, points_xy_m, cfg, escape_m)
+        return legs, route, escaped, cfg.keep_footprint_on_map
+    except NoPathError:
+        if not cfg.keep_footprint_on_map:
+            raise
+    relaxed = dataclasses.replace(cfg, keep_footprint_on_map=False)
+    legs, route, escaped = plan_escaping(probability, m_per_px, points_xy_m, relaxed, escape_m)
+    return legs, route, escaped, False
 
 
 def plan_through(probability: np.ndarray, m_per_px: float, points_xy_m,

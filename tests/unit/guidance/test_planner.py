@@ -220,3 +220,28 @@ def test_keep_footprint_on_map_steers_the_route_away_from_the_edge():
     assert float(np.max(kept_pts[:, 0])) > 60.0                     # round the east end instead
     assert kept.min_clearance_m >= 10.0 - 1e-6 and kept.length_m > near.length_m
     assert kept.planner_params()["keep_footprint_on_map"] is True
+
+
+def test_a_goal_reachable_only_along_the_edge_is_planned_without_keeping_the_footprint_on_the_map():
+    from guidance.planner import plan_keeping_on_map
+    # 300 x 300 m at 1 m/px; a bad band across the middle leaves only a 30 m corridor on the west edge
+    prob = np.full((300, 300), 0.9, dtype=np.float32)
+    prob[130:170, 30:] = 0.1
+    cfg = PlannerConfig(footprint_m=0.0, clearance_m=5.0, altitude_m=50.0, unvisited_weight=0.0,
+                        keep_footprint_on_map=True)
+    points = [(-100.0, -100.0), (-100.0, 100.0)]
+    with pytest.raises(NoPathError):
+        plan_route(prob, 1.0, points[0], points[1], cfg)
+    legs, route, escaped, kept = plan_keeping_on_map(prob, 1.0, points, cfg, 0.0)
+    assert not kept and escaped is None and legs[0].cfg.keep_footprint_on_map is False
+    assert np.allclose(route[0], points[0]) and np.allclose(route[-1], points[1])
+    assert float(np.min(route[:, 0])) < -120.0                       # through the edge corridor
+    # where the footprint can stay on the map, it does
+    open_map = np.full((300, 300), 0.9, dtype=np.float32)
+    _, _, _, kept2 = plan_keeping_on_map(open_map, 1.0, points, cfg, 0.0)
+    assert kept2
+    # no route either way: the planner's error
+    closed = prob.copy()
+    closed[130:170, :] = 0.1
+    with pytest.raises(NoPathError):
+        plan_keeping_on_map(closed, 1.0, points, cfg, 0.0)
