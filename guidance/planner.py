@@ -157,9 +157,12 @@ def snap_to_good_area(probability: np.ndarray, m_per_px: float, xy_m, cfg: Plann
     r0, r1 = max(0, int(v - r)), min(h, int(v + r) + 1)
     c0, c1 = max(0, int(u - r)), min(w, int(u + r) + 1)
     edge_px = int(math.ceil((cfg.camera_footprint_radius_m + slack_m) / m_per_px))
-    inside = np.zeros_like(bad)
-    inside[edge_px:h - edge_px, edge_px:w - edge_px] = True
-    rows, cols = np.nonzero((depth_px >= need_px)[r0:r1, c0:c1] & inside[r0:r1, c0:c1])
+    # only candidates whose footprint lies on the map: clip the search window to the inner rectangle
+    r0, r1 = max(r0, edge_px), min(r1, h - edge_px)
+    c0, c1 = max(c0, edge_px), min(c1, w - edge_px)
+    if r0 >= r1 or c0 >= c1:
+        return None
+    rows, cols = np.nonzero(depth_px[r0:r1, c0:c1] >= need_px)
     if rows.size == 0:
         return None
     d2 = (rows + r0 + 0.5 - v) ** 2 + (cols + c0 + 0.5 - u) ** 2

@@ -243,9 +243,11 @@ class PerceptionNode:
         mcfg = self.pipeline.cfg.matcher
         radius = prior_search_radius_m(msg.position_std_m, self.pipeline.m_per_px, self.prior_margin_px,
                                        mcfg.max_search_radius_px)
-        reacquire_radius = prior_search_radius_m(msg.position_std_m, self.pipeline.m_per_px,
-                                                 self.prior_margin_px, mcfg.max_search_radius_px,
-                                                 self.reacquire_min_radius_m)
+        reacquire_radius = None
+        if self.reacquire:       # only a re-acquisition uses it
+            reacquire_radius = prior_search_radius_m(msg.position_std_m, self.pipeline.m_per_px,
+                                                     self.prior_margin_px, mcfg.max_search_radius_px,
+                                                     self.reacquire_min_radius_m)
         with self._sensor_lock:
             self._tilts.append((msg.timestamp_us, (roll, pitch)))
             self._priors.append((msg.timestamp_us, (msg.position_enu_m[0], msg.position_enu_m[1], radius,
