@@ -22,6 +22,12 @@ Vision failsafe (scenenav, GPS-denied flight with EK3_SRC1_POSXY = 6):
   usable fix and the moment these conditions began to hold (so a take-off climb never trips: the
   fixes may start only above SN_VIS_MIN_ALT, where perception rates them);
 * no usable fix for ``SN_VIS_TIMEOUT`` s -> HOLD: stop and hold position on dead reckoning;
+* ... unless ``SN_VIS_DR_MAX`` > 0: then the vehicle first flies on in its mode on dead reckoning
+  (announced; DEAD_RECKONING) and holds only once the EKF's horizontal 1-sigma position uncertainty
+  exceeds ``SN_VIS_DR_MAX`` m, as ArduCopter flies on through a GPS loss until its EKF failsafe
+  (``FS_EKF_THRESH``) or dead-reckoning failsafe (``FS_DR_TIMEOUT``) acts: a vehicle over ground
+  that cannot be matched (water, forest, a district of tall buildings, the map's edge) gets no fix by
+  hovering there, but may by flying on. A fix during it -> back to NORMAL (announced);
 * a usable fix during the hold -> RESUME; still none ``SN_VIS_FS_LAND`` s later -> LAND;
 * ``SN_VIS_TIMEOUT`` = 0 disables it. Disarming resets both failsafes.
 """
@@ -74,6 +80,7 @@ class FailsafeAction(Enum):
 
 class VisionFailsafeState(Enum):
     NORMAL = "normal"
+    DEAD_RECKONING = "dead_reckoning"   # no fix for SN_VIS_TIMEOUT, flying on (SN_VIS_DR_MAX > 0)
     HOLD = "hold"
     LAND = "land"
 
@@ -94,6 +101,7 @@ class FailsafeSettings:
     gcs_timeout_s: float = 5.0                          # FS_GCS_TIMEOUT
     vision_timeout_s: float = 5.0                       # SN_VIS_TIMEOUT (0 = off)
     vision_land_after_s: float = 10.0                   # SN_VIS_FS_LAND
+    vision_dr_max_m: float = 0.0                        # SN_VIS_DR_MAX (0 = hold at the timeout)
 
 
 @dataclass(frozen=True)
@@ -110,6 +118,7 @@ class FailsafeInputs:
     vision_height_ok: bool              # high enough above home for scene matching
     last_vision_fix_s: float | None     # newest usable fix (None: none yet)
     taking_off: bool = False            # climbing in a take-off (AUTO NAV_TAKEOFF, GUIDED takeoff)
+    position_std_m: float = 0.0         # the EKF's horizontal 1-sigma position uncertainty
 
 
 @functools.lru_cache(maxsize=64)
@@ -146,7 +155,8 @@ class FailsafeMonitor:
 
     @property
     def any_active(self) -> bool:
-        return self._gcs_active or self._vision != VisionFailsafeState.NORMAL
+        """A failsafe has acted (dead reckoning on without fixes is a warning, not a failsafe)."""
+        return self._gcs_active or self._vision in (VisionFailsafeState.HOLD, VisionFailsafeState.LAND)
 
     def reset(self) -> None:
         """Disarmed: forget both failsafes."""
@@ -196,29 +206,16 @@ class FailsafeMonitor:
                 events.append(FailsafeEvent(FailsafeKind.VISION, FailsafeAction.RESUME,
                                             MavSeverity.INFO,
                                             "Vision failsafe cleared: not required"))
+            elif self._vision == VisionFailsafeState.DEAD_RECKONING:
+                self._vision = VisionFailsafeState.NORMAL
             self._vision_since_s = None
             return
         expected = (inp.flying and inp.position_mode and not inp.landing and not inp.taking_off
                     and inp.vision_height_ok)
         if self._vision == VisionFailsafeState.LAND:
             return
-        if self._vision == VisionFailsafeState.NORMAL:
-            if not expected:
-                self._vision_since_s = None
-                return
-            if self._vision_since_s is None:
-                self._vision_since_s = inp.now_s
-            ref = self._vision_since_s
-            if inp.last_vision_fix_s is not None:
-                ref = max(ref, inp.last_vision_fix_s)
-            stale = inp.now_s - ref
-            if stale > settings.vision_timeout_s:
-                self._vision = VisionFailsafeState.HOLD
-                self._hold_start_s = inp.now_s
-                logger.warning("vision failsafe: no usable fix for %.1f s -> hold", stale)
-                events.append(FailsafeEvent(
-                    FailsafeKind.VISION, FailsafeAction.HOLD, MavSeverity.CRITICAL,
-                    f"Vision Failsafe: no fix for {stale:.0f}s, holding"))
+        if self._vision in (VisionFailsafeState.NORMAL, VisionFailsafeState.DEAD_RECKONING):
+            self._update_vision_flying(inp, settings, expected, events)
             return
         # HOLD
         fresh = (inp.last_vision_fix_s is not None
@@ -238,3 +235,41 @@ class FailsafeMonitor:
                                         MavSeverity.CRITICAL,
                                         f"Vision Failsafe: no fix for {held:.0f}s more, Land"))
 
+    def _update_vision_flying(self, inp: FailsafeInputs, settings: FailsafeSettings, expected: bool,
+                              events: list[FailsafeEvent]) -> None:
+        """NORMAL or DEAD_RECKONING: start the clock, fly on while the estimate allows, then HOLD."""
+        if not expected:
+            self._vision_since_s = None
+            if self._vision == VisionFailsafeState.DEAD_RECKONING:
+                self._vision = VisionFailsafeState.NORMAL
+            return
+        if self._vision_since_s is None:
+            self._vision_since_s = inp.now_s
+        ref = self._vision_since_s
+        if inp.last_vision_fix_s is not None:
+            ref = max(ref, inp.last_vision_fix_s)
+        stale = inp.now_s - ref
+        if stale <= settings.vision_timeout_s:
+            if self._vision == VisionFailsafeState.DEAD_RECKONING:
+                self._vision = VisionFailsafeState.NORMAL
+                events.append(FailsafeEvent(FailsafeKind.VISION, FailsafeAction.REPORT,
+                                            MavSeverity.INFO, "Vision fixes are back: dead reckoning ended"))
+            return
+        dr_max = settings.vision_dr_max_m
+        if dr_max > 0.0 and inp.position_std_m <= dr_max:
+            if self._vision == VisionFailsafeState.NORMAL:
+                self._vision = VisionFailsafeState.DEAD_RECKONING
+                logger.warning("vision lost for %.1f s: dead reckoning on (position 1-sigma %.1f m)",
+                               stale, inp.position_std_m)
+                events.append(FailsafeEvent(
+                    FailsafeKind.VISION, FailsafeAction.REPORT, MavSeverity.WARNING,
+                    f"Vision lost for {stale:.0f}s: dead reckoning (1-sigma "
+                    f"{inp.position_std_m:.1f}m of {dr_max:.0f}m)"))
+            return
+        self._vision = VisionFailsafeState.HOLD
+        self._hold_start_s = inp.now_s
+        why = (f"no fix for {stale:.0f}s, holding" if dr_max <= 0.0 else
+               f"no fix for {stale:.0f}s and 1-sigma {inp.position_std_m:.1f}m > {dr_max:.0f}m, holding")
+        logger.warning("vision failsafe: %s", why)
+        events.append(FailsafeEvent(FailsafeKind.VISION, FailsafeAction.HOLD, MavSeverity.CRITICAL,
+                                    f"Vision Failsafe: {why}"))

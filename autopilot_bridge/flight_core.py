@@ -408,13 +408,21 @@ class FlightCore(SensorFusionMixin, ArmingMixin, GuidedMixin, AutoMissionMixin,
             vision_required=self.nav.position_source == PositionSource.EXTNAV,
             vision_height_ok=float(est.position_enu_m[2]) - home_z >= p.get("SN_VIS_MIN_ALT"),
             last_vision_fix_s=self._last_usable_vision_s,
-            taking_off=self._climbing_after_takeoff())
+            taking_off=self._climbing_after_takeoff(),
+            position_std_m=self._horizontal_position_std_m())
         for ev in self.failsafe.update(inputs, settings):
             self._apply_failsafe(ev, est)
         for ev in self._failsafe_checks(inputs):
             self._apply_failsafe(ev, est)
         for ev in self._fence_events(inputs.flying, inputs.landing, est.position_enu_m):
             self._apply_failsafe(ev, est)
+
+    def _horizontal_position_std_m(self) -> float:
+        """The EKF's horizontal 1-sigma position uncertainty (infinite before alignment)."""
+        if not self.nav.aligned:
+            return math.inf
+        std = self.nav.position_std_m()
+        return float(max(std[0], std[1]))
 
     def _climbing_after_takeoff(self) -> bool:
         """A take-off (GUIDED takeoff or AUTO NAV_TAKEOFF) that has not reached its height yet; a
@@ -432,7 +440,8 @@ class FlightCore(SensorFusionMixin, ArmingMixin, GuidedMixin, AutoMissionMixin,
         settings = FailsafeSettings(gcs_action=p.get_int("FS_GCS_ENABLE"),
                                     gcs_timeout_s=p.get("FS_GCS_TIMEOUT"),
                                     vision_timeout_s=p.get("SN_VIS_TIMEOUT"),
-                                    vision_land_after_s=p.get("SN_VIS_FS_LAND"))
+                                    vision_land_after_s=p.get("SN_VIS_FS_LAND"),
+                                    vision_dr_max_m=p.get("SN_VIS_DR_MAX"))
         self._settings_cache["failsafe"] = (p.generation, settings)
         return settings
 

@@ -23,6 +23,10 @@ SN_PARAM_SPECS: tuple[ParamSpec, ...] = (
               "Largest jump of an EKF position reset onto vision fixes that were rejected for the "
               "reset timeout; a larger one is refused (a consistent false lock far off) and the "
               "vision failsafe decides; 0 = no limit (ArduPilot's behaviour)", safe_min=0.0),
+    ParamSpec("SN_VIS_DR_MAX", ParamType.REAL32, 0.0, 0.0, 1000.0, "m",
+              "Vision failsafe: after SN_VIS_TIMEOUT without a fix, fly on dead reckoning while "
+              "the EKF's horizontal 1-sigma position uncertainty stays below this, then hold; "
+              "0 = hold at SN_VIS_TIMEOUT", safe_min=0.0),
 )
 # EKF source sets 2 and 3 (SET_EKF_SOURCE_SET, system_commands.py): ArduPilot's defaults are 0 (None).
 _SRC_VALUES = {

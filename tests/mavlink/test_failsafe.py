@@ -108,6 +108,54 @@ def test_vision_failsafe_off_with_gps_landing_or_zero_timeout():
     assert all(fs.update(inputs(float(t), vision_required=True), off) == [] for t in range(30))
 
 
+def test_vision_failsafe_dead_reckons_on_while_the_estimate_allows():
+    """SN_VIS_DR_MAX > 0: past SN_VIS_TIMEOUT the vehicle flies on (announced, no action) while the
+    EKF's horizontal 1-sigma stays within it; fixes end it; once the 1-sigma passes it, HOLD, then LAND."""
+    fs = FailsafeMonitor()
+    s = FailsafeSettings(vision_timeout_s=2.0, vision_land_after_s=3.0, vision_dr_max_m=8.0)
+    assert fs.update(inputs(10.0, vision_required=True, last_vision_fix_s=10.0, position_std_m=1.0), s) == []
+    ev = fs.update(inputs(12.5, vision_required=True, last_vision_fix_s=10.0, position_std_m=2.0), s)
+    assert [e.action for e in ev] == [FailsafeAction.REPORT] and "dead reckoning" in ev[0].text
+    assert fs.vision_state == VisionFailsafeState.DEAD_RECKONING and not fs.any_active
+    # flying on: nothing more while the uncertainty grows within the bound
+    for t in range(13, 20):
+        assert fs.update(inputs(float(t), vision_required=True, last_vision_fix_s=10.0,
+                                position_std_m=2.0 + 0.5 * (t - 13)), s) == []
+    # a fix ends it
+    ev = fs.update(inputs(20.0, vision_required=True, last_vision_fix_s=19.9, position_std_m=5.0), s)
+    assert [e.action for e in ev] == [FailsafeAction.REPORT] and "ended" in ev[0].text
+    assert fs.vision_state == VisionFailsafeState.NORMAL
+    # lost again; the 1-sigma passes the bound -> HOLD at once, then LAND
+    ev = fs.update(inputs(22.5, vision_required=True, last_vision_fix_s=20.0, position_std_m=7.0), s)
+    assert [e.action for e in ev] == [FailsafeAction.REPORT]
+    ev = fs.update(inputs(23.0, vision_required=True, last_vision_fix_s=20.0, position_std_m=8.5), s)
+    assert [e.action for e in ev] == [FailsafeAction.HOLD] and "8.5m > 8m" in ev[0].text
+    assert fs.any_active
+    ev = fs.update(inputs(26.5, vision_required=True, last_vision_fix_s=20.0, position_std_m=9.0), s)
+    assert [e.action for e in ev] == [FailsafeAction.LAND]
+
+
+def test_vision_failsafe_holds_at_the_timeout_when_the_estimate_is_already_too_uncertain():
+    fs = FailsafeMonitor()
+    s = FailsafeSettings(vision_timeout_s=2.0, vision_land_after_s=3.0, vision_dr_max_m=8.0)
+    assert fs.update(inputs(10.0, vision_required=True, last_vision_fix_s=10.0, position_std_m=9.0), s) == []
+    ev = fs.update(inputs(12.5, vision_required=True, last_vision_fix_s=10.0, position_std_m=9.0), s)
+    assert [e.action for e in ev] == [FailsafeAction.HOLD]
+
+
+def test_dead_reckoning_state_ends_quietly_when_vision_is_no_longer_expected():
+    fs = FailsafeMonitor()
+    s = FailsafeSettings(vision_timeout_s=2.0, vision_dr_max_m=8.0)
+    fs.update(inputs(10.0, vision_required=True, last_vision_fix_s=10.0, position_std_m=1.0), s)
+    fs.update(inputs(12.5, vision_required=True, last_vision_fix_s=10.0, position_std_m=1.0), s)
+    assert fs.vision_state == VisionFailsafeState.DEAD_RECKONING
+    # the landing descent: no longer expected, no event, and no hold however long
+    for t in range(13, 40):
+        assert fs.update(inputs(float(t), vision_required=True, landing=True, last_vision_fix_s=10.0,
+                                position_std_m=20.0), s) == []
+    assert fs.vision_state == VisionFailsafeState.NORMAL
+
+
 # ------------------------------------------------------------------------------ end to end
 from support.sitl_session import (  # noqa: F401
     COPTER_GUIDED,
