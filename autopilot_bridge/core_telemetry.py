@@ -166,10 +166,12 @@ class TelemetryMixin:
         r = f.distance_m
         tx, ty = f.translation_rate_flu_rad_s
         cx, cy = tx * r, ty * r
+        r_min, r_max = self._rangefinder_limits_m()
         return {"flow_fitted": True, "flow_time_us": int(round(f.t_s * 1e6)),
                 "flow_rate_frd_rad_s": (f.flow_flu_rad_s[0], -f.flow_flu_rad_s[1]),
                 "flow_comp_frd_m_s": (cx, -cy), "flow_quality": int(f.quality),
-                "rangefinder_distance_m": r}
+                "rangefinder_distance_m": r, "rangefinder_min_m": r_min,
+                "rangefinder_max_m": r_max}
 
     def _nav_controller_output(self, pos: np.ndarray, attitude: tuple[float, float, float]
                                ) -> dict[str, float]:

@@ -8,7 +8,7 @@ a position source the last landed position is fused as a pseudo-measurement (as 
 when it is not aiding); disarmed on the ground the averaged body x, y rates are fused as the gyro
 biases (zero-rate update: a dead-reckoned climb drifts by g eps t^3 / 6 for a residual bias eps).
 ``on_flow`` takes the optical-flow module's samples: in the air, with FLOW_TYPE > 0 and the active
-EK3_SRCn_VELXY = 5 (OpticalFlow), a sample with a valid range, quality > 0, a tilt under 45 deg and a
+EK3_SRCn_VELXY = 5 (OpticalFlow), a sample with a valid range within RNGFND1_MIN_CM .. RNGFND1_MAX_CM, quality > 0, a tilt under 45 deg and a
 rate under EK3_MAX_FLOW is fused as body velocity (``NavFilter.fuse_optical_flow``, EK3_FLOW_M_NSE,
 EK3_FLOW_I_GATE). ``on_power`` feeds the battery monitor.
 
@@ -286,6 +286,11 @@ class SensorFusionMixin:
         else:
             self.stats["vision_rejected"] += 1
 
+    def _rangefinder_limits_m(self) -> tuple[float, float]:
+        """RNGFND1_MIN_CM and RNGFND1_MAX_CM in metres: readings outside are out of range."""
+        p = self.params
+        return p.get("RNGFND1_MIN_CM") / 100.0, p.get("RNGFND1_MAX_CM") / 100.0
+
     def _flow_fitted(self) -> bool:
         """FLOW_TYPE is set and the module has sent a sample (telemetry and SYS_STATUS)."""
         return self._last_flow is not None and self.params.get_int("FLOW_TYPE") != 0
@@ -303,10 +308,14 @@ class SensorFusionMixin:
         gate = p.get("EK3_FLOW_I_GATE") / 100.0
         max_rate = p.get("EK3_MAX_FLOW")
         tilt_cos = float(quat_to_rotation_matrix(self.nav.state().q_wxyz)[2, 2])
+        r_min, r_max = self._rangefinder_limits_m()
         for f in flows:
             r = f.distance_m
             if f.quality <= 0 or not (all_finite(r) and r > 0.0) or tilt_cos < FLOW_MAX_TILT_COS:
                 self.stats["flow_unusable"] += 1
+                continue
+            if not r_min <= r <= r_max:
+                self.stats["flow_out_of_range"] += 1
                 continue
             rate = f.translation_rate_flu_rad_s
             if max(abs(rate[0]), abs(rate[1])) > max_rate:

@@ -224,6 +224,13 @@ DEFAULT_PARAM_SPECS: tuple[ParamSpec, ...] = (
     _spec("PILOT_SPEED_DN", _I16, 0, 0, 500, "cm/s",
           "Maximum pilot descent speed; 0 = PILOT_SPEED_UP", safe=(0, None)),
     _spec("PILOT_SPEED_UP", _I16, 250, 50, 500, "cm/s", "Maximum pilot climb speed", safe=(50, None)),
+    # The range finder's limits. ArduPilot's defaults (20 / 700 cm) suit an unknown sensor; these suit
+    # the simulator's default flow module's (Broadcom AFBR-S50LV85D, 0.1-30 m: sitl.config.FlowConfig).
+    # A reading outside them is out of range: not fused, and DISTANCE_SENSOR reports them as limits.
+    _spec("RNGFND1_MAX_CM", _I16, 3000, 0, 32767, "cm",
+          "Range finder 1 maximum distance: farther readings are out of range (not fused)", safe=(0, None)),
+    _spec("RNGFND1_MIN_CM", _I16, 10, 0, 32767, "cm",
+          "Range finder 1 minimum distance: nearer readings are out of range (not fused)", safe=(0, None)),
     _spec("RTL_ALT", _I32, 1500, 30, 300000, "cm",
           "Minimum altitude above home for the return leg of RTL", safe=(30, 300000)),
     _spec("RTL_ALT_FINAL", _I16, 0, 0, 1000, "cm",

@@ -584,14 +584,15 @@ def encode_optical_flow(tel: VehicleTelemetry, ctx: EncodeContext) -> mavlink2.M
 
 def encode_distance_sensor(tel: VehicleTelemetry, ctx: EncodeContext) -> mavlink2.MAVLink_message | None:
     """DISTANCE_SENSOR of the flow module's range finder, facing down (MAV_SENSOR_ROTATION_PITCH_270),
-    type laser; the current distance in cm (0 out of range, the limits unknown here: 0). None without
-    the sensor."""
+    type laser; the limits (RNGFND1_MIN_CM, RNGFND1_MAX_CM) and the current distance in cm (0 when
+    the module measured nothing). None without the sensor."""
     if not tel.flow_fitted:
         return None
-    d = tel.rangefinder_distance_m
-    cm = clamp_int(d * 100.0, 0, 65535, 0) if math.isfinite(d) else 0
+
+    def cm(m: float) -> int:
+        return clamp_int(m * 100.0, 0, 65535, 0) if math.isfinite(m) else 0
     return mavlink2.MAVLink_distance_sensor_message(
-        _time_ms(tel), 0, 0, cm, mavlink2.MAV_DISTANCE_SENSOR_LASER, 0, mavlink2.MAV_SENSOR_ROTATION_PITCH_270,
+        _time_ms(tel), cm(tel.rangefinder_min_m), cm(tel.rangefinder_max_m), cm(tel.rangefinder_distance_m), mavlink2.MAV_DISTANCE_SENSOR_LASER, 0, mavlink2.MAV_SENSOR_ROTATION_PITCH_270,
         255)
 
 

@@ -483,13 +483,15 @@ class VehicleTelemetry:
     # OPTICAL_FLOW, DISTANCE_SENSOR, RANGEFINDER: the flow module's last sample (FLOW_TYPE > 0 and a
     # sample received; nothing is sent otherwise, as ArduPilot without the sensor). Body FRD axes: the
     # raw flow rate (rad/s), the flow with the body rotation removed times the range (m/s), the range
-    # (m, NaN out of range) and its limits (m, from the samples seen)
+    # (m, NaN when the module measured nothing) and its limits (m, RNGFND1_MIN_CM / RNGFND1_MAX_CM)
     flow_fitted: bool = False
     flow_time_us: int = 0
     flow_rate_frd_rad_s: tuple[float, float] = (math.nan, math.nan)
     flow_comp_frd_m_s: tuple[float, float] = (math.nan, math.nan)
     flow_quality: int = 0
     rangefinder_distance_m: float = math.nan
+    rangefinder_min_m: float = 0.0        # RNGFND1_MIN_CM, RNGFND1_MAX_CM
+    rangefinder_max_m: float = 0.0
     # SYS_STATUS: SensorFlag (MAV_SYS_STATUS_SENSOR) bitmasks
     sensors_present: int = int(DEFAULT_SENSORS)
     sensors_enabled: int = int(DEFAULT_SENSORS)

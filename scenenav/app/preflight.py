@@ -32,6 +32,7 @@ def validate_inputs(cfg: ScenarioConfig, world) -> None:
     _check_guidance(cfg, world)
     _check_route(cfg, world)
     _check_params_file(cfg)
+    _warn_rangefinder_limits(cfg)
 
 
 def _check_perception(cfg: ScenarioConfig, world) -> None:
@@ -151,6 +152,26 @@ def _check_params_file(cfg: ScenarioConfig) -> None:
     except UserError as exc:
         detail = str(exc).removeprefix("defaults: ").removeprefix(f"{a.params_file}: ")
         raise UserError(f"{key} = {a.params_file!r}: {detail}") from None
+
+
+def _warn_rangefinder_limits(cfg: ScenarioConfig) -> None:
+    """A warning (not an error: a user may limit the sensor on purpose) when the simulated flow
+    module reaches beyond the autopilot's RNGFND1_MAX_CM, whose readings beyond it it does not fuse."""
+    a = cfg.autopilot
+    if cfg.flight.mode != FlightMode.AUTOPILOT or not cfg.sim.flow.enabled:
+        return
+    from autopilot_bridge.param_specs import PARAM_SPECS
+    from autopilot_bridge.params import load_param_file
+    values = {s.name: s.default for s in PARAM_SPECS if s.name in ("FLOW_TYPE", "RNGFND1_MAX_CM")}
+    if a.params_file and Path(a.params_file).is_file():
+        values.update(load_param_file(Path(a.params_file)))
+    values.update(a.params)
+    max_cm = float(values["RNGFND1_MAX_CM"])
+    if int(values["FLOW_TYPE"]) == 0 or cfg.sim.flow.range_max_m * 100.0 <= max_cm:
+        return
+    log.warning("sim.flow.range_max_m is %g m but the autopilot's RNGFND1_MAX_CM is %g cm: it will not "
+                "fuse readings beyond %g m; set autopilot.params.RNGFND1_MAX_CM to %d to use them",
+                cfg.sim.flow.range_max_m, max_cm, max_cm / 100.0, round(cfg.sim.flow.range_max_m * 100.0))
 
 
 def _exists(key: str, path: str, expected: str) -> None:

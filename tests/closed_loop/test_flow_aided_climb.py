@@ -24,10 +24,10 @@ WIND_ENU_M_S = (4.0, 3.0, 0.0)
 DRAG = {"EK3_DRAG_MCOEF": 0.17, "EK3_DRAG_BCOEF_X": 29, "EK3_DRAG_BCOEF_Y": 29, "EK3_GBIAS_P_NSE": 1e-4}
 
 
-def _climb_to(height_m: float, seed: int, flow_type: int) -> tuple[float, CoreFlight]:
+def _climb_to(height_m: float, seed: int, flow_type: int, **params: float) -> tuple[float, CoreFlight]:
     sim = dataclasses.replace(sim_config(WIND_ENU_M_S, 0.7, gps=False), flow=FlowConfig(enabled=True))
     f = CoreFlight(seed, gps=False, sim=sim, EK3_SRC1_POSXY=6, SN_VIS_TIMEOUT=0, SN_VIS_MIN_ALT=71,
-                   FLOW_TYPE=flow_type, EK3_SRC1_VELXY=5, EK3_FLOW_M_NSE=0.1, **DRAG)
+                   FLOW_TYPE=flow_type, EK3_SRC1_VELXY=5, EK3_FLOW_M_NSE=0.1, **DRAG, **params)
     c = f.core
     c.set_vision_available(True)
     f.run(1.5)
@@ -55,3 +55,11 @@ def test_flow_type_0_ignores_the_module():
     err, f = _climb_to(30.0, 2, flow_type=0)
     assert f.core.stats["flow_fused"] == 0 and f.core.stats["flow_unusable"] == 0
     assert err > 5.0, err         # seed 2 without flow: 9.4 m
+
+
+def test_readings_beyond_rngfnd1_max_cm_are_not_fused():
+    """The module measures to 30 m; with RNGFND1_MAX_CM 500 the autopilot uses it only below 5 m."""
+    err, f = _climb_to(30.0, 2, flow_type=10, RNGFND1_MAX_CM=500)
+    s = f.core.stats
+    assert s["flow_out_of_range"] > 50 and s["flow_fused"] > 0, s          # 10 Hz, 5 -> 30 m
+    assert s["flow_fused"] < s["flow_out_of_range"], s

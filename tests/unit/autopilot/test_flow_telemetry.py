@@ -45,6 +45,7 @@ def test_flow_messages_carry_the_last_sample_in_body_frd():
     assert flow.ground_distance == pytest.approx(20.0)
     dist = _wire(encode(M.MAVLINK_MSG_ID_DISTANCE_SENSOR, tel, CTX))
     assert dist.current_distance == 2000 and dist.orientation == M.MAV_SENSOR_ROTATION_PITCH_270
+    assert (dist.min_distance, dist.max_distance) == (10, 3000)     # RNGFND1_MIN_CM / _MAX_CM defaults
     assert _wire(encode(M.MAVLINK_MSG_ID_RANGEFINDER, tel, CTX)).distance == pytest.approx(20.0)
     assert tel.sensors_present & SensorFlag.OPTICAL_FLOW
 
@@ -66,3 +67,11 @@ def test_nothing_is_sent_without_the_sensor(flow_type, sample):
     tel = core.telemetry()
     assert all(encode(i, tel, CTX) is None for i in FLOW_IDS)
     assert not tel.sensors_present & SensorFlag.OPTICAL_FLOW
+
+
+def test_distance_sensor_limits_follow_the_rngfnd_parameters():
+    core = _core(10)
+    assert core.params.set("RNGFND1_MIN_CM", 50).ok and core.params.set("RNGFND1_MAX_CM", 10000).ok
+    core.on_flow(FlowReading(2.0, (0.0, 0.0), (0.0, 0.0), 85.0, 150))
+    dist = _wire(encode(M.MAVLINK_MSG_ID_DISTANCE_SENSOR, core.telemetry(), CTX))
+    assert (dist.min_distance, dist.max_distance, dist.current_distance) == (50, 10000, 8500)
