@@ -13,7 +13,6 @@ import math
 
 from support.sim_flight import CoreFlight
 
-from autopilot_bridge.modes import CopterMode
 from scenenav.core.rotations import heading_from_quat
 
 ANOMALY_RAD = math.radians(15.0)
@@ -27,11 +26,7 @@ def _fly_to_8_m(reset_height_m: float) -> tuple[list[float], CoreFlight]:
     f.vision = True
     c = f.core
     c.set_vision_available(True)
-    f.run(1.5)
-    assert c.aligned and c.set_mode(CopterMode.GUIDED).ok
-    while not c.arm(False).ok:        # the gyro bias is learnt at rest first
-        f.run(0.5)
-        assert f.t < 30.0
+    f.arm_in_guided()
     assert c.takeoff(20.0).ok
     errors = []
     while f.p[2] < 8.0:

@@ -15,7 +15,6 @@ import numpy as np
 from support.sim_flight import CoreFlight
 
 from autopilot_bridge.failsafe import VisionFailsafeState
-from autopilot_bridge.modes import CopterMode
 from autopilot_bridge.vehicle_interface import AltFrame
 
 
@@ -26,11 +25,7 @@ def _cruise(dr_max_m: float, seed: int = 6) -> CoreFlight:
     f.vision = True
     c = f.core
     c.set_vision_available(True)
-    f.run(1.5)
-    assert c.aligned and c.set_mode(CopterMode.GUIDED).ok
-    while not c.arm(False).ok:        # the gyro bias is learnt at rest first
-        f.run(0.5)
-        assert f.t < 30.0
+    f.arm_in_guided()
     assert c.takeoff(20.0).ok
     assert f.run(40.0, until=lambda: f.p[2] > 19.0), "the climb did not reach 19 m"
     est = c.estimate()

@@ -19,6 +19,7 @@ import numpy as np
 from autopilot_bridge.config import FlightCoreConfig
 from autopilot_bridge.flight_core import FlightCore
 from autopilot_bridge.fusion import GpsReading, ImuReading, flow_reading
+from autopilot_bridge.modes import CopterMode
 from autopilot_bridge.param_specs import PARAM_SPECS
 from autopilot_bridge.params import ParameterStore
 from sitl.config import SimConfig, WindConfig
@@ -160,6 +161,16 @@ class CoreFlight:
             if until is not None and until():
                 return True
         return until is None
+
+    def arm_in_guided(self, timeout_s: float = 30.0) -> None:
+        """Align (1.5 s at rest), switch to GUIDED and arm, retrying while the gyro bias is still
+        being learnt at rest (as the node's and the guidance node's start retry)."""
+        c = self.core
+        self.run(1.5)
+        assert c.aligned and c.set_mode(CopterMode.GUIDED).ok
+        while not c.arm(False).ok:
+            self.run(0.5)
+            assert self.t < timeout_s, "the vehicle could not be armed"
 
     def close(self) -> None:
         self.plant.close()
