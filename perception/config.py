@@ -177,6 +177,13 @@ class PerceptionConfig:
     # the estimate the accepted fixes kept is better than any global match (docs/perception.md
     # "Dropping a rejected track"). 0 = off (only a dropped track is searched for around the prior).
     reacquire_window_s: float = 0.0
+    # An accepted match whose covariance carries the ambiguity term ("here, or anywhere in the area
+    # searched": a global search, a low-quality match) is published with its local covariance
+    # ("here") when, against the estimate the caller gives (``process(estimate=...)``, the autopilot's),
+    # the local mode holds at least this share of the posterior (fix_covariance.local_mode_posterior;
+    # docs/perception.md "Resolving an ambiguous match with the estimate"). 0 = off: the mixture's
+    # moment, as wide as the area searched, which the EKF barely uses.
+    resolve_ambiguity_min_posterior: float = 0.0
 
     def __post_init__(self) -> None:
         check(0.0 < self.fov_deg < 170.0, "perception.fov_deg", self.fov_deg, "a number in (0, 170)")
@@ -208,6 +215,8 @@ class PerceptionConfig:
               "a number of seconds in [0, 600] (0 = off)")
         check(0.0 <= self.reacquire_window_s <= 3600.0, "perception.reacquire_window_s",
               self.reacquire_window_s, "a number of seconds in [0, 3600] (0 = off)")
+        check(0.0 <= self.resolve_ambiguity_min_posterior < 1.0, "perception.resolve_ambiguity_min_posterior",
+              self.resolve_ambiguity_min_posterior, "a share in [0, 1) (0 = off)")
 
 
 #: ``PerceptionNodeConfig.alignment`` values: how a FIXED-mount capture is aligned with the map.
@@ -259,6 +268,9 @@ class PerceptionNodeConfig:
                                        # estimate, not the whole map, when the track is lost (0 = off)
     reacquire_min_radius_m: float = 30.0  # that search's radius: prior_margin_px + 3 sigma of the
                                        # estimate, at least this (the estimate's sigma is optimistic)
+    resolve_ambiguity_min_posterior: float = 0.0  # publish an accepted ambiguous match with its local
+                                       # covariance when it holds this share of the posterior against
+                                       # the autopilot's estimate (PerceptionConfig's; 0 = off)
 
     def __post_init__(self) -> None:
         methods = ("cnn", "assistant-map", "statistical", "none")
@@ -289,6 +301,8 @@ class PerceptionNodeConfig:
               self.gradient_refine_radius_px, "an integer of map px in [0, 200] (0 = off)")
         check(0.0 <= self.drop_rejected_track_s <= 600.0, "drop_rejected_track_s", self.drop_rejected_track_s,
               "a number of seconds in [0, 600] (0 = off)")
+        check(0.0 <= self.resolve_ambiguity_min_posterior < 1.0, "resolve_ambiguity_min_posterior",
+              self.resolve_ambiguity_min_posterior, "a share in [0, 1) (0 = off)")
         check(0.0 <= self.reacquire_window_s <= 3600.0, "reacquire_window_s", self.reacquire_window_s,
               "a number of seconds in [0, 3600] (0 = off)")
         check(0.0 <= self.reacquire_min_radius_m <= 1000.0, "reacquire_min_radius_m",

@@ -45,15 +45,11 @@ def ambiguity_weight(cfg: MatcherConfig, psr: float, spr: float, peak: float = 1
     return float(min(1.0, max(0.0, w_psr, w_spr, w_peak)))
 
 
-def covariance_px(cfg: MatcherConfig, peak: float, curvature: tuple[float, float, float] | None,
-                  edge_axes: tuple[bool, bool], psr: float, spr: float, rx: float, ry: float,
-                  n_px: int) -> np.ndarray:
-    """Covariance in px^2 (see the module docstring). ``curvature``: (c00, c01, c11) of the
-    symmetric A = -Hessian (positive definite), None without a usable one.
-
-    Scalar arithmetic on the four entries; det(A / r) and A^-1 by the 2x2 closed forms.
-    """
-    ux, uy = rx * rx / 3.0, ry * ry / 3.0          # diag of the uniform (search-area) term
+def _local_terms(cfg: MatcherConfig, peak: float, curvature: tuple[float, float, float] | None,
+                 edge_axes: tuple[bool, bool], ux: float, uy: float,
+                 n_px: int) -> tuple[float, float, float, float]:
+    """The local (peak-fit) term's four entries, px^2; without a usable curvature the search area's
+    uniform variances ``ux``, ``uy``."""
     if curvature is None or peak <= 0.0:
         l00, l01, l10, l11 = ux, 0.0, 0.0, uy
     else:
@@ -69,6 +65,29 @@ def covariance_px(cfg: MatcherConfig, peak: float, curvature: tuple[float, float
             l00, l01, l10 = _EDGE_AXIS_VAR_PX2, 0.0, 0.0
         if edge_axes[1]:
             l11, l01, l10 = _EDGE_AXIS_VAR_PX2, 0.0, 0.0
+    return l00, l01, l10, l11
+
+
+def local_covariance_px(cfg: MatcherConfig, peak: float, curvature: tuple[float, float, float] | None,
+                        edge_axes: tuple[bool, bool], rx: float, ry: float, n_px: int) -> np.ndarray:
+    """The covariance without the ambiguity term (local term plus the floor, px^2): where the peak
+    lies if this is the right place (``resolve_ambiguity``)."""
+    l00, l01, l10, l11 = _local_terms(cfg, peak, curvature, edge_axes, rx * rx / 3.0, ry * ry / 3.0, n_px)
+    f2 = cfg.cov_floor_px ** 2
+    c01 = 0.5 * (l01 + l10)
+    return np.array([[l00 + f2, c01], [c01, l11 + f2]])
+
+
+def covariance_px(cfg: MatcherConfig, peak: float, curvature: tuple[float, float, float] | None,
+                  edge_axes: tuple[bool, bool], psr: float, spr: float, rx: float, ry: float,
+                  n_px: int) -> np.ndarray:
+    """Covariance in px^2 (see the module docstring). ``curvature``: (c00, c01, c11) of the
+    symmetric A = -Hessian (positive definite), None without a usable one.
+
+    Scalar arithmetic on the four entries; det(A / r) and A^-1 by the 2x2 closed forms.
+    """
+    ux, uy = rx * rx / 3.0, ry * ry / 3.0          # diag of the uniform (search-area) term
+    l00, l01, l10, l11 = _local_terms(cfg, peak, curvature, edge_axes, ux, uy, n_px)
     w = ambiguity_weight(cfg, psr, spr, peak)
     f2 = cfg.cov_floor_px ** 2
     # local + f2 I + w U, then 0.5 (C + C^T) (the diagonal unchanged by it), term by term
@@ -128,3 +147,26 @@ def pointing_covariance_m2(altitude_m: float, centre_offset_enu_m: tuple[float, 
     # d_perp = (-dy, dx): s_hdg2 * d_perp d_perp^T
     return np.array([[s_att * s_att + s_hdg2 * dy * dy, -s_hdg2 * dx * dy],
                      [-s_hdg2 * dx * dy, s_att * s_att + s_hdg2 * dx * dx]])
+
+
+def local_mode_posterior(fix_enu_m: tuple[float, float], local_covariance_m2: np.ndarray,
+                         ambiguity: float, search_area_m2: float, prior_enu_m: tuple[float, float],
+                         prior_covariance_m2: np.ndarray) -> float:
+    """How much of the posterior an ambiguous match's own peak holds, given a Gaussian prior on the
+    position (the autopilot's estimate). The match says: with probability 1 - ``ambiguity`` the
+    vehicle is at the peak (``local_covariance_m2``), otherwise anywhere in the searched area
+    (uniform over ``search_area_m2``); the module docstring's covariance is this mixture's moment.
+    Against the prior N(prior, P) the two components weigh (1 - w) N(fix; prior, P + C_local) and
+    w / area. Returns the first's share in [0, 1] (NaN inputs: 0)."""
+    w = min(max(float(ambiguity), 0.0), 1.0)
+    d = np.asarray(fix_enu_m, dtype=float) - np.asarray(prior_enu_m, dtype=float)
+    S = np.asarray(local_covariance_m2, dtype=float) + np.asarray(prior_covariance_m2, dtype=float)
+    det = float(S[0, 0] * S[1, 1] - S[0, 1] * S[1, 0])
+    if not (np.all(np.isfinite(d)) and np.all(np.isfinite(S)) and det > 0.0
+            and math.isfinite(search_area_m2) and search_area_m2 > 0.0):
+        return 0.0
+    m2 = float(d @ np.linalg.solve(S, d))
+    local = (1.0 - w) * math.exp(-0.5 * m2) / (2.0 * math.pi * math.sqrt(det))
+    uniform = w / float(search_area_m2)
+    total = local + uniform
+    return local / total if total > 0.0 else 0.0

@@ -21,7 +21,13 @@ import cv2
 import numpy as np
 
 from perception.config import MatcherConfig, NccMethod
-from perception.fix_covariance import coarse_to_fine_covariance_m2, covariance_px, px_to_enu_cov
+from perception.fix_covariance import (
+    ambiguity_weight,
+    coarse_to_fine_covariance_m2,
+    covariance_px,
+    local_covariance_px,
+    px_to_enu_cov,
+)
 from perception.match_metrics import MatchMetrics, SearchTimes
 from perception.ncc_fft import FftNcc
 from perception.ncc_fft import warm_up as ncc_fft_warm_up
@@ -61,6 +67,9 @@ class MatchResult:
     time of the window crop, the correlation and the peak refinement. ``gradient_shift_px``: how far
     the gradient refinement (``MatcherConfig.gradient_refine_radius_px``) moved the position from the
     intensity peak (NaN: not refined: off, a flat template, or no gradient peak inside the window).
+    ``covariance_m2`` is the mixture "here, or anywhere in the area searched"
+    (``perception.fix_covariance``); its parts: ``local_covariance_m2`` (here), ``ambiguity_weight``
+    (the weight of "anywhere") and ``search_area_m2`` (the area searched).
     """
 
     position_px: tuple[float, float]
@@ -76,6 +85,9 @@ class MatchResult:
     window_px: tuple[int, int, int, int]
     timings: SearchTimes = field(default_factory=SearchTimes)
     gradient_shift_px: float = math.nan
+    local_covariance_m2: np.ndarray | None = None
+    ambiguity_weight: float = 1.0
+    search_area_m2: float = math.nan
 
     @property
     def metrics(self) -> MatchMetrics:
@@ -371,6 +383,7 @@ class SceneMatcher:
         rx, ry = self.width_px / 2.0, self.height_px / 2.0
         cov = coarse_to_fine_covariance_m2(cfg, best.covariance_m2, best.peak, self.m_per_px,
                                            cpsr, spr, rx, ry)
+        m2 = self.m_per_px * self.m_per_px
         fine_ncc = sum(r.timings.ncc_ms for r in fine)
         fine_other = (t4 - t3) * _MS - fine_ncc
         result = MatchResult(
@@ -380,7 +393,10 @@ class SceneMatcher:
             peak_at_border=best.peak_at_border, flat_template=flat, search=SearchMode.COARSE_TO_FINE,
             window_px=(0, 0, self.width_px, self.height_px),
             timings=SearchTimes(crop_ms=(t1 - t0) * _MS, ncc_ms=(t2 - t1) * _MS + fine_ncc,
-                                refine_ms=(t3 - t2) * _MS + fine_other))
+                                refine_ms=(t3 - t2) * _MS + fine_other),
+            local_covariance_m2=best.local_covariance_m2,
+            ambiguity_weight=ambiguity_weight(cfg, cpsr, spr, best.peak),
+            search_area_m2=4.0 * rx * ry * m2)
         return result
 
     # ------------------------------------------------------------------------------ metrics
@@ -405,6 +421,7 @@ class SceneMatcher:
         ry = max(0.5, (vals.shape[0]) / 2.0)
         n_px = tw * th if n_valid_px is None else n_valid_px
         cov = covariance_px(cfg, peak, pk.curvature, pk.edge_axes, psr, spr, rx, ry, n_px)
+        local = local_covariance_px(cfg, peak, pk.curvature, pk.edge_axes, rx, ry, n_px)
         x, y = self.pixel_to_world(u, v)
         cov_m2 = px_to_enu_cov(cov, self.m_per_px)
         quality_ok = self._quality_ok(peak, psr, spr, pk.at_border, flat)
@@ -412,7 +429,10 @@ class SceneMatcher:
             position_px=(float(u), float(v)), position_enu_m=(x, y), peak=float(peak), psr=float(psr),
             second_peak_ratio=float(spr), covariance_m2=cov_m2, quality_ok=quality_ok,
             peak_at_border=pk.at_border, flat_template=flat, search=search, window_px=window,
-            timings=SearchTimes(crop_ms=crop_ms, ncc_ms=ncc_ms, refine_ms=(_timer() - t_refine) * _MS))
+            timings=SearchTimes(crop_ms=crop_ms, ncc_ms=ncc_ms, refine_ms=(_timer() - t_refine) * _MS),
+            local_covariance_m2=px_to_enu_cov(local, self.m_per_px),
+            ambiguity_weight=ambiguity_weight(cfg, psr, spr, peak),
+            search_area_m2=4.0 * rx * ry * self.m_per_px * self.m_per_px)
 
     def _quality_ok(self, peak: float, psr: float, spr: float, at_border: bool, flat: bool) -> bool:
         cfg = self.cfg

@@ -11,7 +11,8 @@ Inputs
                                          is sure to have arrived, so lockstep runs are repeatable;
                                          also its position with prior_from_estimate, or for the
                                          search without a track with drop_rejected_track_s and
-                                         reacquire_window_s, and
+                                         reacquire_window_s, its position and 1-sigma with
+                                         resolve_ambiguity_min_posterior, and
                                          its velocity with dr_from_estimate)
 Outputs
   ``perception/fix/<node_id>``   VisionFix  (one per frame; ``valid`` false when no match)
@@ -74,7 +75,7 @@ def make_pipeline(world, method: str, assistant_map_path: str | None, weights: s
                   heading_learning: bool = False, pointing_std_deg: tuple[float, float] = (0.0, 0.0),
                   track_below_rated: bool = False, covariance_scale: float = 1.0,
                   gradient_refine_radius_px: int = 0, drop_rejected_track_s: float = 0.0,
-                  reacquire_window_s: float = 0.0):
+                  reacquire_window_s: float = 0.0, resolve_ambiguity_min_posterior: float = 0.0):
     """The pure perception pipeline for a world and a false-match method (``fov_deg``: the camera's,
     used when a capture does not state its own).
 
@@ -90,7 +91,8 @@ def make_pipeline(world, method: str, assistant_map_path: str | None, weights: s
     ``track_below_rated``: ``PerceptionConfig.track_below_rated`` (track continuation below the rated height).
     ``covariance_scale``: ``PerceptionConfig.covariance_scale`` (every published covariance times it).
     ``gradient_refine_radius_px``: ``MatcherConfig.gradient_refine_radius_px`` (0: off).
-    ``drop_rejected_track_s``, ``reacquire_window_s``: ``PerceptionConfig``'s (0: off).
+    ``drop_rejected_track_s``, ``reacquire_window_s``, ``resolve_ambiguity_min_posterior``:
+    ``PerceptionConfig``'s (0: off).
     """
     from perception.decision import CombinedDecisionModel, DecisionRule, FalseMatchMethod
     from perception.heading_offset import HeadingOffsetConfig
@@ -103,6 +105,7 @@ def make_pipeline(world, method: str, assistant_map_path: str | None, weights: s
                            track_below_rated=track_below_rated, covariance_scale=covariance_scale,
                            drop_rejected_track_s=drop_rejected_track_s,
                            reacquire_window_s=reacquire_window_s,
+                           resolve_ambiguity_min_posterior=resolve_ambiguity_min_posterior,
                            matcher=MatcherConfig(gradient_refine_radius_px=gradient_refine_radius_px))
     decision_model = None
     if weights and str(weights).endswith(".json"):
@@ -137,7 +140,8 @@ def make_pipeline(world, method: str, assistant_map_path: str | None, weights: s
 DIAG_COLUMNS = ("t_s", "frame_seq", "valid", "accepted", "rule", "reason", "search", "track_state",
                 "quality_ok", "u_px", "v_px", "drone_u_px", "drone_v_px", "innovation_px", "track_fixes", "run",
                 "dr_innovation_px", "dr_age_s", "reach_excess_px",
-                "p_true", "p_false", "ncc_peak", "ncc_psr", "ncc_second_peak_ratio", "dropped_tracks")
+                "p_true", "p_false", "ncc_peak", "ncc_psr", "ncc_second_peak_ratio", "dropped_tracks",
+                "ambiguity_resolved")
 
 
 #: Camera frames waiting for the worker. In lockstep one or two wait; more pile up only after the node
@@ -165,11 +169,13 @@ class PerceptionNode:
                  track_below_rated: bool = False, covariance_scale: float = 1.0,
                  gradient_refine_radius_px: int = 0, dr_from_estimate: bool = False,
                  drop_rejected_track_s: float = 0.0, reacquire_window_s: float = 0.0,
-                 reacquire_min_radius_m: float = 30.0):
+                 reacquire_min_radius_m: float = 30.0, resolve_ambiguity_min_posterior: float = 0.0):
         self.world = world
         self.dr_from_estimate = dr_from_estimate
         self.reacquire = drop_rejected_track_s > 0.0 or reacquire_window_s > 0.0
         self.reacquire_min_radius_m = reacquire_min_radius_m
+        # the estimate's position is used: a search prior, a re-acquisition, the ambiguity resolution
+        self.wants_position = prior_from_estimate or self.reacquire or resolve_ambiguity_min_posterior > 0.0
         self.homography = alignment == "homography"
         self.prior_from_estimate = prior_from_estimate
         self.prior_margin_px = prior_margin_px
@@ -189,7 +195,7 @@ class PerceptionNode:
                                       reference, min_rated_footprint_share, heading_learning,
                                       pointing_std_deg, track_below_rated, covariance_scale,
                                       gradient_refine_radius_px, drop_rejected_track_s,
-                                      reacquire_window_s)
+                                      reacquire_window_s, resolve_ambiguity_min_posterior)
         self._diag = None
         if out_dir is not None:
             try:
@@ -205,7 +211,10 @@ class PerceptionNode:
         self._altitudes: deque[tuple[int, float]] = deque(maxlen=200)
         self._tilts: deque[tuple[int, tuple[float, float]]] = deque(maxlen=400)
         # (east, north, prior radius, re-acquisition radius): metres, None = the whole map
-        self._priors: deque[tuple[int, tuple[float, float, float | None, float | None]]] = deque(maxlen=400)
+        # the estimate at its time: (east, north, window radius or None, re-acquisition radius or
+        # None, 1-sigma east, 1-sigma north), m
+        self._priors: deque[tuple[int, tuple[float, float, float | None, float | None, float, float]]] = \
+            deque(maxlen=400)
         self._velocities: deque[tuple[int, tuple[float, float]]] = deque(maxlen=400)
         self._sensor_lock = threading.Lock()
         self._estimate_arrived = threading.Condition(self._sensor_lock)
@@ -217,7 +226,7 @@ class PerceptionNode:
         self._worker.start()
         self.bus.subscribe(self.keys.compass, CompassSample, self._on_compass)
         self.bus.subscribe(self.keys.baro, BaroSample, self._on_baro)
-        if self.homography or self.prior_from_estimate or self.dr_from_estimate or self.reacquire:
+        if self.homography or self.wants_position or self.dr_from_estimate:
             self.bus.subscribe(self.keys.nav_estimate, NavEstimate, self._on_estimate)
         self.bus.subscribe(self.keys.camera, CameraFrame, self._on_frame)
         # Announce only once subscribed, so nothing addressed to us is lost.
@@ -251,7 +260,8 @@ class PerceptionNode:
         with self._sensor_lock:
             self._tilts.append((msg.timestamp_us, (roll, pitch)))
             self._priors.append((msg.timestamp_us, (msg.position_enu_m[0], msg.position_enu_m[1], radius,
-                                                    reacquire_radius)))
+                                                    reacquire_radius, msg.position_std_m[0],
+                                                    msg.position_std_m[1])))
             self._velocities.append((msg.timestamp_us, (msg.velocity_enu_m_s[0], msg.velocity_enu_m_s[1])))
             self._estimate_arrived.notify_all()
 
@@ -277,7 +287,7 @@ class PerceptionNode:
         horizontal velocity (``dr_from_estimate``), from the autopilot estimate at or before the
         frame's time, once it is settled (at most ``ESTIMATE_WAIT_S``)."""
         want_tilt = self.homography and msg.mount == "fixed"
-        if not (want_tilt or self.prior_from_estimate or self.dr_from_estimate or self.reacquire):
+        if not (want_tilt or self.wants_position or self.dr_from_estimate):
             return None, None, None
         t = msg.timestamp_us
         with self._estimate_arrived:
@@ -285,7 +295,7 @@ class PerceptionNode:
                                                    ESTIMATE_WAIT_S):
                 self.stats["estimate_late"] += 1
             tilt = self._at(self._tilts, t) if want_tilt else None
-            prior = self._at(self._priors, t) if self.prior_from_estimate or self.reacquire else None
+            prior = self._at(self._priors, t) if self.wants_position else None
             velocity = self._at(self._velocities, t) if self.dr_from_estimate else None
         return tilt, prior, velocity
 
@@ -383,6 +393,7 @@ class PerceptionNode:
                     if self.prior_from_estimate and prior is not None and prior[2] is not None:
                         prior_xy = (prior[0], prior[1])
                     reacquire_prior = None if prior is None else (prior[0], prior[1], prior[3])
+                    estimate = None if prior is None else (prior[0], prior[1], prior[4], prior[5])
                     try:
                         res = self.pipeline.process(msg.pixels, heading, altitude,
                                                     msg.timestamp_us * 1e-6, prior_xy, fov_deg=msg.fov_deg,
@@ -390,7 +401,7 @@ class PerceptionNode:
                                                     distortion=msg.distortion_k1_k2_p1_p2,
                                                     prior_radius_m=None if prior_xy is None else prior[2],
                                                     velocity_enu_m_s=velocity,
-                                                    reacquire_prior=reacquire_prior)
+                                                    reacquire_prior=reacquire_prior, estimate=estimate)
                     except BadInput as exc:
                         self._drop("bad_input", msg, str(exc))
                         self._answer_invalid(msg)
@@ -433,7 +444,7 @@ class PerceptionNode:
                 r.track_state.value, int(r.quality_ok), r.position_px[0], r.position_px[1],
                 r.drone_px[0], r.drone_px[1], r.innovation_px, r.track_fixes, r.run,
                 r.dr_innovation_px, r.dr_age_s, r.reach_excess_px, r.p_true, r.p_false,
-                m.peak, m.psr, m.second_peak_ratio, self.pipeline.dropped_tracks)
+                m.peak, m.psr, m.second_peak_ratio, self.pipeline.dropped_tracks, int(r.ambiguity_resolved))
         self._diag.write(",".join(f"{v:.6g}" if isinstance(v, float) else str(v) for v in vals) + "\n")
 
     def close(self) -> None:
@@ -449,5 +460,7 @@ class PerceptionNode:
                 log.warning("could not save the assistant map: %s", exc)
         if self.pipeline.dropped_tracks:
             self.stats["dropped_rejected_tracks"] = self.pipeline.dropped_tracks
+        if self.pipeline.ambiguities_resolved:
+            self.stats["ambiguities_resolved"] = self.pipeline.ambiguities_resolved
         log.info("perception node %s stats: %s", self.node_id, dict(self.stats))
         self.bus.close()

@@ -56,7 +56,7 @@ from perception.decision import (
     decide_from_p_bad,
     split_classifier_output,
 )
-from perception.fix_covariance import pointing_covariance_m2
+from perception.fix_covariance import local_mode_posterior, pointing_covariance_m2
 from perception.heading_offset import HeadingDeviation, parabola_vertex, rotation_peaks
 from perception.match_metrics import MatchMetrics, StageTimes
 from perception.ncc_search import MatchResult, SceneMatcher, SearchMode
@@ -131,6 +131,7 @@ class FixResult:
     drone_px: tuple[float, float] = (_NAN, _NAN)
     p_false: float = _NAN
     decision_rule: DecisionRule = DecisionRule.PAPER
+    ambiguity_resolved: bool = False    # published with the local covariance (resolve_ambiguity_min_posterior)
 
     @property
     def covariance_row_major(self) -> tuple[float, float, float, float]:
@@ -163,6 +164,7 @@ class PerceptionPipeline:
         self.reacquiring = False
         #: tracks dropped so far (``cfg.drop_rejected_track_s``)
         self.dropped_tracks = 0
+        self.ambiguities_resolved = 0     # accepted ambiguous matches published with the local covariance
         #: the time of the last accepted fix (``cfg.reacquire_window_s``)
         self._last_accept_s: float | None = None
         try:
@@ -234,7 +236,8 @@ class PerceptionPipeline:
                 distortion: Distortion = NO_DISTORTION,
                 prior_radius_m: float | None = None,
                 velocity_enu_m_s: tuple[float, float] | None = None,
-                reacquire_prior: tuple[float, float, float | None] | None = None) -> FixResult:
+                reacquire_prior: tuple[float, float, float | None] | None = None,
+                estimate: tuple[float, float, float, float] | None = None) -> FixResult:
         """One capture -> FixResult. Raises BadInput for unusable inputs (the node drops those).
 
         ``prior_enu_m`` (optional, e.g. the autopilot's estimate) seeds the search window when the
@@ -251,6 +254,9 @@ class PerceptionPipeline:
         no track, after a rejected track was dropped (``cfg.drop_rejected_track_s``) or within
         ``cfg.reacquire_window_s`` of the last accepted fix (the node gives the autopilot's estimate).
         None, or a None radius: the whole map.
+        ``estimate``: (east m, north m, 1-sigma east m, 1-sigma north m) of the autopilot's estimate at
+        the capture: an accepted ambiguous match near it is published with its local covariance
+        (``cfg.resolve_ambiguity_min_posterior``); None: never.
         """
         t_start = time.perf_counter()
         t_s = finite_number("timestamp_s", timestamp_s)
@@ -359,11 +365,19 @@ class PerceptionPipeline:
             decision, reason = Decision.REJECT, Reason.LOW_QUALITY
         self._follow_verdict(t_s, match, decision, reason)
         covariance_m2 = match.covariance_m2
+        pointing = None
         if cfg.pointing_attitude_std_deg > 0.0 or cfg.pointing_heading_std_deg > 0.0:
             du, dv = aligned.centre_offset_px
-            covariance_m2 = covariance_m2 + pointing_covariance_m2(
+            pointing = pointing_covariance_m2(
                 altitude_m, (du * self.m_per_px, -dv * self.m_per_px),
                 math.radians(cfg.pointing_attitude_std_deg), math.radians(cfg.pointing_heading_std_deg))
+            covariance_m2 = covariance_m2 + pointing
+        resolved = False
+        if decision is Decision.ACCEPT and estimate is not None:
+            local = self._resolved_covariance(match, pointing, estimate)
+            if local is not None:
+                covariance_m2, resolved = local, True
+                self.ambiguities_resolved += 1
         if cfg.covariance_scale != 1.0:
             covariance_m2 = covariance_m2 * cfg.covariance_scale
         timings.total_ms = (time.perf_counter() - t_start) * _MS
@@ -378,7 +392,21 @@ class PerceptionPipeline:
             innovation_px=innovation_px, track_fixes=track_fixes, run=run,
             dr_innovation_px=dr_innovation_px, dr_age_s=dr_age_s,
             reach_excess_px=reach_excess_px, drone_px=drone, p_false=p_false,
-            decision_rule=self.rule)
+            decision_rule=self.rule, ambiguity_resolved=resolved)
+
+    def _resolved_covariance(self, match: MatchResult, pointing: np.ndarray | None,
+                             estimate: tuple[float, float, float, float]) -> np.ndarray | None:
+        """The local covariance (plus the pointing term) of an accepted ambiguous match whose own peak
+        holds at least ``resolve_ambiguity_min_posterior`` of the posterior against ``estimate``
+        (east m, north m, 1-sigma east m, 1-sigma north m); None: keep the mixture's covariance."""
+        share_min = self.cfg.resolve_ambiguity_min_posterior
+        if share_min <= 0.0 or match.local_covariance_m2 is None or match.ambiguity_weight <= 0.0:
+            return None
+        local = match.local_covariance_m2 if pointing is None else match.local_covariance_m2 + pointing
+        prior_cov = np.diag([estimate[2] * estimate[2], estimate[3] * estimate[3]])
+        share = local_mode_posterior(match.position_enu_m, local, match.ambiguity_weight,
+                                     match.search_area_m2, (estimate[0], estimate[1]), prior_cov)
+        return local if share >= share_min else None
 
     def _follow_verdict(self, t_s: float, match: MatchResult, decision: Decision, reason: Reason) -> None:
         """Drop the track when the rule has rejected its quality-ok matches for
