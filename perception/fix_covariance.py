@@ -162,7 +162,7 @@ def local_mode_posterior(fix_enu_m: tuple[float, float], local_covariance_m2: np
     d = np.asarray(fix_enu_m, dtype=float) - np.asarray(prior_enu_m, dtype=float)
     S = np.asarray(local_covariance_m2, dtype=float) + np.asarray(prior_covariance_m2, dtype=float)
     det = float(S[0, 0] * S[1, 1] - S[0, 1] * S[1, 0])
-    if not (np.all(np.isfinite(d)) and np.all(np.isfinite(S)) and det > 0.0
+    if not (np.all(np.isfinite(d)) and np.all(np.isfinite(S)) and S[0, 0] > 0.0 and det > 0.0
             and math.isfinite(search_area_m2) and search_area_m2 > 0.0):
         return 0.0
     m2 = float(d @ np.linalg.solve(S, d))
