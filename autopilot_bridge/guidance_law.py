@@ -204,6 +204,11 @@ class WaypointTracker(GuidanceLaw):
         dest = np.array(wp.position_enu_m)
         d = dest - self._origin
         self._length = float(np.linalg.norm(d))
+        if self._length <= _EPS:
+            # a leg shorter than the tolerance is no leg: length 0, so the carrot is at its end at once
+            # (a leg of 1e-7 m, left by rounding between a target and the next item, had no
+            # direction to advance along and never ended: a NAV_LAND that hovered for ever)
+            self._length = 0.0
         self._u = d / self._length if self._length > _EPS else np.zeros(3)
         speed = wp.speed_m_s if wp.speed_m_s is not None else cfg.wp_speed_m_s
         self._v_max, self._a_max = self._leg_limits(self._u, speed)

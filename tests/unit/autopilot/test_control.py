@@ -334,6 +334,20 @@ def test_intermediate_waypoint_and_climb_limits():
     assert headings == {round(math.pi / 2, 6), 0.0}
 
 
+@pytest.mark.parametrize("offset_m", [0.0, 1e-9, 1e-7, 1e-6, 1e-5])
+def test_a_leg_shorter_than_the_tolerance_ends_at_once(offset_m):
+    """Generated world 10006, `realistic` (session 20): the NAV_LAND after the last waypoint started
+    1e-7 m from that waypoint's target (rounding); the leg had no direction and never ended, and the
+    vehicle hovered over home until the run's end."""
+    tracker = WaypointTracker(GuidanceConfig(), [Waypoint((0.0, 0.0, 100.0))], (offset_m, 0.0, 100.0))
+    nav = _nav(position=(0.3, 0.2, 100.1))
+    for _ in range(5):
+        tracker.update(nav, DT)
+    assert tracker.complete
+    assert [e.kind for e in tracker.pop_events()] == [GuidanceEventKind.WAYPOINT_REACHED,
+                                                      GuidanceEventKind.MISSION_COMPLETE]
+
+
 def test_leash_holds_the_carrot_for_a_lagging_vehicle():
     cfg = GuidanceConfig(wp_leash_m=3.0)
     tracker = WaypointTracker(cfg, [Waypoint((100.0, 0.0, 10.0))], (0.0, 0.0, 10.0))
