@@ -32,7 +32,7 @@ def test_the_local_mode_wins_near_the_prior_and_loses_far_from_it():
     assert near > 0.99 and far < 1e-6
     # monotonic in the distance and in the ambiguity weight
     shares = [local_mode_posterior((d, 0.0), LOCAL, 0.5, AREA, (0.0, 0.0), PRIOR) for d in range(0, 20)]
-    assert all(a >= b for a, b in zip(shares, shares[1:]))
+    assert all(a >= b for a, b in zip(shares, shares[1:], strict=False))
     weights = [local_mode_posterior((6.0, 0.0), LOCAL, w, AREA, (0.0, 0.0), PRIOR) for w in (0.1, 0.5, 0.9)]
     assert weights[0] > weights[1] > weights[2]
 
