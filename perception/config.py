@@ -184,6 +184,10 @@ class PerceptionConfig:
     # docs/perception.md "Resolving an ambiguous match with the estimate"). 0 = off: the mixture's
     # moment, as wide as the area searched, which the EKF barely uses.
     resolve_ambiguity_min_posterior: float = 0.0
+    # ... and one whose own peak holds less than this share is rejected (reason ambiguous-far): the
+    # mixture's posterior is then the prior, the fix says nothing, and fused with the mixture's wide
+    # covariance ten times a second, a run of such false fixes pulls the estimate away. 0 = off.
+    reject_ambiguity_below_posterior: float = 0.0
 
     def __post_init__(self) -> None:
         check(0.0 < self.fov_deg < 170.0, "perception.fov_deg", self.fov_deg, "a number in (0, 170)")
@@ -217,6 +221,8 @@ class PerceptionConfig:
               self.reacquire_window_s, "a number of seconds in [0, 3600] (0 = off)")
         check(0.0 <= self.resolve_ambiguity_min_posterior < 1.0, "perception.resolve_ambiguity_min_posterior",
               self.resolve_ambiguity_min_posterior, "a share in [0, 1) (0 = off)")
+        check(0.0 <= self.reject_ambiguity_below_posterior < 1.0, "perception.reject_ambiguity_below_posterior",
+              self.reject_ambiguity_below_posterior, "a share in [0, 1) (0 = off)")
 
 
 #: ``PerceptionNodeConfig.alignment`` values: how a FIXED-mount capture is aligned with the map.
@@ -271,6 +277,8 @@ class PerceptionNodeConfig:
     resolve_ambiguity_min_posterior: float = 0.0  # publish an accepted ambiguous match with its local
                                        # covariance when it holds this share of the posterior against
                                        # the autopilot's estimate (PerceptionConfig's; 0 = off)
+    reject_ambiguity_below_posterior: float = 0.0  # reject one whose own peak holds less than this
+                                       # share (reason ambiguous-far; PerceptionConfig's; 0 = off)
 
     def __post_init__(self) -> None:
         methods = ("cnn", "assistant-map", "statistical", "none")
@@ -303,6 +311,8 @@ class PerceptionNodeConfig:
               "a number of seconds in [0, 600] (0 = off)")
         check(0.0 <= self.resolve_ambiguity_min_posterior < 1.0, "resolve_ambiguity_min_posterior",
               self.resolve_ambiguity_min_posterior, "a share in [0, 1) (0 = off)")
+        check(0.0 <= self.reject_ambiguity_below_posterior < 1.0, "reject_ambiguity_below_posterior",
+              self.reject_ambiguity_below_posterior, "a share in [0, 1) (0 = off)")
         check(0.0 <= self.reacquire_window_s <= 3600.0, "reacquire_window_s", self.reacquire_window_s,
               "a number of seconds in [0, 3600] (0 = off)")
         check(0.0 <= self.reacquire_min_radius_m <= 1000.0, "reacquire_min_radius_m",

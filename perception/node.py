@@ -75,7 +75,8 @@ def make_pipeline(world, method: str, assistant_map_path: str | None, weights: s
                   heading_learning: bool = False, pointing_std_deg: tuple[float, float] = (0.0, 0.0),
                   track_below_rated: bool = False, covariance_scale: float = 1.0,
                   gradient_refine_radius_px: int = 0, drop_rejected_track_s: float = 0.0,
-                  reacquire_window_s: float = 0.0, resolve_ambiguity_min_posterior: float = 0.0):
+                  reacquire_window_s: float = 0.0, resolve_ambiguity_min_posterior: float = 0.0,
+                  reject_ambiguity_below_posterior: float = 0.0):
     """The pure perception pipeline for a world and a false-match method (``fov_deg``: the camera's,
     used when a capture does not state its own).
 
@@ -91,8 +92,8 @@ def make_pipeline(world, method: str, assistant_map_path: str | None, weights: s
     ``track_below_rated``: ``PerceptionConfig.track_below_rated`` (track continuation below the rated height).
     ``covariance_scale``: ``PerceptionConfig.covariance_scale`` (every published covariance times it).
     ``gradient_refine_radius_px``: ``MatcherConfig.gradient_refine_radius_px`` (0: off).
-    ``drop_rejected_track_s``, ``reacquire_window_s``, ``resolve_ambiguity_min_posterior``:
-    ``PerceptionConfig``'s (0: off).
+    ``drop_rejected_track_s``, ``reacquire_window_s``, ``resolve_ambiguity_min_posterior``,
+    ``reject_ambiguity_below_posterior``: ``PerceptionConfig``'s (0: off).
     """
     from perception.decision import CombinedDecisionModel, DecisionRule, FalseMatchMethod
     from perception.heading_offset import HeadingOffsetConfig
@@ -106,6 +107,7 @@ def make_pipeline(world, method: str, assistant_map_path: str | None, weights: s
                            drop_rejected_track_s=drop_rejected_track_s,
                            reacquire_window_s=reacquire_window_s,
                            resolve_ambiguity_min_posterior=resolve_ambiguity_min_posterior,
+                           reject_ambiguity_below_posterior=reject_ambiguity_below_posterior,
                            matcher=MatcherConfig(gradient_refine_radius_px=gradient_refine_radius_px))
     decision_model = None
     if weights and str(weights).endswith(".json"):
@@ -169,13 +171,15 @@ class PerceptionNode:
                  track_below_rated: bool = False, covariance_scale: float = 1.0,
                  gradient_refine_radius_px: int = 0, dr_from_estimate: bool = False,
                  drop_rejected_track_s: float = 0.0, reacquire_window_s: float = 0.0,
-                 reacquire_min_radius_m: float = 30.0, resolve_ambiguity_min_posterior: float = 0.0):
+                 reacquire_min_radius_m: float = 30.0, resolve_ambiguity_min_posterior: float = 0.0,
+                 reject_ambiguity_below_posterior: float = 0.0):
         self.world = world
         self.dr_from_estimate = dr_from_estimate
         self.reacquire = drop_rejected_track_s > 0.0 or reacquire_window_s > 0.0
         self.reacquire_min_radius_m = reacquire_min_radius_m
         # the estimate's position is used: a search prior, a re-acquisition, the ambiguity resolution
-        self.wants_position = prior_from_estimate or self.reacquire or resolve_ambiguity_min_posterior > 0.0
+        self.wants_position = (prior_from_estimate or self.reacquire or resolve_ambiguity_min_posterior > 0.0
+                               or reject_ambiguity_below_posterior > 0.0)
         self.homography = alignment == "homography"
         self.prior_from_estimate = prior_from_estimate
         self.prior_margin_px = prior_margin_px
@@ -195,7 +199,8 @@ class PerceptionNode:
                                       reference, min_rated_footprint_share, heading_learning,
                                       pointing_std_deg, track_below_rated, covariance_scale,
                                       gradient_refine_radius_px, drop_rejected_track_s,
-                                      reacquire_window_s, resolve_ambiguity_min_posterior)
+                                      reacquire_window_s, resolve_ambiguity_min_posterior,
+                                      reject_ambiguity_below_posterior)
         self._diag = None
         if out_dir is not None:
             try:
@@ -462,5 +467,7 @@ class PerceptionNode:
             self.stats["dropped_rejected_tracks"] = self.pipeline.dropped_tracks
         if self.pipeline.ambiguities_resolved:
             self.stats["ambiguities_resolved"] = self.pipeline.ambiguities_resolved
+        if self.pipeline.ambiguities_rejected:
+            self.stats["ambiguities_rejected"] = self.pipeline.ambiguities_rejected
         log.info("perception node %s stats: %s", self.node_id, dict(self.stats))
         self.bus.close()

@@ -92,6 +92,7 @@ class Reason(str, Enum):
     BAD_INPUT = "bad-input"                  # the frame or its heading / height cannot be used
     BELOW_RATED_HEIGHT = "below-rated-height"  # cnn / assistant-map: captured too low for the area rating
     TRACK_CONTINUATION = "track-continuation"  # below the rated height, continuing an accepted track
+    AMBIGUOUS_FAR = "ambiguous-far"          # an ambiguous match whose own peak the estimate all but rules out
 
 
 @dataclass(frozen=True)
@@ -165,6 +166,7 @@ class PerceptionPipeline:
         #: tracks dropped so far (``cfg.drop_rejected_track_s``)
         self.dropped_tracks = 0
         self.ambiguities_resolved = 0     # accepted ambiguous matches published with the local covariance
+        self.ambiguities_rejected = 0     # ambiguous matches rejected as far from the estimate
         #: the time of the last accepted fix (``cfg.reacquire_window_s``)
         self._last_accept_s: float | None = None
         try:
@@ -363,21 +365,27 @@ class PerceptionPipeline:
             # near the estimate by construction, so the rule's position features vouch for anything;
             # only a sharp match may start a track there (docs/perception.md "Dropping a rejected track")
             decision, reason = Decision.REJECT, Reason.LOW_QUALITY
-        self._follow_verdict(t_s, match, decision, reason)
-        covariance_m2 = match.covariance_m2
         pointing = None
         if cfg.pointing_attitude_std_deg > 0.0 or cfg.pointing_heading_std_deg > 0.0:
             du, dv = aligned.centre_offset_px
             pointing = pointing_covariance_m2(
                 altitude_m, (du * self.m_per_px, -dv * self.m_per_px),
                 math.radians(cfg.pointing_attitude_std_deg), math.radians(cfg.pointing_heading_std_deg))
-            covariance_m2 = covariance_m2 + pointing
-        resolved = False
+        share = None
         if decision is Decision.ACCEPT and estimate is not None:
-            local = self._resolved_covariance(match, pointing, estimate)
-            if local is not None:
-                covariance_m2, resolved = local, True
-                self.ambiguities_resolved += 1
+            share = self._local_share(match, pointing, estimate)
+            if share is not None and share < cfg.reject_ambiguity_below_posterior:
+                decision, reason = Decision.REJECT, Reason.AMBIGUOUS_FAR
+                self._trusted_track = False
+                self.ambiguities_rejected += 1
+        self._follow_verdict(t_s, match, decision, reason)
+        covariance_m2 = match.covariance_m2 if pointing is None else match.covariance_m2 + pointing
+        resolved = False
+        if (decision is Decision.ACCEPT and share is not None and cfg.resolve_ambiguity_min_posterior > 0.0
+                and share >= cfg.resolve_ambiguity_min_posterior and match.local_covariance_m2 is not None):
+            covariance_m2 = match.local_covariance_m2 if pointing is None else match.local_covariance_m2 + pointing
+            resolved = True
+            self.ambiguities_resolved += 1
         if cfg.covariance_scale != 1.0:
             covariance_m2 = covariance_m2 * cfg.covariance_scale
         timings.total_ms = (time.perf_counter() - t_start) * _MS
@@ -394,19 +402,20 @@ class PerceptionPipeline:
             reach_excess_px=reach_excess_px, drone_px=drone, p_false=p_false,
             decision_rule=self.rule, ambiguity_resolved=resolved)
 
-    def _resolved_covariance(self, match: MatchResult, pointing: np.ndarray | None,
-                             estimate: tuple[float, float, float, float]) -> np.ndarray | None:
-        """The local covariance (plus the pointing term) of an accepted ambiguous match whose own peak
-        holds at least ``resolve_ambiguity_min_posterior`` of the posterior against ``estimate``
-        (east m, north m, 1-sigma east m, 1-sigma north m); None: keep the mixture's covariance."""
-        share_min = self.cfg.resolve_ambiguity_min_posterior
-        if share_min <= 0.0 or match.local_covariance_m2 is None or match.ambiguity_weight <= 0.0:
+    def _local_share(self, match: MatchResult, pointing: np.ndarray | None,
+                     estimate: tuple[float, float, float, float]) -> float | None:
+        """The share of the posterior an ambiguous match's own peak holds against ``estimate`` (east
+        m, north m, 1-sigma east m, 1-sigma north m; ``fix_covariance.local_mode_posterior``); None
+        when neither ``resolve_ambiguity_min_posterior`` nor ``reject_ambiguity_below_posterior`` is
+        on, or the match is not ambiguous."""
+        cfg = self.cfg
+        if (cfg.resolve_ambiguity_min_posterior <= 0.0 and cfg.reject_ambiguity_below_posterior <= 0.0) \
+                or match.local_covariance_m2 is None or match.ambiguity_weight <= 0.0:
             return None
         local = match.local_covariance_m2 if pointing is None else match.local_covariance_m2 + pointing
         prior_cov = np.diag([estimate[2] * estimate[2], estimate[3] * estimate[3]])
-        share = local_mode_posterior(match.position_enu_m, local, match.ambiguity_weight,
-                                     match.search_area_m2, (estimate[0], estimate[1]), prior_cov)
-        return local if share >= share_min else None
+        return local_mode_posterior(match.position_enu_m, local, match.ambiguity_weight,
+                                    match.search_area_m2, (estimate[0], estimate[1]), prior_cov)
 
     def _follow_verdict(self, t_s: float, match: MatchResult, decision: Decision, reason: Reason) -> None:
         """Drop the track when the rule has rejected its quality-ok matches for

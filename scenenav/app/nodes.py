@@ -215,7 +215,8 @@ def run_perception(run_dir: Path | None, bus_cfg: BusConfig, method: str | None,
         gradient_refine_radius_px=pcfg.gradient_refine_radius_px, dr_from_estimate=pcfg.dr_from_estimate,
         drop_rejected_track_s=pcfg.drop_rejected_track_s, reacquire_window_s=pcfg.reacquire_window_s,
         reacquire_min_radius_m=pcfg.reacquire_min_radius_m,
-        resolve_ambiguity_min_posterior=pcfg.resolve_ambiguity_min_posterior)
+        resolve_ambiguity_min_posterior=pcfg.resolve_ambiguity_min_posterior,
+        reject_ambiguity_below_posterior=pcfg.reject_ambiguity_below_posterior)
     stop.wait()
     node.close()
     return 0

@@ -118,3 +118,22 @@ def test_a_rejected_match_is_never_resolved(world):
 def test_the_setting_is_checked(value):
     with pytest.raises(ConfigError, match="resolve_ambiguity_min_posterior"):
         PerceptionConfig(resolve_ambiguity_min_posterior=value)
+
+
+@pytest.mark.parametrize(("offset_m", "rejected"), [(2.2, False), (30.0, True)])
+def test_an_ambiguous_match_the_estimate_all_but_rules_out_is_rejected(world, offset_m, rejected):
+    """reject_ambiguity_below_posterior: the match's own peak holds less than that share against the
+    estimate, so the fix says nothing (the posterior is the prior): rejected, reason ambiguous-far."""
+    from perception.pipeline import Reason
+    ref, day = world
+    u, v = 300.0, 200.0
+    x, y = (u - W / 2) * MPP, (H / 2 - v) * MPP
+    cfg = dataclasses.replace(PerceptionConfig(), reject_ambiguity_below_posterior=0.01)
+    pipe = PerceptionPipeline(ref, MPP, FalseMatchMethod.NONE, cfg)
+    r = pipe.process(_ambiguous_capture(day, u, v), 0.4, ALT, 0.0,
+                     estimate=(x + offset_m * 0.9, y - offset_m * 0.45, 1.5, 1.5))
+    assert r.accepted is not rejected and pipe.ambiguities_rejected == int(rejected)
+    assert (r.reason is Reason.AMBIGUOUS_FAR) is rejected
+    assert not r.ambiguity_resolved          # resolution off: the mixture's covariance either way
+    # without an estimate nothing is decided on it
+    assert pipe.process(_ambiguous_capture(day, u, v), 0.4, ALT, 0.1).accepted
