@@ -12,7 +12,8 @@ Inputs
                                          also its position with prior_from_estimate, or for the
                                          search without a track with drop_rejected_track_s and
                                          reacquire_window_s, its position and 1-sigma with
-                                         resolve_ambiguity_min_posterior, and
+                                         resolve_ambiguity_min_posterior or
+                                         reject_ambiguity_below_posterior, and
                                          its velocity with dr_from_estimate)
 Outputs
   ``perception/fix/<node_id>``   VisionFix  (one per frame; ``valid`` false when no match)
@@ -215,9 +216,8 @@ class PerceptionNode:
         self._headings: deque[tuple[int, float]] = deque(maxlen=200)
         self._altitudes: deque[tuple[int, float]] = deque(maxlen=200)
         self._tilts: deque[tuple[int, tuple[float, float]]] = deque(maxlen=400)
-        # (east, north, prior radius, re-acquisition radius): metres, None = the whole map
         # the estimate at its time: (east, north, window radius or None, re-acquisition radius or
-        # None, 1-sigma east, 1-sigma north), m
+        # None = the whole map, 1-sigma east, 1-sigma north), m
         self._priors: deque[tuple[int, tuple[float, float, float | None, float | None, float, float]]] = \
             deque(maxlen=400)
         self._velocities: deque[tuple[int, tuple[float, float]]] = deque(maxlen=400)
