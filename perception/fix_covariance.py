@@ -68,16 +68,6 @@ def _local_terms(cfg: MatcherConfig, peak: float, curvature: tuple[float, float,
     return l00, l01, l10, l11
 
 
-def local_covariance_px(cfg: MatcherConfig, peak: float, curvature: tuple[float, float, float] | None,
-                        edge_axes: tuple[bool, bool], rx: float, ry: float, n_px: int) -> np.ndarray:
-    """The covariance without the ambiguity term (local term plus the floor, px^2): where the peak
-    lies if this is the right place (``resolve_ambiguity``)."""
-    l00, l01, l10, l11 = _local_terms(cfg, peak, curvature, edge_axes, rx * rx / 3.0, ry * ry / 3.0, n_px)
-    f2 = cfg.cov_floor_px ** 2
-    c01 = 0.5 * (l01 + l10)
-    return np.array([[l00 + f2, c01], [c01, l11 + f2]])
-
-
 def covariance_px(cfg: MatcherConfig, peak: float, curvature: tuple[float, float, float] | None,
                   edge_axes: tuple[bool, bool], psr: float, spr: float, rx: float, ry: float,
                   n_px: int) -> np.ndarray:
@@ -86,6 +76,15 @@ def covariance_px(cfg: MatcherConfig, peak: float, curvature: tuple[float, float
 
     Scalar arithmetic on the four entries; det(A / r) and A^-1 by the 2x2 closed forms.
     """
+    return covariance_parts_px(cfg, peak, curvature, edge_axes, psr, spr, rx, ry, n_px)[0]
+
+
+def covariance_parts_px(cfg: MatcherConfig, peak: float, curvature: tuple[float, float, float] | None,
+                        edge_axes: tuple[bool, bool], psr: float, spr: float, rx: float, ry: float,
+                        n_px: int) -> tuple[np.ndarray, np.ndarray, float]:
+    """(``covariance_px``'s covariance, the local covariance without the ambiguity term, the
+    ambiguity weight), px^2, from one evaluation of the local term. The local covariance (local term
+    plus the floor) is where the peak lies if this is the right place (``local_mode_posterior``)."""
     ux, uy = rx * rx / 3.0, ry * ry / 3.0          # diag of the uniform (search-area) term
     l00, l01, l10, l11 = _local_terms(cfg, peak, curvature, edge_axes, ux, uy, n_px)
     w = ambiguity_weight(cfg, psr, spr, peak)
@@ -99,7 +98,9 @@ def covariance_px(cfg: MatcherConfig, peak: float, curvature: tuple[float, float
     c11 = min(c11, uy * 2.0 + f2)
     lim = math.sqrt(c00 * c11) * 0.999
     c01 = _clip(c01, -lim, lim)
-    return np.array([[c00, c01], [c01, c11]])
+    local01 = 0.5 * (l01 + l10)
+    local = np.array([[l00 + f2, local01], [local01, l11 + f2]])
+    return np.array([[c00, c01], [c01, c11]]), local, w
 
 
 def _clip(x: float, lo: float, hi: float) -> float:

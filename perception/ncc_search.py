@@ -24,8 +24,7 @@ from perception.config import MatcherConfig, NccMethod
 from perception.fix_covariance import (
     ambiguity_weight,
     coarse_to_fine_covariance_m2,
-    covariance_px,
-    local_covariance_px,
+    covariance_parts_px,
     px_to_enu_cov,
 )
 from perception.match_metrics import MatchMetrics, SearchTimes
@@ -420,8 +419,7 @@ class SceneMatcher:
         rx = max(0.5, (vals.shape[1]) / 2.0)
         ry = max(0.5, (vals.shape[0]) / 2.0)
         n_px = tw * th if n_valid_px is None else n_valid_px
-        cov = covariance_px(cfg, peak, pk.curvature, pk.edge_axes, psr, spr, rx, ry, n_px)
-        local = local_covariance_px(cfg, peak, pk.curvature, pk.edge_axes, rx, ry, n_px)
+        cov, local, w = covariance_parts_px(cfg, peak, pk.curvature, pk.edge_axes, psr, spr, rx, ry, n_px)
         x, y = self.pixel_to_world(u, v)
         cov_m2 = px_to_enu_cov(cov, self.m_per_px)
         quality_ok = self._quality_ok(peak, psr, spr, pk.at_border, flat)
@@ -431,7 +429,7 @@ class SceneMatcher:
             peak_at_border=pk.at_border, flat_template=flat, search=search, window_px=window,
             timings=SearchTimes(crop_ms=crop_ms, ncc_ms=ncc_ms, refine_ms=(_timer() - t_refine) * _MS),
             local_covariance_m2=px_to_enu_cov(local, self.m_per_px),
-            ambiguity_weight=ambiguity_weight(cfg, psr, spr, peak),
+            ambiguity_weight=w,
             search_area_m2=4.0 * rx * ry * self.m_per_px * self.m_per_px)
 
     def _quality_ok(self, peak: float, psr: float, spr: float, at_border: bool, flat: bool) -> bool:
