@@ -371,19 +371,19 @@ class PerceptionPipeline:
             pointing = pointing_covariance_m2(
                 altitude_m, (du * self.m_per_px, -dv * self.m_per_px),
                 math.radians(cfg.pointing_attitude_std_deg), math.radians(cfg.pointing_heading_std_deg))
-        share = None
+        local_mode = None
         if decision is Decision.ACCEPT and estimate is not None:
-            share = self._local_share(match, pointing, estimate)
-            if share is not None and share < cfg.reject_ambiguity_below_posterior:
+            local_mode = self._local_mode(match, pointing, estimate)
+            if local_mode is not None and local_mode[0] < cfg.reject_ambiguity_below_posterior:
                 decision, reason = Decision.REJECT, Reason.AMBIGUOUS_FAR
                 self._trusted_track = False
                 self.ambiguities_rejected += 1
         self._follow_verdict(t_s, match, decision, reason)
         covariance_m2 = match.covariance_m2 if pointing is None else match.covariance_m2 + pointing
         resolved = False
-        if (decision is Decision.ACCEPT and share is not None and cfg.resolve_ambiguity_min_posterior > 0.0
-                and share >= cfg.resolve_ambiguity_min_posterior and match.local_covariance_m2 is not None):
-            covariance_m2 = match.local_covariance_m2 if pointing is None else match.local_covariance_m2 + pointing
+        if (decision is Decision.ACCEPT and local_mode is not None and cfg.resolve_ambiguity_min_posterior > 0.0
+                and local_mode[0] >= cfg.resolve_ambiguity_min_posterior):
+            covariance_m2 = local_mode[1]
             resolved = True
             self.ambiguities_resolved += 1
         if cfg.covariance_scale != 1.0:
@@ -402,20 +402,22 @@ class PerceptionPipeline:
             reach_excess_px=reach_excess_px, drone_px=drone, p_false=p_false,
             decision_rule=self.rule, ambiguity_resolved=resolved)
 
-    def _local_share(self, match: MatchResult, pointing: np.ndarray | None,
-                     estimate: tuple[float, float, float, float]) -> float | None:
-        """The share of the posterior an ambiguous match's own peak holds against ``estimate`` (east
-        m, north m, 1-sigma east m, 1-sigma north m; ``fix_covariance.local_mode_posterior``); None
-        when neither ``resolve_ambiguity_min_posterior`` nor ``reject_ambiguity_below_posterior`` is
-        on, or the match is not ambiguous."""
+    def _local_mode(self, match: MatchResult, pointing: np.ndarray | None,
+                    estimate: tuple[float, float, float, float]) -> tuple[float, np.ndarray] | None:
+        """(The share of the posterior an ambiguous match's own peak holds against ``estimate`` (east
+        m, north m, 1-sigma east m, 1-sigma north m; ``fix_covariance.local_mode_posterior``), that
+        peak's covariance with the pointing term); None when neither
+        ``resolve_ambiguity_min_posterior`` nor ``reject_ambiguity_below_posterior`` is on, or the
+        match is not ambiguous."""
         cfg = self.cfg
         if (cfg.resolve_ambiguity_min_posterior <= 0.0 and cfg.reject_ambiguity_below_posterior <= 0.0) \
                 or match.local_covariance_m2 is None or match.ambiguity_weight <= 0.0:
             return None
         local = match.local_covariance_m2 if pointing is None else match.local_covariance_m2 + pointing
         prior_cov = np.diag([estimate[2] * estimate[2], estimate[3] * estimate[3]])
-        return local_mode_posterior(match.position_enu_m, local, match.ambiguity_weight,
-                                    match.search_area_m2, (estimate[0], estimate[1]), prior_cov)
+        share = local_mode_posterior(match.position_enu_m, local, match.ambiguity_weight,
+                                     match.search_area_m2, (estimate[0], estimate[1]), prior_cov)
+        return share, local
 
     def _follow_verdict(self, t_s: float, match: MatchResult, decision: Decision, reason: Reason) -> None:
         """Drop the track when the rule has rejected its quality-ok matches for
