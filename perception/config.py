@@ -318,6 +318,33 @@ class PerceptionNodeConfig:
         check(0.0 <= self.reacquire_min_radius_m <= 1000.0, "reacquire_min_radius_m",
               self.reacquire_min_radius_m, "a number of metres in [0, 1000]")
 
+    def pipeline_config(self, fov_deg: float) -> PerceptionConfig:
+        """The pipeline's ``PerceptionConfig`` for these node settings and the camera's FOV (the one
+        place the scenario's ``perception`` keys become the algorithm's; the decision rule follows
+        from the weights file, ``perception.node.make_pipeline``)."""
+        return PerceptionConfig(
+            fov_deg=fov_deg, min_rated_footprint_share=self.min_rated_footprint_share,
+            heading_offset=HeadingOffsetConfig(enabled=self.heading_learning),
+            pointing_attitude_std_deg=self.pointing_attitude_std_deg,
+            pointing_heading_std_deg=self.pointing_heading_std_deg,
+            track_below_rated=self.track_below_rated, covariance_scale=self.covariance_scale,
+            drop_rejected_track_s=self.drop_rejected_track_s, reacquire_window_s=self.reacquire_window_s,
+            resolve_ambiguity_min_posterior=self.resolve_ambiguity_min_posterior,
+            reject_ambiguity_below_posterior=self.reject_ambiguity_below_posterior,
+            matcher=MatcherConfig(gradient_refine_radius_px=self.gradient_refine_radius_px))
+
+    @property
+    def uses_estimate_position(self) -> bool:
+        """The node reads the autopilot estimate's position (and 1-sigma): a search prior, a
+        re-acquisition, the ambiguity resolution or rejection."""
+        return (self.prior_from_estimate or self.reacquires or self.resolve_ambiguity_min_posterior > 0.0
+                or self.reject_ambiguity_below_posterior > 0.0)
+
+    @property
+    def reacquires(self) -> bool:
+        """A lost or dropped track is searched for around the estimate."""
+        return self.drop_rejected_track_s > 0.0 or self.reacquire_window_s > 0.0
+
 
 #: A frame's FOV may differ from the expected one by this much (JSON round trip, config rounding).
 FOV_TOLERANCE_DEG = 1e-6

@@ -46,7 +46,7 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
-from perception.config import ExpectedCamera, MatcherConfig, PerceptionConfig
+from perception.config import ExpectedCamera, PerceptionConfig, PerceptionNodeConfig
 from perception.match_metrics import MatchMetrics
 from scenenav.core.bus import Bus, BusConfig
 from scenenav.core.contracts import (
@@ -70,46 +70,24 @@ if TYPE_CHECKING:
 log = logging.getLogger(__name__)
 
 
-def make_pipeline(world, method: str, assistant_map_path: str | None, weights: str | None = None,
-                  fov_deg: float = PerceptionConfig.fov_deg, reference: str = "default",
-                  min_rated_footprint_share: float = PerceptionConfig.min_rated_footprint_share,
-                  heading_learning: bool = False, pointing_std_deg: tuple[float, float] = (0.0, 0.0),
-                  track_below_rated: bool = False, covariance_scale: float = 1.0,
-                  gradient_refine_radius_px: int = 0, drop_rejected_track_s: float = 0.0,
-                  reacquire_window_s: float = 0.0, resolve_ambiguity_min_posterior: float = 0.0,
-                  reject_ambiguity_below_posterior: float = 0.0):
-    """The pure perception pipeline for a world and a false-match method (``fov_deg``: the camera's,
-    used when a capture does not state its own).
+def make_pipeline(world, settings: PerceptionNodeConfig, *, fov_deg: float = PerceptionConfig.fov_deg,
+                  weights: str | None = None):
+    """The pure perception pipeline for a world and the scenario's ``perception`` settings
+    (``PerceptionNodeConfig``: its method, assistant map, reference and the keys
+    ``PerceptionNodeConfig.pipeline_config`` passes on). ``fov_deg``: the camera's, used when a
+    capture does not state its own.
 
     ``weights``: a CNN ``.pt`` (the paper's rule, P(bad) > 0.5) or a combined decision-model
     ``.json`` (perception.decision.CombinedDecisionModel): that file selects the combined rule and
     names the CNN weights it was fitted with. Empty: ``perception/weights/default.pt``, paper rule.
-    ``reference``: the reference map matched against: ``default`` (the one the world's manifest
-    names), ``orthophoto`` or ``perspective`` (``worlds.world.World.reference_map``).
-    ``min_rated_footprint_share``: ``PerceptionConfig.min_rated_footprint_share`` (0: off).
-    ``heading_learning``: learn the compass heading error from the matches (perception.heading_offset).
-    ``pointing_std_deg``: (attitude, heading) 1-sigma errors of the alignment's inputs, added to each
-    fix's covariance (``PerceptionConfig.pointing_attitude_std_deg``, ``pointing_heading_std_deg``).
-    ``track_below_rated``: ``PerceptionConfig.track_below_rated`` (track continuation below the rated height).
-    ``covariance_scale``: ``PerceptionConfig.covariance_scale`` (every published covariance times it).
-    ``gradient_refine_radius_px``: ``MatcherConfig.gradient_refine_radius_px`` (0: off).
-    ``drop_rejected_track_s``, ``reacquire_window_s``, ``resolve_ambiguity_min_posterior``,
-    ``reject_ambiguity_below_posterior``: ``PerceptionConfig``'s (0: off).
+    ``settings.reference``: the reference map matched against: ``default`` (the one the world's
+    manifest names), ``orthophoto`` or ``perspective`` (``worlds.world.World.reference_map``).
+    ``settings.assistant_map``: a saved ``.npz`` (empty: an empty map, filled online).
     """
     from perception.decision import CombinedDecisionModel, DecisionRule, FalseMatchMethod
-    from perception.heading_offset import HeadingOffsetConfig
     from perception.pipeline import PerceptionPipeline
-    m = FalseMatchMethod(method)
-    learning = HeadingOffsetConfig(enabled=heading_learning)
-    cfg = PerceptionConfig(fov_deg=fov_deg, min_rated_footprint_share=min_rated_footprint_share,
-                           heading_offset=learning, pointing_attitude_std_deg=pointing_std_deg[0],
-                           pointing_heading_std_deg=pointing_std_deg[1],
-                           track_below_rated=track_below_rated, covariance_scale=covariance_scale,
-                           drop_rejected_track_s=drop_rejected_track_s,
-                           reacquire_window_s=reacquire_window_s,
-                           resolve_ambiguity_min_posterior=resolve_ambiguity_min_posterior,
-                           reject_ambiguity_below_posterior=reject_ambiguity_below_posterior,
-                           matcher=MatcherConfig(gradient_refine_radius_px=gradient_refine_radius_px))
+    m = FalseMatchMethod(settings.method)
+    cfg = settings.pipeline_config(fov_deg)
     decision_model = None
     if weights and str(weights).endswith(".json"):
         decision_model = CombinedDecisionModel.load(weights)
@@ -128,12 +106,12 @@ def make_pipeline(world, method: str, assistant_map_path: str | None, weights: s
         classify = clf.predict_proba
     if m == FalseMatchMethod.ASSISTANT_MAP or m == FalseMatchMethod.CNN:
         from perception.assistant_map import AssistantMap
-        if assistant_map_path:
-            amap = AssistantMap.load(assistant_map_path)
+        if settings.assistant_map:
+            amap = AssistantMap.load(settings.assistant_map)
         else:
             amap = AssistantMap.empty(world.width_px, world.height_px, world.m_per_px,
                                       world_name=world.manifest.name)
-    ref = world.reference_map(None if reference == "default" else reference)
+    ref = world.reference_map(None if settings.reference == "default" else settings.reference)
     return PerceptionPipeline(ref, world.m_per_px, m, cfg,
                               classify=classify, assistant_map=amap, decision_model=decision_model)
 
@@ -161,32 +139,22 @@ STALLED_ESTIMATE_PERIODS = 20
 class PerceptionNode:
     """See the module docstring. ``camera``: the camera this node expects (FOV and size)."""
 
-    def __init__(self, world, bus_cfg: BusConfig, node_id: str, method: str,
-                 assistant_map_path: str | None = None, lockstep: bool = True,
+    def __init__(self, world, bus_cfg: BusConfig, node_id: str, settings: PerceptionNodeConfig, *,
                  out_dir: Path | None = None, camera: ExpectedCamera | None = None,
-                 weights: str | None = None, reference: str = "default",
-                 alignment: str = "rotation-scale",
-                 min_rated_footprint_share: float = PerceptionConfig.min_rated_footprint_share,
-                 heading_learning: bool = False, prior_from_estimate: bool = False,
-                 prior_margin_px: int = 24, pointing_std_deg: tuple[float, float] = (0.0, 0.0),
-                 track_below_rated: bool = False, covariance_scale: float = 1.0,
-                 gradient_refine_radius_px: int = 0, dr_from_estimate: bool = False,
-                 drop_rejected_track_s: float = 0.0, reacquire_window_s: float = 0.0,
-                 reacquire_min_radius_m: float = 30.0, resolve_ambiguity_min_posterior: float = 0.0,
-                 reject_ambiguity_below_posterior: float = 0.0):
+                 weights: str | None = None):
         self.world = world
-        self.dr_from_estimate = dr_from_estimate
-        self.reacquire = drop_rejected_track_s > 0.0 or reacquire_window_s > 0.0
-        self.reacquire_min_radius_m = reacquire_min_radius_m
+        self.settings = settings
+        self.dr_from_estimate = settings.dr_from_estimate
+        self.reacquire = settings.reacquires
+        self.reacquire_min_radius_m = settings.reacquire_min_radius_m
         # the estimate's position is used: a search prior, a re-acquisition, the ambiguity resolution
-        self.wants_position = (prior_from_estimate or self.reacquire or resolve_ambiguity_min_posterior > 0.0
-                               or reject_ambiguity_below_posterior > 0.0)
-        self.homography = alignment == "homography"
-        self.prior_from_estimate = prior_from_estimate
-        self.prior_margin_px = prior_margin_px
+        self.wants_position = settings.uses_estimate_position
+        self.homography = settings.alignment == "homography"
+        self.prior_from_estimate = settings.prior_from_estimate
+        self.prior_margin_px = settings.prior_margin_px
         self.node_id = node_id
-        self.method = method
-        self.lockstep = lockstep
+        self.method = settings.method
+        self.lockstep = settings.lockstep
         self.out_dir = out_dir
         self.camera = camera if camera is not None else ExpectedCamera()
         self.keys = Keys(bus_cfg.namespace)
@@ -196,12 +164,7 @@ class PerceptionNode:
         # the alignment, window and global correlation, dilation).
         import cv2
         cv2.setNumThreads(1)
-        self.pipeline = make_pipeline(world, method, assistant_map_path, weights, self.camera.fov_deg,
-                                      reference, min_rated_footprint_share, heading_learning,
-                                      pointing_std_deg, track_below_rated, covariance_scale,
-                                      gradient_refine_radius_px, drop_rejected_track_s,
-                                      reacquire_window_s, resolve_ambiguity_min_posterior,
-                                      reject_ambiguity_below_posterior)
+        self.pipeline = make_pipeline(world, settings, fov_deg=self.camera.fov_deg, weights=weights)
         self._diag = None
         if out_dir is not None:
             try:
@@ -236,12 +199,12 @@ class PerceptionNode:
         self.bus.subscribe(self.keys.camera, CameraFrame, self._on_frame)
         # Announce only once subscribed, so nothing addressed to us is lost.
         self.bus.declare_token(self.keys.node_alive("perception", node_id))
-        if lockstep:
+        if self.lockstep:
             self.bus.declare_token(self.keys.lockstep_member(LockstepRole.CAMERA, node_id))
-        self._info = NodeInfo(0, node_id, "perception", method)
+        self._info = NodeInfo(0, node_id, "perception", self.method)
         self._info_repeated = False
         self.bus.publish(self.keys.node_info(node_id), self._info)
-        log.info("perception node %s up (method %s, lockstep %s)", node_id, method, lockstep)
+        log.info("perception node %s up (method %s, lockstep %s)", node_id, self.method, self.lockstep)
 
     def _on_compass(self, msg: CompassSample, _k: str) -> None:
         with self._sensor_lock:

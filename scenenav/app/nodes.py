@@ -214,21 +214,12 @@ def run_perception(run_dir: Path | None, bus_cfg: BusConfig, method: str | None,
     world = load_world_for(cfg) if not world_dir else __import__(
         "worlds.world", fromlist=["load_world"]).load_world(world_dir)
     pcfg = cfg.perception
-    node = PerceptionNode(
-        world, bus_cfg, node_id=node_id, method=method or pcfg.method,
-        assistant_map_path=assistant_map if assistant_map is not None else (pcfg.assistant_map or None),
-        lockstep=pcfg.lockstep if lockstep is None else lockstep,
-        out_dir=run_dir, camera=perception_camera(cfg), weights=_perception_weights(pcfg),
-        reference=pcfg.reference, alignment=pcfg.alignment,
-        min_rated_footprint_share=pcfg.min_rated_footprint_share, heading_learning=pcfg.heading_learning,
-        prior_from_estimate=pcfg.prior_from_estimate, prior_margin_px=pcfg.prior_margin_px,
-        pointing_std_deg=(pcfg.pointing_attitude_std_deg, pcfg.pointing_heading_std_deg),
-        track_below_rated=pcfg.track_below_rated, covariance_scale=pcfg.covariance_scale,
-        gradient_refine_radius_px=pcfg.gradient_refine_radius_px, dr_from_estimate=pcfg.dr_from_estimate,
-        drop_rejected_track_s=pcfg.drop_rejected_track_s, reacquire_window_s=pcfg.reacquire_window_s,
-        reacquire_min_radius_m=pcfg.reacquire_min_radius_m,
-        resolve_ambiguity_min_posterior=pcfg.resolve_ambiguity_min_posterior,
-        reject_ambiguity_below_posterior=pcfg.reject_ambiguity_below_posterior)
+    settings = dataclasses.replace(
+        pcfg, method=method or pcfg.method,
+        assistant_map=assistant_map if assistant_map is not None else pcfg.assistant_map,
+        lockstep=pcfg.lockstep if lockstep is None else lockstep)
+    node = PerceptionNode(world, bus_cfg, node_id, settings, out_dir=run_dir, camera=perception_camera(cfg),
+                          weights=_perception_weights(pcfg))
     stop.wait()
     node.close()
     return 0

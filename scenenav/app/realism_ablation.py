@@ -125,6 +125,7 @@ def fly(cfg, world, *, probes: tuple[Probe, ...] = (Probe.NODE,), method: str = 
     from autopilot_bridge.params import ParameterStore
     from autopilot_bridge.route_mission import build_route_mission
     from perception.alignment import BadInput
+    from perception.config import PerceptionNodeConfig
     from perception.node import make_pipeline
     from scenenav.app.nodes import _perception_weights, autopilot_setup
     from scenenav.core.frames import heading_to_enu_yaw
@@ -157,9 +158,12 @@ def fly(cfg, world, *, probes: tuple[Probe, ...] = (Probe.NODE,), method: str = 
     next_est_us = 0
 
     pweights = weights if weights is not None else _perception_weights(cfg.perception)
-    pipes = {p: make_pipeline(world, method, None, pweights, sim.camera.fov_deg, cfg.perception.reference,
-                              cfg.perception.heading_learning and p is not Probe.TRUTH_HEADING
-                              and p is not Probe.TRUTH_ALL)
+    # the method, the reference and the heading learning of the scenario; every other perception key
+    # at its default (the harness's measurements were taken so)
+    pipes = {p: make_pipeline(world, PerceptionNodeConfig(
+                method=method, reference=cfg.perception.reference,
+                heading_learning=cfg.perception.heading_learning and p is not Probe.TRUTH_HEADING
+                and p is not Probe.TRUTH_ALL), fov_deg=sim.camera.fov_deg, weights=pweights)
              for p in probes}
     homography = cfg.perception.alignment == "homography"
     gps_on = sim.gps.enabled

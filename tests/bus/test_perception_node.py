@@ -37,6 +37,7 @@ def _frame(world, seq, t_us, size=200, fov_deg=60.0, altitude_m=100.0):
 def _live_node(world, camera=None, alignment="rotation-scale"):
     """A perception node (method none, lockstep) and a hub on a fresh bus, the node's fixes and acks
     collected; yields (hub, keys, node, fixes, acks) once the node is a lockstep member."""
+    from perception.config import PerceptionNodeConfig
     from perception.node import PerceptionNode
     port = free_port()
     hub = Bus(BusConfig("pn", port, listen_hub=True))
@@ -46,8 +47,8 @@ def _live_node(world, camera=None, alignment="rotation-scale"):
     hub.subscribe(keys.lockstep_ack_all, LockstepAck, lambda m, k: acks.append(m))
     up = threading.Event()
     hub.watch_liveliness(keys.lockstep_member_all, lambda k, a: up.set() if a else None)
-    node = PerceptionNode(world, BusConfig("pn", port), node_id="p1", method="none", lockstep=True,
-                          camera=camera, alignment=alignment)
+    node = PerceptionNode(world, BusConfig("pn", port), "p1",
+                          PerceptionNodeConfig(method="none", lockstep=True, alignment=alignment), camera=camera)
     try:
         assert up.wait(15)
         hub.publish(keys.compass, CompassSample(0, 0.0))

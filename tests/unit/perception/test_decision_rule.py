@@ -10,7 +10,7 @@ import numpy as np
 import pytest
 from test_pipeline import ALT, MPP, cnn_fake, fly, render
 
-from perception.config import PerceptionConfig
+from perception.config import PerceptionConfig, PerceptionNodeConfig
 from perception.decision import (
     COMBINED_FEATURES,
     DEFAULT_DECISION_MODEL,
@@ -226,8 +226,9 @@ def test_node_pipeline_rule_follows_the_weights_file(world):
     ref, _ = world
     w = SimpleNamespace(reference=ref, m_per_px=MPP, width_px=ref.shape[1], height_px=ref.shape[0],
                         manifest=SimpleNamespace(name="t"), reference_map=lambda _kind=None: ref)
-    assert make_pipeline(w, "assistant-map", None).rule is DecisionRule.PAPER
-    pipe = make_pipeline(w, "assistant-map", None, str(DEFAULT_DECISION_MODEL))
+    settings = PerceptionNodeConfig(method="assistant-map")
+    assert make_pipeline(w, settings).rule is DecisionRule.PAPER
+    pipe = make_pipeline(w, settings, weights=str(DEFAULT_DECISION_MODEL))
     assert pipe.rule is DecisionRule.COMBINED
     assert pipe.cfg.decision_rule is DecisionRule.COMBINED
 

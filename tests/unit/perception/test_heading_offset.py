@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 from test_pipeline import ALT, render
 
-from perception.config import PerceptionConfig
+from perception.config import PerceptionConfig, PerceptionNodeConfig
 from perception.heading_offset import (
     HeadingDeviation,
     HeadingOffsetConfig,
@@ -147,8 +147,8 @@ def test_node_pipeline_factory_passes_the_scenario_key(world):
     from perception.node import make_pipeline
     ref_rgb, _ = world
     w = SimpleNamespace(reference_map=lambda kind: ref_rgb, m_per_px=0.5)
-    assert make_pipeline(w, "none", None, heading_learning=True).heading_deviation is not None
-    assert make_pipeline(w, "none", None).heading_deviation is None
+    assert make_pipeline(w, PerceptionNodeConfig(heading_learning=True)).heading_deviation is not None
+    assert make_pipeline(w, PerceptionNodeConfig()).heading_deviation is None
 
 
 def test_realistic_profile_learns_the_heading():
