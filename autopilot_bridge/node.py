@@ -96,6 +96,7 @@ from scenenav.core.contracts import (
 )
 from scenenav.core.errors import UserError
 from scenenav.core.keys import Keys
+from scenenav.core.presence import announce_node
 
 log = logging.getLogger(__name__)
 
@@ -223,7 +224,7 @@ class AutopilotNode:
                                       ItemKind.CAMERA_MEMBER, node_id=key.rsplit("/", 1)[-1],
                                       alive=alive)))
         # announce only once subscribed
-        self.bus.declare_token(k.node_alive("autopilot", NODE_ID))
+        self.presence = announce_node(self.bus, k, "autopilot", NODE_ID)
         self.bus.declare_token(k.lockstep_member(LockstepRole.TICK, NODE_ID))
         detail = (f"mavlink tcp {self.server.tcp_port or 'off'}, "
                   f"source {self.params.get_int('EK3_SRC1_POSXY')}")

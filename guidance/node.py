@@ -75,6 +75,7 @@ from scenenav.core.formats.world_manifest import WorldManifest
 from scenenav.core.frames import enu_to_geodetic
 from scenenav.core.geometry import distance_to_polyline_m
 from scenenav.core.keys import Keys
+from scenenav.core.presence import announce_node
 
 log = logging.getLogger(__name__)
 
@@ -145,7 +146,7 @@ class GuidanceNode:
         self.bus.subscribe(self.keys.nav_estimate, NavEstimate, self._on_estimate)
         self.bus.subscribe(self.keys.autopilot_status, AutopilotStatus, self._on_status)
         self.bus.subscribe(self.keys.clock, ClockTick, self._on_tick)
-        self.bus.declare_token(self.keys.node_alive("guidance", NODE_ID))
+        self.presence = announce_node(self.bus, self.keys, "guidance", NODE_ID)
         if cfg.lockstep:
             self._member_token = self.bus.declare_token(
                 self.keys.lockstep_member(LockstepRole.TICK, NODE_ID))

@@ -62,6 +62,7 @@ from scenenav.core.contracts import (
     VisionFix,
 )
 from scenenav.core.keys import Keys
+from scenenav.core.presence import announce_node
 from scenenav.core.rotations import aviation_euler_from_quat
 
 if TYPE_CHECKING:
@@ -198,7 +199,7 @@ class PerceptionNode:
             self.bus.subscribe(self.keys.nav_estimate, NavEstimate, self._on_estimate)
         self.bus.subscribe(self.keys.camera, CameraFrame, self._on_frame)
         # Announce only once subscribed, so nothing addressed to us is lost.
-        self.bus.declare_token(self.keys.node_alive("perception", node_id))
+        self.presence = announce_node(self.bus, self.keys, "perception", node_id)
         if self.lockstep:
             self.bus.declare_token(self.keys.lockstep_member(LockstepRole.CAMERA, node_id))
         self._info = NodeInfo(0, node_id, "perception", self.method)

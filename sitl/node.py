@@ -56,6 +56,7 @@ from scenenav.core.contracts import (
 from scenenav.core.frames import heading_to_enu_yaw
 from scenenav.core.keys import Keys
 from scenenav.core.lockstep import LockstepBarrier
+from scenenav.core.presence import announce_node
 from sitl.config import SimNodeConfig
 from sitl.core import SimulatorCore, TickOutput
 from sitl.surroundings import BUILDING_MIN_HEIGHT_M, Surface
@@ -157,7 +158,7 @@ class SimulatorNode:
         self.bus.subscribe(self.keys.lockstep_ack_all, LockstepAck, self._on_ack)
         self.bus.subscribe(self.keys.autopilot_status, AutopilotStatus, self._on_status)
         self.bus.watch_liveliness(self.keys.lockstep_member_all, self._on_member)
-        self.bus.declare_token(self.keys.node_alive("sim", NODE_ID))
+        self.presence = announce_node(self.bus, self.keys, "sim", NODE_ID)
 
     # --------------------------------------------------------------------------- callbacks
     def _on_motor(self, msg: MotorCommand, _key: str) -> None:

@@ -27,6 +27,7 @@ from scenenav.app.ws_subprotocol import SubprotocolBridge
 from scenenav.core.bus import Bus, BusConfig
 from scenenav.core.contracts import CameraFrame, DecodeError, decode, message_type
 from scenenav.core.keys import Keys, type_for_key
+from scenenav.core.presence import announce_node
 
 log = logging.getLogger(__name__)
 
@@ -65,7 +66,7 @@ class LiveNode:
         log.info("live view: ws://%s:%d", HOST, self.port)
         self.bus = Bus(bus_cfg)
         self.bus.subscribe_raw(self.keys.everything, self._on_sample)
-        self.bus.declare_token(self.keys.node_alive("live", NODE_ID))
+        self.presence = announce_node(self.bus, self.keys, "live", NODE_ID)
 
     def _channel(self, topic: str, schema_name: str, schema: bytes) -> foxglove.Channel:
         ch = self._channels.get(topic)

@@ -19,6 +19,7 @@ from scenenav.app.scenario import FlightMode, ScenarioConfig, load_scenario, rou
 from scenenav.app.signals import stop_event
 from scenenav.core.bus import EXIT_HUB_PORT_TAKEN, BusConfig, HubPortTaken
 from scenenav.core.contracts import LockstepRole
+from scenenav.core.presence import parse_node_key, parse_sees_key
 
 log = logging.getLogger(__name__)
 
@@ -67,13 +68,14 @@ HUB_FILE = "hub.json"
 EXTERNAL_FILE = "external.json"
 #: Exit code of the simulator when an external node did not join in time (``EX_UNAVAILABLE``).
 EXIT_EXTERNAL_MISSING = 69
-#: Wall seconds the clock waits after the last external node joined. The simulator (the hub) sees
-#: a node's token as soon as the node connects to it, but the node's direct links to the other peers
-#: (the recorder, the autopilot) are made afterwards by gossip, and Zenoh peers do not forward for
-#: each other: a fix published before its link to the recorder exists is not recorded (seen once in
-#: 2026-12-05's CI: frame 0's fix and ack of tests/e2e/test_external_node.py missing from fixes.csv).
-#: Gossip meshes loopback peers within milliseconds; this leaves ample margin.
-EXTERNAL_MESH_SETTLE_S = 1.0
+#: Wall seconds the clock waits, after the external nodes joined, for every node of the run to echo
+#: each of them (``scenenav.core.presence``): the simulator (the hub) sees a node's token as soon as
+#: the node connects to it, but the node's direct links to the other peers (the recorder, the
+#: autopilot) are made afterwards by gossip, and Zenoh peers do not forward for each other: a fix
+#: published before its link to the recorder exists is not recorded (seen once in 2026-12-05's CI:
+#: frame 0's fix and ack of tests/e2e/test_external_node.py missing from fixes.csv). Gossip meshes
+#: loopback peers within milliseconds; past this the clock starts anyway, with a warning.
+EXTERNAL_LINK_TIMEOUT_S = 10.0
 
 
 def wait_external_nodes(node, cfg: ScenarioConfig, run_dir: Path,
@@ -116,12 +118,44 @@ def wait_external_nodes(node, cfg: ScenarioConfig, run_dir: Path,
                   ", ".join(missing), cfg.external.join_timeout_s)
         return False
     log.info("external node(s) joined: %s", ", ".join(joined))
-    # let gossip link the new node(s) with the other peers before the first frame goes out
-    if stop is not None:
-        stop.wait(EXTERNAL_MESH_SETTLE_S)
-    else:
-        time.sleep(EXTERNAL_MESH_SETTLE_S)
+    t_joined = time.monotonic()
+    unlinked = wait_external_links(node, members, stop)
+    write_stats(run_dir / EXTERNAL_FILE, {"joined": joined, "missing": missing,
+                                          "waited_s": round(t_joined - t0, 3),
+                                          "join_timeout_s": cfg.external.join_timeout_s,
+                                          "links_waited_s": round(time.monotonic() - t_joined, 3),
+                                          "unlinked": unlinked})
     return True
+
+
+def wait_external_links(node, members, stop: threading.Event | None = None,
+                        timeout_s: float = EXTERNAL_LINK_TIMEOUT_S) -> list[str]:
+    """Wait until every other node of the run (each live ``nodes/<role>/<id>`` but the simulator and
+    the external ones) has echoed every external member (``Keys.node_sees``: it has a link to it),
+    at most ``timeout_s``. Returns the links still missing, ``OBSERVER->ROLE:ID`` (logged)."""
+    external = {(m.role, m.node_id) for m in members}
+    own = ("sim", "sim")
+    keys = node.keys
+
+    def missing() -> tuple[list[str], int]:
+        alive = {parse_node_key(keys, k) for k in node.bus.alive_tokens(keys.node_alive_all)}
+        sees = {parse_sees_key(keys, k) for k in node.bus.alive_tokens(keys.node_sees_all)}
+        observers = sorted(n for n in alive - external - {own} if n is not None)
+        return ([f"{o[0]}:{o[1]}->{e[0]}:{e[1]}" for o in observers for e in sorted(external)
+                 if (o, e) not in sees], len(observers) * len(external))
+
+    deadline = time.monotonic() + timeout_s
+    left, links = missing()
+    while left and time.monotonic() < deadline and not (stop is not None and stop.is_set()):
+        time.sleep(0.05)
+        left, links = missing()
+    if not left:
+        log.info("every node of the run links to the external node(s) (%d link(s) echoed)", links)
+    else:
+        log.warning("after %.0f s, no link yet for %s (a node that does not echo, or a slow mesh): "
+                    "starting the clock anyway; the first messages between them may be lost",
+                    timeout_s, ", ".join(left))
+    return left
 
 
 def run_sim(run_dir: Path, bus_cfg: BusConfig, expect: tuple[str, ...]) -> int:

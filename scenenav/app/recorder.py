@@ -58,6 +58,7 @@ from scenenav.core.contracts import (
     message_type,
 )
 from scenenav.core.keys import Keys, type_for_key
+from scenenav.core.presence import announce_node
 
 log = logging.getLogger(__name__)
 
@@ -161,7 +162,7 @@ class RecorderNode:
         self._drainer = threading.Thread(target=self._drain_loop, name="recorder", daemon=True)
         self._drainer.start()
         self.bus.watch_liveliness(self.keys.node_alive_all, self._on_node)
-        self.bus.declare_token(self.keys.node_alive("recorder", NODE_ID))
+        self.presence = announce_node(self.bus, self.keys, "recorder", NODE_ID)
 
     def _drain_loop(self) -> None:
         while not self._stop.wait(DRAIN_PERIOD_S):

@@ -205,6 +205,25 @@ class Bus:
         self._tokens.append(token)
         return token
 
+    def alive_tokens(self, key: str, timeout_s: float = 2.0) -> set[str]:
+        """The liveliness tokens matching ``key`` alive now, as the peers linked to this session
+        answer (a liveliness query; a subscriber's history arrives later, this does not)."""
+        found: set[str] = set()
+        for reply in self.session.liveliness().get(key, timeout=timeout_s):
+            sample = reply.ok          # None for an error reply: no token in it
+            if sample is not None:
+                found.add(str(sample.key_expr))
+        return found
+
+    def undeclare_token(self, token: Any) -> None:
+        """Withdraw a token of ``declare_token`` before the session closes."""
+        if token in self._tokens:
+            self._tokens.remove(token)
+        try:
+            token.undeclare()
+        except zenoh.ZError:
+            pass
+
     def watch_liveliness(self, key: str, on_change: Callable[[str, bool], None]) -> None:
         """``on_change(key, alive)`` for tokens matching ``key``, including ones already alive."""
         def handler(sample: zenoh.Sample) -> None:

@@ -114,6 +114,16 @@ class Keys:
     def node_alive_all(self) -> str:
         return f"{self.root}/nodes/**"
 
+    def node_sees(self, role: str, node_id: str, seen_role: str, seen_id: str) -> str:   # liveliness token
+        """Declared by node ``role/node_id`` while it sees (has a link to) ``seen_role/seen_id``
+        (scenenav.core.presence)."""
+        return (f"{self.root}/mesh/{check_name('role', role)}/{check_name('node id', node_id)}/"
+                f"{check_name('role', seen_role)}/{check_name('node id', seen_id)}")
+
+    @property
+    def node_sees_all(self) -> str:
+        return f"{self.root}/mesh/**"
+
     def node_info(self, node_id: str) -> str:      # NodeInfo
         return f"{self.root}/info/{check_name('node id', node_id)}"
 

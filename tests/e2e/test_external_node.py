@@ -14,6 +14,7 @@ from __future__ import annotations
 import csv
 import json
 import math
+import re
 import subprocess
 import sys
 from pathlib import Path
@@ -111,6 +112,12 @@ def test_the_autopilot_flies_on_the_external_nodes_fixes(flights):
     sim = json.loads((run / "sim_stats.json").read_text())
     assert len(fixes) == sim["camera_frames"] and sim["ack_timeouts"] == 0
     assert min(int(row["frame_seq"]) for row in fixes) == 0
+    # the clock started once the run's nodes (recorder, autopilot, ...) had echoed the node's token
+    joined = json.loads((run / "external.json").read_text())
+    assert joined["unlinked"] == [] and 0.0 <= joined["links_waited_s"] < 10.0, joined
+    sim_log = (run / "logs" / "sim.log").read_text()
+    echoed = re.search(r"every node of the run links to the external node\(s\) \((\d+) link", sim_log)
+    assert echoed and int(echoed.group(1)) >= 2, sim_log[-2000:]     # the recorder and the autopilot
     stats = json.loads((run / "autopilot_stats.json").read_text())
     assert stats["core"]["vision_fused"] > 10, stats["core"]
     from scenenav.app.evaluation import read_csv
