@@ -609,6 +609,7 @@ class AutopilotNode:
                                  "mavlink": dict(self.server.stats),
                                  "mission_state": MissionState(self.core.mission_state).name,
                                  "armed": self.core.armed, "mode": self.core.mode.name}
+        self.presence.close()
         self.bus.close()
         if self.run_dir is not None:
             try:

@@ -408,5 +408,6 @@ class GuidanceNode:
 
     def close(self) -> dict:
         self.stop()
+        self.presence.close()
         self.bus.close()
         return dict(self.stats, phase=self.phase.value, replans=self.replans)

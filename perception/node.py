@@ -434,4 +434,5 @@ class PerceptionNode:
         if self.pipeline.ambiguities_rejected:
             self.stats["ambiguities_rejected"] = self.pipeline.ambiguities_rejected
         log.info("perception node %s stats: %s", self.node_id, dict(self.stats))
+        self.presence.close()
         self.bus.close()

@@ -381,6 +381,7 @@ class SimulatorNode:
             publish(keys.flow, out.flow)
 
     def close(self) -> None:
+        self.presence.close()
         self.bus.close()
         self.camera.close()
         self.core.close()

@@ -120,6 +120,7 @@ class LiveNode:
             waited += ROUTE_POLL_S
 
     def close(self) -> dict:
+        self.presence.close()
         self.bus.close()
         self.bridge.close()
         self.server.stop()

@@ -375,6 +375,7 @@ class RecorderNode:
     def close(self) -> dict:
         self._stop.set()
         self._drainer.join(timeout=10.0)
+        self.presence.close()
         self.bus.close()
         self.drain()                    # what arrived before the session closed
         with self._lock:
