@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import pytest
 import yaml
+from support import REPO_ROOT
 
 from scenenav.app.campaign_spec import expand, load_campaign
 from scenenav.core.errors import UserError
@@ -65,3 +66,12 @@ def test_random_draws_are_seeded_and_repeat_derives_distinct_seeds(tmp_path):
 def test_bad_plans_are_one_line_errors(tmp_path, keys, message):
     with pytest.raises(UserError, match=message):
         expand(_campaign(tmp_path, **keys))
+
+
+@pytest.mark.parametrize("name", sorted(p.name for p in (REPO_ROOT / "campaigns").glob("*.yaml")))
+def test_every_shipped_campaign_expands(name):
+    """A shipped campaign resolves into distinct runs of valid scenarios (what `scenenav campaign`
+    checks before any flight), and its report is where docs/campaigns.md says."""
+    runs = expand(load_campaign(REPO_ROOT / "campaigns" / name))
+    assert runs and len({r.run_id for r in runs}) == len(runs)
+    assert (REPO_ROOT / "docs" / "campaign-reports" / name.removesuffix(".yaml") / "report.md").is_file()
