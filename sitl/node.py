@@ -36,6 +36,7 @@ import math
 import threading
 import time
 from collections import deque
+from collections.abc import Callable
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -219,7 +220,9 @@ class SimulatorNode:
                     LockstepRole.CAMERA: self.cfg.expected_camera_members}
         return {role: n for role, n in expected.items() if n > 0}
 
-    def run(self) -> SimStats:
+    def run(self, before_clock: Callable[[], object] | None = None) -> SimStats:
+        """Fly the run: wait for the lockstep members and the renderer, call ``before_clock`` (the
+        launcher's last check before simulated time starts), then tick until the end."""
         clock = self.cfg.clock
         core = self.core
         lockstep = clock.mode == ClockMode.LOCKSTEP
@@ -234,6 +237,8 @@ class SimulatorNode:
         if not self.camera.wait_ready(clock.startup_timeout_s) and not self._stop.is_set():
             self.event(Severity.WARNING, f"the camera renderer was not ready within "
                                          f"{clock.startup_timeout_s:.0f} s; the first frame waits for it")
+        if before_clock is not None and not self._stop.is_set():
+            before_clock()
         # The control tick's members (the autopilot) are waited for in both modes, as ArduPilot's
         # SITL waits for its servo outputs: physics never runs on a stale motor command, so a busy
         # machine slows simulated time down instead of letting the vehicle fly open loop (a paced

@@ -118,14 +118,23 @@ def wait_external_nodes(node, cfg: ScenarioConfig, run_dir: Path,
                   ", ".join(missing), cfg.external.join_timeout_s)
         return False
     log.info("external node(s) joined: %s", ", ".join(joined))
-    t_joined = time.monotonic()
-    unlinked = wait_external_links(node, members, stop)
-    write_stats(run_dir / EXTERNAL_FILE, {"joined": joined, "missing": missing,
-                                          "waited_s": round(t_joined - t0, 3),
-                                          "join_timeout_s": cfg.external.join_timeout_s,
-                                          "links_waited_s": round(time.monotonic() - t_joined, 3),
-                                          "unlinked": unlinked})
     return True
+
+
+def confirm_external_links(node, cfg: ScenarioConfig, run_dir: Path,
+                           stop: threading.Event | None = None) -> None:
+    """The simulator's last step before the clock starts (every lockstep member has joined): wait
+    for the run's nodes to link to the external ones (``wait_external_links``) and add the outcome
+    to ``EXTERNAL_FILE`` (``links_waited_s``, ``unlinked``)."""
+    t0 = time.monotonic()
+    unlinked = wait_external_links(node, cfg.external.members(), stop)
+    path = run_dir / EXTERNAL_FILE
+    try:
+        facts = json.loads(path.read_text(encoding="utf-8"))
+    except (OSError, ValueError):
+        facts = {}
+    facts.update({"links_waited_s": round(time.monotonic() - t0, 3), "unlinked": unlinked})
+    write_stats(path, facts)
 
 
 def wait_external_links(node, members, stop: threading.Event | None = None,
@@ -185,8 +194,9 @@ def run_sim(run_dir: Path, bus_cfg: BusConfig, expect: tuple[str, ...]) -> int:
     if not wait_external_nodes(node, cfg, run_dir, stop):
         node.close()
         return 0 if stop.is_set() else EXIT_EXTERNAL_MISSING
+    links = (lambda: confirm_external_links(node, cfg, run_dir, stop)) if cfg.external.members() else None
     try:
-        stats = node.run()
+        stats = node.run(before_clock=links)
     finally:
         node.close()
     write_stats(run_dir / "sim_stats.json", dataclasses.asdict(stats))
