@@ -145,17 +145,8 @@ class PerceptionNode:
                  weights: str | None = None):
         self.world = world
         self.settings = settings
-        self.dr_from_estimate = settings.dr_from_estimate
-        self.reacquire = settings.reacquires
-        self.reacquire_min_radius_m = settings.reacquire_min_radius_m
-        # the estimate's position is used: a search prior, a re-acquisition, the ambiguity resolution
-        self.wants_position = settings.uses_estimate_position
         self.homography = settings.alignment == "homography"
-        self.prior_from_estimate = settings.prior_from_estimate
-        self.prior_margin_px = settings.prior_margin_px
         self.node_id = node_id
-        self.method = settings.method
-        self.lockstep = settings.lockstep
         self.out_dir = out_dir
         self.camera = camera if camera is not None else ExpectedCamera()
         self.keys = Keys(bus_cfg.namespace)
@@ -195,17 +186,17 @@ class PerceptionNode:
         self._worker.start()
         self.bus.subscribe(self.keys.compass, CompassSample, self._on_compass)
         self.bus.subscribe(self.keys.baro, BaroSample, self._on_baro)
-        if self.homography or self.wants_position or self.dr_from_estimate:
+        if self.homography or self.settings.uses_estimate_position or self.settings.dr_from_estimate:
             self.bus.subscribe(self.keys.nav_estimate, NavEstimate, self._on_estimate)
         self.bus.subscribe(self.keys.camera, CameraFrame, self._on_frame)
         # Announce only once subscribed, so nothing addressed to us is lost.
         self.presence = announce_node(self.bus, self.keys, "perception", node_id)
-        if self.lockstep:
+        if self.settings.lockstep:
             self.bus.declare_token(self.keys.lockstep_member(LockstepRole.CAMERA, node_id))
-        self._info = NodeInfo(0, node_id, "perception", self.method)
+        self._info = NodeInfo(0, node_id, "perception", self.settings.method)
         self._info_repeated = False
         self.bus.publish(self.keys.node_info(node_id), self._info)
-        log.info("perception node %s up (method %s, lockstep %s)", node_id, self.method, self.lockstep)
+        log.info("perception node %s up (method %s, lockstep %s)", node_id, self.settings.method, self.settings.lockstep)
 
     def _on_compass(self, msg: CompassSample, _k: str) -> None:
         with self._sensor_lock:
@@ -219,13 +210,13 @@ class PerceptionNode:
         from perception.tracker import prior_search_radius_m
         roll, pitch, _heading = aviation_euler_from_quat(msg.q_wxyz)
         mcfg = self.pipeline.cfg.matcher
-        radius = prior_search_radius_m(msg.position_std_m, self.pipeline.m_per_px, self.prior_margin_px,
+        radius = prior_search_radius_m(msg.position_std_m, self.pipeline.m_per_px, self.settings.prior_margin_px,
                                        mcfg.max_search_radius_px)
         reacquire_radius = None
-        if self.reacquire:       # only a re-acquisition uses it
+        if self.settings.reacquires:       # only a re-acquisition uses it
             reacquire_radius = prior_search_radius_m(msg.position_std_m, self.pipeline.m_per_px,
-                                                     self.prior_margin_px, mcfg.max_search_radius_px,
-                                                     self.reacquire_min_radius_m)
+                                                     self.settings.prior_margin_px, mcfg.max_search_radius_px,
+                                                     self.settings.reacquire_min_radius_m)
         with self._sensor_lock:
             self._tilts.append((msg.timestamp_us, (roll, pitch)))
             self._priors.append((msg.timestamp_us, (msg.position_enu_m[0], msg.position_enu_m[1], radius,
@@ -256,7 +247,7 @@ class PerceptionNode:
         horizontal velocity (``dr_from_estimate``), from the autopilot estimate at or before the
         frame's time, once it is settled (at most ``ESTIMATE_WAIT_S``)."""
         want_tilt = self.homography and msg.mount == "fixed"
-        if not (want_tilt or self.wants_position or self.dr_from_estimate):
+        if not (want_tilt or self.settings.uses_estimate_position or self.settings.dr_from_estimate):
             return None, None, None
         t = msg.timestamp_us
         with self._estimate_arrived:
@@ -264,8 +255,8 @@ class PerceptionNode:
                                                    ESTIMATE_WAIT_S):
                 self.stats["estimate_late"] += 1
             tilt = self._at(self._tilts, t) if want_tilt else None
-            prior = self._at(self._priors, t) if self.wants_position else None
-            velocity = self._at(self._velocities, t) if self.dr_from_estimate else None
+            prior = self._at(self._priors, t) if self.settings.uses_estimate_position else None
+            velocity = self._at(self._velocities, t) if self.settings.dr_from_estimate else None
         return tilt, prior, velocity
 
     @staticmethod
@@ -359,7 +350,7 @@ class PerceptionNode:
                     if self.homography and msg.mount == "fixed" and tilt is None:
                         self.stats["homography_without_estimate"] += 1
                     prior_xy = None
-                    if self.prior_from_estimate and prior is not None and prior[2] is not None:
+                    if self.settings.prior_from_estimate and prior is not None and prior[2] is not None:
                         prior_xy = (prior[0], prior[1])
                     reacquire_prior = None if prior is None else (prior[0], prior[1], prior[3])
                     estimate = None if prior is None else (prior[0], prior[1], prior[4], prior[5])
@@ -383,7 +374,7 @@ class PerceptionNode:
                 log.exception("frame %d failed", msg.seq)
                 self.stats["errors"] += 1
             finally:
-                if self.lockstep:
+                if self.settings.lockstep:
                     self.bus.publish(self.keys.lockstep_ack(self.node_id), LockstepAck(
                         msg.timestamp_us, self.node_id, LockstepRole.CAMERA.value, msg.seq))
 
@@ -394,7 +385,7 @@ class PerceptionNode:
         m: MatchMetrics = r.metrics
         return VisionFix(
             timestamp_us=msg.timestamp_us, frame_seq=msg.seq, node_id=self.node_id,
-            method=self.method, valid=bool(r.valid), accepted=bool(r.accepted),
+            method=self.settings.method, valid=bool(r.valid), accepted=bool(r.accepted),
             position_xy_enu_m=(float(r.position_enu_m[0]), float(r.position_enu_m[1])),
             covariance_xy_m2=(float(cov[0, 0]), float(cov[0, 1]), float(cov[1, 0]), float(cov[1, 1])),
             p_true=float(r.p_true), p_classes=pc,
