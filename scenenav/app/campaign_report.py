@@ -23,9 +23,7 @@ import csv
 import json
 import logging
 import math
-import os
 import shutil
-import uuid
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, Callable
@@ -33,6 +31,7 @@ from typing import Any, Callable
 import numpy as np
 
 from scenenav.app.campaign_spec import OVERRIDE_PREFIX, CampaignSpec, PlannedRun
+from scenenav.core.formats.atomic_file import replace_atomic, write_atomic
 
 log = logging.getLogger(__name__)
 
@@ -143,19 +142,13 @@ def _columns(rows: list[dict]) -> list[str]:
     return [c for c in cols if c not in tail] + tail
 
 
-def _replace_atomic(path: Path, write: Callable[[Path], None]) -> None:
-    tmp = path.with_name(f".{path.name}.{uuid.uuid4().hex[:8]}.tmp")
-    write(tmp)
-    os.replace(tmp, path)
-
-
 def write_tables(out: Path, rows: list[dict]) -> None:
     """results.parquet and results.csv (each replaced atomically: readable after any stop)."""
     import pyarrow as pa
     import pyarrow.parquet as pq
     cols = _columns(rows)
     table = pa.table({c: pa.array(_column_values(rows, c)) for c in cols})
-    _replace_atomic(out / "results.parquet", lambda p: pq.write_table(table, p))
+    replace_atomic(out / "results.parquet", lambda p: pq.write_table(table, p))
 
     def write_csv(p: Path) -> None:
         values = {c: _column_values(rows, c) for c in cols}
@@ -164,7 +157,7 @@ def write_tables(out: Path, rows: list[dict]) -> None:
             w.writerow(cols)
             for i in range(len(rows)):
                 w.writerow(["" if values[c][i] is None else values[c][i] for c in cols])
-    _replace_atomic(out / "results.csv", write_csv)
+    replace_atomic(out / "results.csv", write_csv)
 
 
 # ------------------------------------------------------------------------------------------- report
@@ -365,7 +358,7 @@ def write_outputs(out: Path, spec: CampaignSpec, runs: list[PlannedRun], report_
         log.exception("could not draw the campaign plots")
     cmd = command or f"scenenav campaign {spec.path.name} --out {out.name}"
     md = report_markdown(spec, data, groups, cmd, full_count)
-    _replace_atomic(out / "report.md", lambda p: p.write_text(md, encoding="utf-8"))
+    write_atomic(out / "report.md", md)
     if report_dir:
         dest = Path(report_dir)
         dest.mkdir(parents=True, exist_ok=True)

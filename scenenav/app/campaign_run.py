@@ -42,6 +42,7 @@ import yaml
 
 from scenenav.app.campaign_spec import CampaignSpec, PlannedRun, expand, load_campaign, plan_json
 from scenenav.core.errors import UserError
+from scenenav.core.formats.atomic_file import write_atomic
 
 log = logging.getLogger(__name__)
 
@@ -88,9 +89,7 @@ def read_record(run_dir: Path) -> dict | None:
 
 
 def _write_json_atomic(path: Path, data: dict) -> None:
-    tmp = path.with_name(f".{path.name}.{uuid.uuid4().hex[:8]}.tmp")
-    tmp.write_text(json.dumps(data, indent=2, default=str))
-    os.replace(tmp, path)
+    write_atomic(path, json.dumps(data, indent=2, default=str))
 
 
 def _tail_text(path: Path, lines: int) -> str:
@@ -273,9 +272,7 @@ def write_plan(out: Path, spec: CampaignSpec, runs: list[PlannedRun]) -> None:
     for r in runs:
         f = out / "plan" / f"{r.run_id}.yaml"
         if not f.is_file():
-            tmp = f.with_suffix(".yaml.tmp")
-            tmp.write_text(yaml.safe_dump(r.scenario, sort_keys=False))
-            os.replace(tmp, f)
+            write_atomic(f, yaml.safe_dump(r.scenario, sort_keys=False))
     _write_json_atomic(out / "plan.json", plan_json(spec, runs))
 
 

@@ -27,6 +27,7 @@ from perception.decision import (
 from perception.decision_fit import SOURCES, FlightSamples, cross_validate, make_model, pool_samples, rejection_scores
 from perception.statistical import StatisticalDetector
 from scenenav.core.errors import UserError
+from scenenav.core.formats.atomic_file import write_atomic
 
 log = logging.getLogger(__name__)
 
@@ -176,7 +177,7 @@ def collect(out: str | Path, world_seeds: tuple[int, ...], size_px: tuple[int, i
             fly_cnn(wdir, rdir, weights, progress=progress, realism=realism, scripted=scripted,
                     overrides=overrides)
         runs.append(rdir)
-        man_path.write_text(json.dumps({   # after every flight: a stopped collection keeps its record
+        write_atomic(man_path, json.dumps({   # after every flight: a stopped collection keeps its record
             "command": command, "world_seeds": list(world_seeds), "world_size_px": list(size_px),
             "weights": str(Path(weights).resolve()) if weights else "perception/weights/default.pt",
             **flight, "flights": [str(r) for r in runs]}, indent=2) + "\n")

@@ -43,6 +43,7 @@ import numpy as np
 
 from scenenav.app.height_split import HeightSplit, footprint_mean_height_m, split_by_height
 from scenenav.core.errors import UserError
+from scenenav.core.formats.atomic_file import write_atomic
 from scenenav.core.formats.route_file import RouteFile, read_route_file
 from scenenav.core.formats.world_manifest import ReferenceInfo
 
@@ -372,9 +373,7 @@ def evaluate_run(run_dir: Path, cfg, world, wall_time_s: float | None, interrupt
         summary["recording_error"] = rec["write_failed"]
     summary["recording_end_s"] = last_sim_time_s(run_dir)
     summary["node_failures"] = [dataclasses.asdict(f) | {"what": f.describe()} for f in failures]
-    tmp = run_dir / "summary.json.tmp"
-    tmp.write_text(json.dumps(summary, indent=2))
-    tmp.replace(run_dir / "summary.json")
+    write_atomic(run_dir / "summary.json", json.dumps(summary, indent=2))
     try:
         plot_run(run_dir, world, fx, split=splits[0] if splits else None,
                  plot_dsm=cfg.evaluation.plot_dsm)
@@ -417,9 +416,7 @@ def summarize_run(run_dir: Path) -> dict:
     sim_stats = _read_json(run_dir / "sim_stats.json")
     summary = evaluate_run(run_dir, cfg, world, wall_time_s=sim_stats.get("wall_time_s"))
     summary.update({"rebuilt": True, "missing": missing, "notes": notes})
-    tmp = run_dir / "summary.json.tmp"
-    tmp.write_text(json.dumps(summary, indent=2))
-    tmp.replace(run_dir / "summary.json")
+    write_atomic(run_dir / "summary.json", json.dumps(summary, indent=2))
     return summary
 
 

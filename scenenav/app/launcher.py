@@ -44,6 +44,7 @@ from scenenav.app.signals import interrupt_on_stop_signals, stop_signals_deferre
 from scenenav.core.bus import EXIT_HUB_PORT_TAKEN, free_port
 from scenenav.core.contracts import ClockMode, LockstepRole
 from scenenav.core.errors import UserError
+from scenenav.core.formats.atomic_file import write_atomic
 from scenenav.core.parent_death import set_parent_death_signal
 
 log = logging.getLogger(__name__)
@@ -115,7 +116,8 @@ class Launch:
             child = Child(name, proc, f, logs / f"{name}.log")
             self.children.append(child)
         pids = {c.name: c.proc.pid for c in self.children}
-        (self.run_dir / "logs" / "pids.json").write_text(json.dumps(pids))
+        # atomic: tests, benchmarks and campaign clean-up read it while the next child starts
+        write_atomic(self.run_dir / "logs" / "pids.json", json.dumps(pids))
         log.info("started %s (pid %d)", name, proc.pid)
         return child
 
@@ -417,17 +419,6 @@ class DiskWatch:
 
     def release(self) -> None:
         (self.run_dir / RESERVE_FILE).unlink(missing_ok=True)
-
-
-def write_atomic(path: Path, text: str) -> None:
-    """Write a file whole or not at all (a temporary file renamed over it; removed on error)."""
-    tmp = path.with_name(path.name + ".tmp")
-    try:
-        tmp.write_text(text)
-        tmp.replace(path)
-    except OSError:
-        tmp.unlink(missing_ok=True)
-        raise
 
 
 def disk_error_line(path: Path, exc: OSError) -> str:

@@ -26,6 +26,7 @@ from scenenav.app.viz import VizMessage, VizState, bus_schema
 from scenenav.app.ws_subprotocol import SubprotocolBridge
 from scenenav.core.bus import Bus, BusConfig
 from scenenav.core.contracts import CameraFrame, DecodeError, decode, message_type
+from scenenav.core.formats.atomic_file import write_atomic
 from scenenav.core.keys import Keys, type_for_key
 from scenenav.core.presence import announce_node
 
@@ -59,10 +60,9 @@ class LiveNode:
             self.server.stop()
             raise RuntimeError(str(exc)) from exc
         self.port = self.bridge.port
-        tmp = self.run_dir / (LIVE_FILE + ".tmp")
-        tmp.write_text(json.dumps({"host": HOST, "port": self.port, "url": f"ws://{HOST}:{self.port}",
-                                   "protocol": "foxglove.websocket.v1"}, indent=2))
-        tmp.replace(self.run_dir / LIVE_FILE)
+        write_atomic(self.run_dir / LIVE_FILE,
+                     json.dumps({"host": HOST, "port": self.port, "url": f"ws://{HOST}:{self.port}",
+                                 "protocol": "foxglove.websocket.v1"}, indent=2))
         log.info("live view: ws://%s:%d", HOST, self.port)
         self.bus = Bus(bus_cfg)
         self.bus.subscribe_raw(self.keys.everything, self._on_sample)

@@ -19,6 +19,7 @@ from scenenav.app.scenario import FlightMode, ScenarioConfig, load_scenario, rou
 from scenenav.app.signals import stop_event
 from scenenav.core.bus import EXIT_HUB_PORT_TAKEN, BusConfig, HubPortTaken
 from scenenav.core.contracts import LockstepRole
+from scenenav.core.formats.atomic_file import write_atomic
 from scenenav.core.presence import parse_node_key, parse_sees_key
 
 log = logging.getLogger(__name__)
@@ -27,13 +28,10 @@ log = logging.getLogger(__name__)
 def write_stats(path: Path, data: dict) -> bool:
     """Write a node's stats JSON whole (temporary file renamed) or not at all; a full disk is one
     error line, not a traceback (the summary then says the file is missing)."""
-    tmp = path.with_name(path.name + ".tmp")
     try:
-        tmp.write_text(json.dumps(data, indent=2, default=str))
-        tmp.replace(path)
+        write_atomic(path, json.dumps(data, indent=2, default=str))
         return True
     except OSError as exc:
-        tmp.unlink(missing_ok=True)
         log.error("cannot write %s: %s", path, exc.strerror or exc)
         return False
 

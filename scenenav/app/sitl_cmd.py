@@ -42,6 +42,7 @@ from scenenav.app.scenario import ScenarioConfig, scenario_yaml, with_external
 from scenenav.app.signals import interrupt_on_stop_signals
 from scenenav.core.config import apply_overrides, load_config, set_dotted
 from scenenav.core.errors import UserError
+from scenenav.core.formats.atomic_file import write_atomic
 
 log = logging.getLogger(__name__)
 
@@ -212,7 +213,7 @@ def _run_sitl(opts: SitlOptions, announce: Callable[[str], None]) -> dict:
         mavlink = _wait_ready(run_dir, autopilot)
         meta = json.loads((run_dir / "run.json").read_text())
         meta["mavlink"] = mavlink
-        (run_dir / "run.json").write_text(json.dumps(meta, indent=2))
+        write_atomic(run_dir / "run.json", json.dumps(meta, indent=2))
         announce(_connect_text(cfg, run_dir, mavlink))
         if cfg.external.nodes:
             announce(external_wait_text(cfg, run_dir))
@@ -232,7 +233,7 @@ def _run_sitl(opts: SitlOptions, announce: Callable[[str], None]) -> dict:
     failed = [c.name for c in launch.children if c.proc.returncode not in (0, None, -2, 130)]
     if failed:
         summary["failed_nodes"] = failed
-        (run_dir / "summary.json").write_text(json.dumps(summary, indent=2))
+        write_atomic(run_dir / "summary.json", json.dumps(summary, indent=2))
     return summary
 
 

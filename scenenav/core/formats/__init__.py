@@ -1,1 +1,2 @@
-"""File formats every package reads: world manifest, assistant-map file, route file."""
+"""File formats every package reads: world manifest, assistant-map file, route file; and the one
+way files are written whole (atomic_file)."""

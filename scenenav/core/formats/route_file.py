@@ -17,6 +17,7 @@ from dataclasses import dataclass
 from pathlib import Path
 
 from scenenav.core.errors import UserError
+from scenenav.core.formats.atomic_file import write_atomic
 
 ROUTE_FORMAT_VERSION = 1
 WPL_HEADER = "QGC WPL 110"
@@ -44,8 +45,9 @@ def round_or_none(value: float, digits: int = 3) -> float | None:
 
 
 def write_route_json(path: str | Path, doc: dict[str, object]) -> None:
-    """Write a route document (indented JSON, newline-terminated)."""
-    Path(path).write_text(json.dumps(doc, indent=2) + "\n", encoding="utf-8")
+    """Write a route document (indented JSON, newline-terminated) whole: the live view and the
+    plots read route files while the guidance node writes them."""
+    write_atomic(Path(path), json.dumps(doc, indent=2) + "\n")
 
 
 @dataclass(frozen=True)
