@@ -67,7 +67,7 @@ def test_mavproxy_guided_takeoff_mission_and_rtl(tmp_path):
         assert wait_until(lambda: (relative_alt_m(monitor) or 0.0) > 19.0), "takeoff never reached 19 m"
 
         mark = mp.send(f"wp load {wpl}")
-        mp.expect("ACCEPTED", mark)
+        mp.expect("TYPE_MISSION: ACCEPTED", mark)
         mark = mp.send("mode AUTO")
         mp.expect("AUTO>", mark)
         mp.expect("Reached command #4", mark)

@@ -82,11 +82,13 @@ def test_mavproxy_guided_changealt_loop_rc_and_fence_breach_rtl(tmp_path):
         mp.expect("Sent change altitude", mark)
         assert abs(rel_alt_m(monitor) - 20.0) < 2.0                      # ArduCopter: nothing moves
 
+        # the mission uploads' own acknowledgements, not any "ACCEPTED": a COMMAND_ACK of the
+        # commands above may print after the next command is sent (a loaded machine)
         mark = mp.send(f"wp load {wpl}")
-        mp.expect("ACCEPTED", mark)
+        mp.expect("TYPE_MISSION: ACCEPTED", mark)
         mark = mp.send("wp loop")                                         # DO_JUMP to 1, for ever
         mp.expect("Closed loop on mission", mark)
-        mp.expect("ACCEPTED", mark)
+        mp.expect("TYPE_MISSION: ACCEPTED", mp.expect("Sent all", mark))  # the looped mission's upload
         mark = mp.send("mode AUTO")
         mp.expect("AUTO>", mark)
         round_again = mp.expect("Reached command #1", mp.expect("Reached command #4", mark))
@@ -106,7 +108,7 @@ def test_mavproxy_guided_changealt_loop_rc_and_fence_breach_rtl(tmp_path):
         mark = mp.send("mode GUIDED")
         mp.expect("GUIDED>", mark)
         mark = mp.send(f"fence load {fence}")
-        mp.expect("ACCEPTED", mark)
+        mp.expect("TYPE_FENCE: ACCEPTED", mark)
         mark = mp.send("fence enable")                                    # MAV_CMD_DO_FENCE_ENABLE 1
         mp.expect("fence enabled", mark)                                  # from SYS_STATUS's bits
         lat, lon = enu_to_latlon(FENCE_HALF_M + 30.0, 0.0)

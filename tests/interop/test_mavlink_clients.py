@@ -51,7 +51,7 @@ def test_mavproxy_params_and_waypoints(tmp_path):
 
             mark = len(mp.lines)
             mp.send(f"wp load {wpl}")
-            mp.expect("ACCEPTED", mark)
+            mp.expect("TYPE_MISSION: ACCEPTED", mark)
             assert _wait_until(lambda: len(vehicle.mission) == 4)
             assert [i.command for i in vehicle.mission] == [22, 16, 16, 20]
             assert vehicle.mission[2].alt_m == 25.0
