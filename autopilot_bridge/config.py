@@ -53,7 +53,8 @@ class EkfConfig:
     # --- process noise: continuous-time spectral densities (variance added per predict = density^2 * dt)
     # Gyro white noise; ArduPilot EK3_GYRO_P_NSE is the per-step equivalent (0.015 rad/s).
     gyro_noise_rad_s_per_rt_hz: float = 0.001
-    # Accelerometer white noise; ArduPilot EK3_ACC_P_NSE is the per-step equivalent (0.35 m/s^2).
+    # Accelerometer white noise; set from EK3_ACC_P_NSE (per-step, default 0.2 m/s^2; ArduPilot's
+    # 0.35) in a flight (param_binding.accel_noise_density).
     accel_noise_m_s2_per_rt_hz: float = 0.02
     # Gyro bias random walk; set from ArduPilot EK3_GBIAS_P_NSE (default 0.001 rad/s^2 per step:
     # param_binding.gyro_bias_noise_density) in a flight.
@@ -313,6 +314,11 @@ class FlightCoreConfig:
     ext_nav_std_m: float = 0.5            # MAVLink external nav without a covariance
     ext_nav_fresh_s: float = 1.0          # MAVLink external nav counts as a source this long
     vision_max_age_s: float = 1.0         # older vision fixes are dropped
+    # A vision fix wider than SN_VIS_MAX_SD is fused at most once per this interval (the others count
+    # as fixes for the vision failsafe only): an ambiguous match's error repeats from frame to frame
+    # (scene-matching fix errors stay correlated 0.2-0.35 over 10 s, docs/realism.md), so ten a second
+    # carry hardly more than one; 5 s, the order of that correlation time
+    wide_vision_fix_interval_s: float = 5.0
     # ArduPilot EKF3's final in-flight yaw alignment: the heading is reset to the compass once per
     # flight at this height above home (EKF3_MAG_FINAL_RESET_ALT 2.5 m, AP_NavEKF3_core.h); 0 = off
     inflight_yaw_reset_height_m: float = 2.5
@@ -323,7 +329,7 @@ class FlightCoreConfig:
                              f"{self.inflight_yaw_reset_height_m!r}: expected >= 0 (0 = off)")
         for name in ("align_time_s", "gps_wait_s", "gps_velocity_std_m_s", "ground_position_std_m",
                      "ground_fusion_period_s", "drag_fusion_period_s", "ext_nav_std_m", "ext_nav_fresh_s",
-                     "vision_max_age_s"):
+                     "vision_max_age_s", "wide_vision_fix_interval_s"):
             value = getattr(self, name)
             if not (math.isfinite(value) and value > 0):
                 raise ValueError(f"FlightCoreConfig.{name} = {value!r}: expected > 0")

@@ -329,6 +329,12 @@ class NavFilter:
         self._cfg = dataclasses.replace(self._cfg, gyro_bias_noise_rad_s2_per_rt_hz=float(density_rad_s2_per_rt_hz))
         self._set_q_density()
 
+    def set_accel_noise(self, density_m_s2_per_rt_hz: float) -> None:
+        """Change the accelerometer white-noise density the filter assumes (``EK3_ACC_P_NSE``), the
+        velocity's process noise; from the next prediction on."""
+        self._cfg = dataclasses.replace(self._cfg, accel_noise_m_s2_per_rt_hz=float(density_m_s2_per_rt_hz))
+        self._set_q_density()
+
     def set_vision_reset_max(self, max_m: float) -> None:
         """Largest jump of a position reset onto vision fixes (``SN_VIS_RST_MAX``; 0 = no limit)."""
         self._cfg = dataclasses.replace(self._cfg, vision_reset_max_m=float(max_m))

@@ -82,7 +82,12 @@ from autopilot_bridge.mixer import QuadXMixer
 from autopilot_bridge.mode_commands import ModeCommandsMixin
 from autopilot_bridge.modes import NEEDS_POSITION, POSITION_MODES, CopterMode
 from autopilot_bridge.motor_test import MotorTestMixin
-from autopilot_bridge.param_binding import ParamBindingMixin, drag_model, gyro_bias_noise_density
+from autopilot_bridge.param_binding import (
+    ParamBindingMixin,
+    accel_noise_density,
+    drag_model,
+    gyro_bias_noise_density,
+)
 from autopilot_bridge.params import ParameterStore
 from autopilot_bridge.pilot import PilotMixin
 from autopilot_bridge.smart_rtl import BreadcrumbPath, smart_rtl_law
@@ -147,6 +152,7 @@ class FlightCore(SensorFusionMixin, ArmingMixin, GuidedMixin, AutoMissionMixin,
             self._algo.ekf, position_source=source,
             gyro_bias_noise_rad_s2_per_rt_hz=gyro_bias_noise_density(params.get("EK3_GBIAS_P_NSE"))))
         self.nav.set_drag_model(**drag_model(params))
+        self.nav.set_accel_noise(accel_noise_density(params.get("EK3_ACC_P_NSE")))
         self.nav.set_compass_noise(params.get("EK3_YAW_M_NSE"))
         self.nav.set_vision_reset_max(params.get("SN_VIS_RST_MAX"))
         self.fc = FlightController(self._control_config(), self.airframe)

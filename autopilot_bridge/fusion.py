@@ -3,7 +3,9 @@
 ``on_baro`` / ``on_compass`` / ``on_gps`` / ``on_vision_fix`` (bus) and ``vision_position_estimate``
 / ``odometry`` (MAVLink external navigation) check and buffer; ``_fuse_pending`` fuses the buffer
 after each EKF predict. Vision fixes are fused only when valid and accepted by the perception node,
-younger than ``vision_max_age_s`` and taken at least SN_VIS_MIN_ALT above home; on the ground without
+younger than ``vision_max_age_s`` and taken at least SN_VIS_MIN_ALT above home; one wider than
+SN_VIS_MAX_SD at most once per ``wide_vision_fix_interval_s`` (an ambiguous match repeats its error
+from frame to frame; the skipped ones still count as fixes for the vision failsafe); on the ground without
 a position source the last landed position is fused as a pseudo-measurement (as ArduPilot's EKF does
 when it is not aiding); disarmed on the ground the averaged body x, y rates are fused as the gyro
 biases (zero-rate update: a dead-reckoned climb drifts by g eps t^3 / 6 for a residual bias eps).
@@ -41,7 +43,7 @@ from autopilot_bridge.vehicle_interface import (
     Odometry,
 )
 from scenenav.core.contracts import FlowSample, GpsFixType
-from scenenav.core.numeric import all_finite
+from scenenav.core.numeric import all_finite, largest_sd_2x2
 from scenenav.core.rotations import quat_to_rotation_matrix
 
 logger = logging.getLogger(__name__)
@@ -116,6 +118,7 @@ class SensorFusionMixin:
         self._last_gps: GpsReading | None = None
         self._last_gps_fused_s: float | None = None
         self._last_usable_vision_s: float | None = None
+        self._last_wide_vision_fused_s: float | None = None    # SN_VIS_MAX_SD
         self._last_ext_nav_s: float | None = None
         self._viso_clock = JitterCorrection()   # MAVLink external nav: sender time -> ours
         self._viso_reset = ResetCounter()
@@ -278,6 +281,14 @@ class SensorFusionMixin:
             self.stats["vision_below_min_alt"] += 1
             return
         self._last_usable_vision_s = self._now_s
+        max_sd = self.params.get("SN_VIS_MAX_SD")
+        if max_sd > 0.0 and largest_sd_2x2(v.cov_m2) > max_sd:
+            last = self._last_wide_vision_fused_s
+            if last is not None and self._now_s - last < self.cfg.wide_vision_fix_interval_s:
+                self.stats["vision_wide_skipped"] += 1
+                return
+            self._last_wide_vision_fused_s = self._now_s
+            self.stats["vision_wide_fused"] += 1
         r = self.nav.fuse_vision_position(v.xy_enu_m, v.cov_m2, age_s=max(age, 0.0))
         if self.nav.position_source != PositionSource.EXTNAV:
             self.stats["vision_monitored"] += 1

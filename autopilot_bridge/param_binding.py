@@ -43,6 +43,14 @@ def process_noise_density(p_nse: float) -> float:
     return float(p_nse) * EKF_STEP_S ** 0.5
 
 
+def accel_noise_density(p_nse_m_s2: float) -> float:
+    """``EK3_ACC_P_NSE`` (m/s/s) -> the filter's accelerometer white-noise density (m/s^2/sqrt(Hz)).
+    ArduPilot EKF3 adds (dt * EK3_ACC_P_NSE)^2 of delta-velocity variance per step of dt: white noise
+    of density P_NSE * sqrt(dt), as ``process_noise_density``; written as a division by 1 / sqrt(dt)
+    (exactly 10) so that the default 0.2 gives ``EkfConfig``'s 0.02 to the last bit."""
+    return float(p_nse_m_s2) / (1.0 / EKF_STEP_S) ** 0.5
+
+
 def drag_model(params) -> dict[str, float]:
     """``NavFilter.set_drag_model`` arguments from EK3_DRAG_BCOEF_X/Y, EK3_DRAG_MCOEF, EK3_DRAG_M_NSE
     and EK3_WIND_P_NSE (ArduPilot ``AP_NavEKF3.cpp``)."""
@@ -73,6 +81,8 @@ class ParamBindingMixin:
             self.nav.set_gyro_bias_noise(gyro_bias_noise_density(value))
         if name == "SN_VIS_RST_MAX":
             self.nav.set_vision_reset_max(value)
+        if name == "EK3_ACC_P_NSE":
+            self.nav.set_accel_noise(accel_noise_density(value))
         if name == "EK3_YAW_M_NSE":
             self.nav.set_compass_noise(value)
         if name.startswith("EK3_DRAG_") or name == "EK3_WIND_P_NSE":

@@ -27,6 +27,12 @@ SN_PARAM_SPECS: tuple[ParamSpec, ...] = (
               "Vision failsafe: after SN_VIS_TIMEOUT without a fix, fly on dead reckoning while "
               "the EKF's horizontal 1-sigma position uncertainty stays below this, then hold; "
               "0 = hold at SN_VIS_TIMEOUT", safe_min=0.0),
+    ParamSpec("SN_VIS_MAX_SD", ParamType.REAL32, 0.0, 0.0, 10000.0, "m",
+              "Vision fixes whose published 1-sigma (the larger axis of their covariance) exceeds "
+              "this are fused at most once every 5 s (the others still count as fixes for the "
+              "vision failsafe): an ambiguous match is published as wide as its search area, and "
+              "fused at the frame rate its repeated error walks the estimate away; 0 = fuse every "
+              "fix", safe_min=0.0),
 )
 # EKF source sets 2 and 3 (SET_EKF_SOURCE_SET, system_commands.py): ArduPilot's defaults are 0 (None).
 _SRC_VALUES = {

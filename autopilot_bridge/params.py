@@ -180,6 +180,11 @@ DEFAULT_PARAM_SPECS: tuple[ParamSpec, ...] = (
           safe=(0.05, None)),
     _spec("EK3_MAX_FLOW", _F, 2.5, 1.0, 4.0, "rad/s",
           "Maximum optical flow rate the EKF uses; faster flow (low over the ground) is ignored"),
+    _spec("EK3_ACC_P_NSE", _F, 0.2, 0.01, 1.0, "m/s/s",
+          "Accelerometer noise the EKF assumes on each 10 ms sample: the velocity's process noise; "
+          "raise it for a vibrating airframe (ArduPilot's default is 0.35; scenenav's 0.2 is what "
+          "this filter used before the parameter, kept so that published flights reproduce)",
+          safe=(0.01, None)),
     _spec("EK3_GBIAS_P_NSE", _F, 1.0e-3, 1.0e-5, 1.0e-3, "rad/s/s",
           "Rate gyro bias stability: the EKF's gyro-bias process noise (lower: the bias learnt at "
           "rest is kept longer, e.g. for dead-reckoned climbs and landings)"),

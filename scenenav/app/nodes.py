@@ -66,14 +66,14 @@ HUB_FILE = "hub.json"
 EXTERNAL_FILE = "external.json"
 #: Exit code of the simulator when an external node did not join in time (``EX_UNAVAILABLE``).
 EXIT_EXTERNAL_MISSING = 69
-#: Wall seconds the clock waits, after the external nodes joined, for every node of the run to echo
-#: each of them (``scenenav.core.presence``): the simulator (the hub) sees a node's token as soon as
-#: the node connects to it, but the node's direct links to the other peers (the recorder, the
-#: autopilot) are made afterwards by gossip, and Zenoh peers do not forward for each other: a fix
-#: published before its link to the recorder exists is not recorded (seen once in 2026-12-05's CI:
-#: frame 0's fix and ack of tests/e2e/test_external_node.py missing from fixes.csv). Gossip meshes
-#: loopback peers within milliseconds; past this the clock starts anyway, with a warning.
-EXTERNAL_LINK_TIMEOUT_S = 10.0
+# Why the clock waits, after the external nodes joined, for every node of the run to echo each of
+# them (``scenenav.core.presence``; at most ``external.link_timeout_s``): the simulator (the hub) sees
+# a node's token as soon as the node connects to it, but the node's direct links to the other peers
+# (the recorder, the autopilot) are made afterwards by gossip, and Zenoh peers do not forward for
+# each other: a fix published before its link to the recorder exists is not recorded (seen once in
+# 2026-12-05's CI: frame 0's fix and ack of tests/e2e/test_external_node.py missing from fixes.csv).
+# Gossip meshes loopback peers within milliseconds; past the limit the clock starts anyway, with a
+# warning.
 
 
 def wait_external_nodes(node, cfg: ScenarioConfig, run_dir: Path,
@@ -125,7 +125,7 @@ def confirm_external_links(node, cfg: ScenarioConfig, run_dir: Path,
     for the run's nodes to link to the external ones (``wait_external_links``) and add the outcome
     to ``EXTERNAL_FILE`` (``links_waited_s``, ``unlinked``)."""
     t0 = time.monotonic()
-    unlinked = wait_external_links(node, cfg.external.members(), stop)
+    unlinked = wait_external_links(node, cfg.external.members(), stop, cfg.external.link_timeout_s)
     path = run_dir / EXTERNAL_FILE
     try:
         facts = json.loads(path.read_text(encoding="utf-8"))
@@ -136,7 +136,7 @@ def confirm_external_links(node, cfg: ScenarioConfig, run_dir: Path,
 
 
 def wait_external_links(node, members, stop: threading.Event | None = None,
-                        timeout_s: float = EXTERNAL_LINK_TIMEOUT_S) -> list[str]:
+                        timeout_s: float = 10.0) -> list[str]:
     """Wait until every other node of the run (each live ``nodes/<role>/<id>`` but the simulator and
     the external ones) has echoed every external member (``Keys.node_sees``: it has a link to it),
     at most ``timeout_s``. Returns the links still missing, ``OBSERVER->ROLE:ID`` (logged)."""

@@ -113,12 +113,17 @@ class ExternalConfig:
 
     nodes: tuple[str, ...] = ()        # ROLE:ID of each node started outside the run; the clock waits for it
     join_timeout_s: float = 120.0      # wall seconds the run waits for them (from run.json on), then gives up
+    # wall seconds the clock then waits for every node of the run to link to them (each echoes them,
+    # docs/interfaces.md "Presence"), then starts with a warning: loopback peers link within
+    # milliseconds; a node on another machine needs Zenoh's scouting and gossip over the network
+    link_timeout_s: float = 10.0
 
     def __post_init__(self) -> None:
         members = [parse_external(s) for s in self.nodes]
         ids = [m.node_id for m in members]
         check(len(set(ids)) == len(ids), "nodes", list(self.nodes), "distinct node ids")
         check(self.join_timeout_s > 0, "join_timeout_s", self.join_timeout_s, "> 0 s")
+        check(self.link_timeout_s >= 0, "link_timeout_s", self.link_timeout_s, ">= 0 s")
 
     def members(self) -> tuple[ExternalNode, ...]:
         return tuple(parse_external(s) for s in self.nodes)

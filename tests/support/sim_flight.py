@@ -113,6 +113,9 @@ class CoreFlight:
         self.gps = gps
         self.vision = False
         self.vision_std_m = 0.7
+        #: added to every fix (a false lock) and the covariance published with it
+        self.vision_offset_m = np.zeros(2)
+        self.vision_cov_m2 = np.eye(2) * 0.5
         self.rng = np.random.default_rng(seed + 1000)
         self.cmd = np.zeros(4)
         self.k = 0
@@ -147,8 +150,8 @@ class CoreFlight:
         if out.flow is not None:
             c.on_flow(flow_reading(out.flow))
         if self.vision and self.k % 10 == 0:
-            xy = self.plant.p[:2] + self.rng.normal(0.0, self.vision_std_m, 2)
-            c.on_vision_fix(t - 0.05, xy, np.eye(2) * 0.5, True, True, "test")
+            xy = self.plant.p[:2] + self.rng.normal(0.0, self.vision_std_m, 2) + self.vision_offset_m
+            c.on_vision_fix(t - 0.05, xy, self.vision_cov_m2, True, True, "test")
         self.k += 1
         imu = out.imu
         self.cmd = c.step(imu.dt_s, ImuReading(imu.accel_flu_m_s2, imu.gyro_flu_rad_s), t)

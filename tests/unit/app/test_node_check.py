@@ -141,6 +141,9 @@ def test_external_nodes_in_the_scenario():
         load_scenario(None, external=("perception:a", "guidance:a"))
     with pytest.raises(UserError, match="join_timeout_s"):
         load_scenario(None, ("external.join_timeout_s=0",))
+    with pytest.raises(UserError, match="link_timeout_s"):
+        load_scenario(None, ("external.link_timeout_s=-1",))
+    assert load_scenario(None, ("external.link_timeout_s=45",)).external.link_timeout_s == 45.0
 
 
 class _Proc:

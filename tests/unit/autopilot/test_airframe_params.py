@@ -61,3 +61,16 @@ def test_ek3_gbias_p_nse_sets_the_filters_gyro_bias_noise_at_start_and_in_flight
     store2 = ParameterStore(PARAM_SPECS)
     assert store2.set("EK3_GBIAS_P_NSE", 1.0e-5).ok
     assert FlightCore(store2).nav._cfg.gyro_bias_noise_rad_s2_per_rt_hz == pytest.approx(0.01 * default)
+
+
+def test_ek3_acc_p_nse_sets_the_filters_velocity_process_noise_at_start_and_in_flight():
+    from autopilot_bridge.config import EkfConfig
+    store = ParameterStore(PARAM_SPECS)
+    core = FlightCore(store)
+    # the default reproduces the filter's own default exactly (published flights stay bit-identical)
+    assert core.nav._cfg.accel_noise_m_s2_per_rt_hz == EkfConfig().accel_noise_m_s2_per_rt_hz
+    assert store.set("EK3_ACC_P_NSE", 1.0).ok
+    assert core.nav._q_density[3:6].tolist() == pytest.approx([0.1 ** 2] * 3)   # 1.0 x sqrt(0.01 s)
+    store2 = ParameterStore(PARAM_SPECS)
+    assert store2.set("EK3_ACC_P_NSE", 0.35).ok                                 # ArduPilot's default
+    assert FlightCore(store2).nav._cfg.accel_noise_m_s2_per_rt_hz == pytest.approx(0.035)
