@@ -12,28 +12,14 @@ from __future__ import annotations
 import math
 
 import numpy as np
-from support.sim_flight import CoreFlight
+from support.sim_flight import CoreFlight, vision_cruise
 
 from autopilot_bridge.failsafe import VisionFailsafeState
-from autopilot_bridge.vehicle_interface import AltFrame
 
 
 def _cruise(dr_max_m: float, seed: int = 6) -> CoreFlight:
     """Take off to 20 m on fixes and cruise north at WPNAV_SPEED 10 m/s for 15 s; fixes still on."""
-    f = CoreFlight(seed, gps=False, EK3_SRC1_POSXY=6, EK3_SRC1_VELXY=0, SN_VIS_MIN_ALT=10,
-                   SN_VIS_TIMEOUT=3, SN_VIS_FS_LAND=5, SN_VIS_DR_MAX=dr_max_m, WPNAV_SPEED=1000)
-    f.vision = True
-    c = f.core
-    c.set_vision_available(True)
-    f.arm_in_guided()
-    assert c.takeoff(20.0).ok
-    assert f.run(40.0, until=lambda: f.p[2] > 19.0), "the climb did not reach 19 m"
-    est = c.estimate()
-    lat, lon = c.geo.to_geodetic(float(est.position_enu_m[0]), float(est.position_enu_m[1]) + 600.0)
-    assert c.reposition(lat, lon, 20.0, AltFrame.RELATIVE_HOME, None, None).ok
-    f.run(15.0)
-    assert math.hypot(float(f.v[0]), float(f.v[1])) > 7.0         # cruising
-    return f
+    return vision_cruise(seed, SN_VIS_DR_MAX=dr_max_m)
 
 
 def _speed(f: CoreFlight) -> float:

@@ -12,29 +12,16 @@ used only in the assertions."""
 from __future__ import annotations
 
 import numpy as np
-from support.sim_flight import CoreFlight
+from support.sim_flight import CoreFlight, vision_cruise
 
 from autopilot_bridge.failsafe import VisionFailsafeState
-from autopilot_bridge.vehicle_interface import AltFrame
 
 FALSE_LOCK_OFFSET_M = np.array([150.0, 0.0])
 WIDE_COV_M2 = np.eye(2) * 79.0 ** 2
 
 
 def _false_lock_after_cruise(max_sd_m: float) -> CoreFlight:
-    f = CoreFlight(6, gps=False, EK3_SRC1_POSXY=6, EK3_SRC1_VELXY=0, SN_VIS_MIN_ALT=10,
-                   SN_VIS_TIMEOUT=3, SN_VIS_FS_LAND=5, SN_VIS_DR_MAX=8, WPNAV_SPEED=1000,
-                   SN_VIS_MAX_SD=max_sd_m)
-    f.vision = True
-    c = f.core
-    c.set_vision_available(True)
-    f.arm_in_guided()
-    assert c.takeoff(20.0).ok
-    assert f.run(40.0, until=lambda: f.p[2] > 19.0), "the climb did not reach 19 m"
-    est = c.estimate()
-    lat, lon = c.geo.to_geodetic(float(est.position_enu_m[0]), float(est.position_enu_m[1]) + 600.0)
-    assert c.reposition(lat, lon, 20.0, AltFrame.RELATIVE_HOME, None, None).ok
-    f.run(15.0)
+    f = vision_cruise(6, SN_VIS_DR_MAX=8, SN_VIS_MAX_SD=max_sd_m)
     f.vision_offset_m = FALSE_LOCK_OFFSET_M
     f.vision_cov_m2 = WIDE_COV_M2
     f.run(15.0)

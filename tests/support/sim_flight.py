@@ -177,3 +177,25 @@ class CoreFlight:
 
     def close(self) -> None:
         self.plant.close()
+
+
+def vision_cruise(seed: int = 6, **params) -> CoreFlight:
+    """A GPS-denied flight on vision fixes (EK3_SRC1_POSXY 6, fixes used from 10 m, SN_VIS_TIMEOUT
+    3 s, SN_VIS_FS_LAND 5 s, WPNAV_SPEED 10 m/s; ``params`` over these): take off to 20 m and
+    cruise north in GUIDED towards a point 600 m away for 15 s; the fixes still on."""
+    from autopilot_bridge.vehicle_interface import AltFrame
+    f = CoreFlight(seed, gps=False, **{"EK3_SRC1_POSXY": 6, "EK3_SRC1_VELXY": 0, "SN_VIS_MIN_ALT": 10,
+                                       "SN_VIS_TIMEOUT": 3, "SN_VIS_FS_LAND": 5, "WPNAV_SPEED": 1000,
+                                       **params})
+    f.vision = True
+    c = f.core
+    c.set_vision_available(True)
+    f.arm_in_guided()
+    assert c.takeoff(20.0).ok
+    assert f.run(40.0, until=lambda: f.p[2] > 19.0), "the climb did not reach 19 m"
+    est = c.estimate()
+    lat, lon = c.geo.to_geodetic(float(est.position_enu_m[0]), float(est.position_enu_m[1]) + 600.0)
+    assert c.reposition(lat, lon, 20.0, AltFrame.RELATIVE_HOME, None, None).ok
+    f.run(15.0)
+    assert math.hypot(float(f.v[0]), float(f.v[1])) > 7.0         # cruising
+    return f
