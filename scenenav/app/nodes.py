@@ -135,8 +135,7 @@ def confirm_external_links(node, cfg: ScenarioConfig, run_dir: Path,
     write_stats(path, facts)
 
 
-def wait_external_links(node, members, stop: threading.Event | None = None,
-                        timeout_s: float = 10.0) -> list[str]:
+def wait_external_links(node, members, stop: threading.Event | None, timeout_s: float) -> list[str]:
     """Wait until every other node of the run (each live ``nodes/<role>/<id>`` but the simulator and
     the external ones) has echoed every external member (``Keys.node_sees``: it has a link to it),
     at most ``timeout_s``. Returns the links still missing, ``OBSERVER->ROLE:ID`` (logged)."""

@@ -80,7 +80,7 @@ def test_wait_for_links_ends_once_every_run_node_echoed_the_external_one():
         assert seen.wait(15)     # the recorder is a node of the run the simulator knows of
         external.declare_token(k.node_alive("perception", "mine"))    # an outside node: no echo of its own
         t0 = time.monotonic()
-        left = wait_external_links(sim, [parse_external("perception:mine")], timeout_s=15.0)
+        left = wait_external_links(sim, [parse_external("perception:mine")], None, timeout_s=15.0)
         assert left == []
         assert time.monotonic() - t0 < 15.0
     finally:
@@ -101,7 +101,7 @@ def test_wait_for_links_gives_up_and_names_the_missing_link():
         seen = threading.Event()
         sim.bus.watch_liveliness(k.node_alive_all, lambda key, alive: alive and "autopilot" in key and seen.set())
         assert seen.wait(15)
-        left = wait_external_links(sim, [parse_external("perception:mine")], timeout_s=1.0)
+        left = wait_external_links(sim, [parse_external("perception:mine")], None, timeout_s=1.0)
         assert left == ["autopilot:autopilot->perception:mine"]
     finally:
         external.close()
