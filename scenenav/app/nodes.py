@@ -66,14 +66,6 @@ HUB_FILE = "hub.json"
 EXTERNAL_FILE = "external.json"
 #: Exit code of the simulator when an external node did not join in time (``EX_UNAVAILABLE``).
 EXIT_EXTERNAL_MISSING = 69
-# Why the clock waits, after the external nodes joined, for every node of the run to echo each of
-# them (``scenenav.core.presence``; at most ``external.link_timeout_s``): the simulator (the hub) sees
-# a node's token as soon as the node connects to it, but the node's direct links to the other peers
-# (the recorder, the autopilot) are made afterwards by gossip, and Zenoh peers do not forward for
-# each other: a fix published before its link to the recorder exists is not recorded (seen once in
-# 2026-12-05's CI: frame 0's fix and ack of tests/e2e/test_external_node.py missing from fixes.csv).
-# Gossip meshes loopback peers within milliseconds; past the limit the clock starts anyway, with a
-# warning.
 
 
 def wait_external_nodes(node, cfg: ScenarioConfig, run_dir: Path,
@@ -138,7 +130,15 @@ def confirm_external_links(node, cfg: ScenarioConfig, run_dir: Path,
 def wait_external_links(node, members, stop: threading.Event | None, timeout_s: float) -> list[str]:
     """Wait until every other node of the run (each live ``nodes/<role>/<id>`` but the simulator and
     the external ones) has echoed every external member (``Keys.node_sees``: it has a link to it),
-    at most ``timeout_s``. Returns the links still missing, ``OBSERVER->ROLE:ID`` (logged)."""
+    at most ``timeout_s``. Returns the links still missing, ``OBSERVER->ROLE:ID`` (logged).
+
+    Why: the simulator (the hub) sees a node's token as soon as the node connects to it, but the
+    node's direct links to the other peers (the recorder, the autopilot) are made afterwards by
+    gossip, and Zenoh peers do not forward for each other: a fix published before its link to the
+    recorder exists is not recorded (seen once in 2026-12-05's CI: frame 0's fix and ack of
+    tests/e2e/test_external_node.py missing from fixes.csv). Gossip meshes loopback peers within
+    milliseconds; past the limit (``external.link_timeout_s``) the clock starts anyway, with a
+    warning."""
     external = {(m.role, m.node_id) for m in members}
     own = ("sim", "sim")
     keys = node.keys
