@@ -235,7 +235,7 @@ class GuidanceRunConfig:
     start_after_s: float = 1.0                      # simulated seconds before the first start try
     retry_period_s: float = 1.0                     # simulated seconds between start tries
     mavlink_url: str = "tcp:127.0.0.1:5760"
-    lockstep: bool = True                           # hold the simulator while starting the mission
+    lockstep: bool = True                           # hold the simulator while planning, starting and replanning
 
     def __post_init__(self) -> None:
         check(len(self.goals_enu_m) >= 1, "goals_enu_m", self.goals_enu_m, "at least one goal")

@@ -3,11 +3,15 @@ as a MAVLink mission, starts it, and replans when the map changes under the rout
 drifts off it.
 
 Inputs
-  ``clock``                ClockTick     simulated time; in lockstep the node is a TICK member until
-                                          its mission runs, so the upload happens at a fixed tick
-                                          (the main loop is handed only the ticks it acts on: each
-                                          while a member, then those a check is due at)
-  ``autopilot/estimate``   NavEstimate   where the autopilot thinks it is (drift checks, replans)
+  ``clock``                ClockTick     simulated time; in lockstep the node is a TICK member from
+                                          start to landing; the main loop gets only the ticks a
+                                          start try or a drift check is due at (the simulator waits
+                                          while it plans, uploads or replans), and each ack answers
+                                          ahead through the tick before the next one due (an ack of
+                                          seq M answers every tick up to M: no message per tick)
+  ``autopilot/estimate``   NavEstimate   where the autopilot thinks it is (drift checks, replans): the
+                                          estimate at or before the check's tick, waited for (at
+                                          most ESTIMATE_WAIT_S) until it has surely arrived
   ``autopilot/status``     AutopilotStatus  armed / mission progress / landed
   the assistant-map file   .npz; re-read when it changes on disk (e.g. replaced by a later flight)
   MAVLink from the autopilot (HEARTBEAT, COMMAND_ACK, MISSION_REQUEST_INT, MISSION_ACK; the
@@ -17,18 +21,20 @@ Outputs
   waypoints, land or RTL), GUIDED, arm, AUTO, MISSION_START; on a replan a new mission continuing
   from the vehicle's position, then AUTO from its first waypoint
   ``events/guidance`` (Event: plans, replans and why), ``info/guidance``,
-  liveliness ``nodes/guidance/guidance`` and, in lockstep until the mission runs,
-  ``lockstep/member/tick/guidance`` + ``lockstep/ack/guidance`` (LockstepAck)
+  liveliness ``nodes/guidance/guidance`` and, in lockstep until the node is done (landed, no route,
+  stopped), ``lockstep/member/tick/guidance`` + ``lockstep/ack/guidance`` (LockstepAck)
   ``<run>/route.json`` and ``route.png`` (``route-<n>.json`` after the n-th replan)
 
 The planning itself is ``guidance.planner.plan_through`` (pure), on the assistant map with the
 autopilot's geofence drawn in as bad areas (``guidance.fence``, pure): before the first plan and
 before every replan the node downloads the fence and reads FENCE_ENABLE / _TYPE / _RADIUS / _MARGIN
 / _ALT_MAX, so routes stay FENCE_MARGIN inside it and the cruise altitude below FENCE_ALT_MAX; a
-start or goal outside the fence is "no route". Determinism: the first plan uses the
-scenario's take-off point and is uploaded while the simulator waits for this node, so lockstep runs
-without replans are reproducible. Replans happen while the simulation runs on (as on a real companion
-computer), at the first drift check after the trigger.
+start or goal outside the fence is "no route". Determinism: in lockstep every plan, upload and
+replan happens at a fixed tick while the simulator waits for this node, and a drift check reads the
+autopilot's estimate of its own tick (``scenenav.core.timed_history``), so a lockstep run that replans
+is as reproducible as one that does not (until session 23 the node left lockstep once the mission ran,
+and a replanning flight diverged from its twin after the first replan). In real time (no lockstep) a
+replan happens while the simulation runs on, as on a real companion computer.
 """
 
 from __future__ import annotations
@@ -38,6 +44,7 @@ import logging
 import math
 import queue
 import threading
+from collections import deque
 from enum import Enum
 from pathlib import Path
 
@@ -76,12 +83,18 @@ from scenenav.core.frames import enu_to_geodetic
 from scenenav.core.geometry import distance_to_polyline_m
 from scenenav.core.keys import Keys
 from scenenav.core.presence import announce_node
+from scenenav.core.timed_history import sample_at, sample_settled
 
 log = logging.getLogger(__name__)
 
 NODE_ID = "guidance"
 #: Within this distance of the final goal nothing is replanned (the vehicle is arriving).
 ARRIVING_M = 30.0
+#: Wall seconds a drift check waits for the autopilot's estimate of its tick; after that it uses the
+#: newest one it has (``stats["estimate_late"]``; only a stalled or dead autopilot gets there).
+ESTIMATE_WAIT_S = 0.5
+#: Estimates kept for the drift checks (5 s at the autopilot's 20 Hz; a check reads one of its tick).
+ESTIMATE_HISTORY = 100
 
 
 class Phase(str, Enum):
@@ -131,8 +144,9 @@ class GuidanceNode:
         self.route_xy: np.ndarray | None = None
         self.legs: list[PlannedRoute] = []
         self.replans = 0
-        self.stats = {"ticks": 0, "start_tries": 0, "replans": 0, "replan_failures": 0}
-        self._estimate: NavEstimate | None = None
+        self.stats = {"ticks": 0, "start_tries": 0, "replans": 0, "replan_failures": 0, "estimate_late": 0}
+        self._estimates: deque[tuple[int, NavEstimate]] = deque(maxlen=ESTIMATE_HISTORY)
+        self._estimate_arrived = threading.Condition()
         self._status: AutopilotStatus | None = None
         self._ticks: queue.SimpleQueue = queue.SimpleQueue()
         self._stop = threading.Event()
@@ -143,6 +157,8 @@ class GuidanceNode:
         self._link: AutopilotLink | None = None
         self.fence = Fence()
         self._member_token = None
+        self._acked_through = -1        # the newest tick answered (ahead) in lockstep
+        self._ack_lock = threading.Lock()
         self.bus.subscribe(self.keys.nav_estimate, NavEstimate, self._on_estimate)
         self.bus.subscribe(self.keys.autopilot_status, AutopilotStatus, self._on_status)
         self.bus.subscribe(self.keys.clock, ClockTick, self._on_tick)
@@ -155,25 +171,56 @@ class GuidanceNode:
 
     # ------------------------------------------------------------------ callbacks (Zenoh threads)
     def _on_estimate(self, msg: NavEstimate, _k: str) -> None:
-        self._estimate = msg
+        with self._estimate_arrived:
+            self._estimates.append((msg.timestamp_us, msg))
+            self._estimate_arrived.notify_all()
 
     def _on_status(self, msg: AutopilotStatus, _k: str) -> None:
         self._status = msg
 
     def _on_tick(self, msg: ClockTick, _k: str) -> None:
-        """Hand the main loop only the ticks it acts on: every tick while the node is a lockstep
-        member (it acknowledges each), the ones at which a start try or a drift check is due, and
-        the last one; the others are counted here (no thread wake-up per tick while flying)."""
+        """Hand the main loop only the ticks it acts on: those at which a start try or a drift check
+        is due, and the last one; the others are counted here (no thread wake-up per tick) and, in
+        lockstep, answered unless an earlier ack already answered them ahead (only the ticks before
+        the node's first action are)."""
         if self._acts_on(msg):
             self._ticks.put(msg)
             return
         self.stats["ticks"] += 1
         self._last_t_us = msg.timestamp_us
+        self._ack(msg)
+
+    def _due_us(self) -> int | None:
+        """Simulated time of the next tick the main loop acts on (None: none, the node is done)."""
+        if self.phase is Phase.WAITING:
+            return self._next_try_us
+        if self.phase is Phase.FLYING:
+            return self._next_check_us
+        return None
+
+    def _ack(self, tick: ClockTick) -> None:
+        """In lockstep, answer ``tick`` and every later tick before the next one due (an ack of seq
+        M answers all up to M, docs/interfaces.md section 5): the simulator then does not wait for
+        this node, nor send it anything to answer, until a start try or a check is due. The due time
+        is set before the ack, so a tick the receive thread passes by is always answered already."""
+        if self._member_token is None or tick.mode != ClockMode.LOCKSTEP.value:
+            return
+        with self._ack_lock:
+            if tick.tick <= self._acked_through:
+                return
+            through = tick.tick
+            due_us = self._due_us()
+            if due_us is not None and tick.tick_period_us > 0:
+                through += max(0, -(-(due_us - tick.timestamp_us) // tick.tick_period_us) - 1)
+            self._acked_through = through
+            self.bus.publish(self.keys.lockstep_ack(NODE_ID), LockstepAck(
+                tick.timestamp_us + (through - tick.tick) * tick.tick_period_us, NODE_ID,
+                LockstepRole.TICK.value, through))
 
     def _acts_on(self, msg: ClockTick) -> bool:
         # Read from a Zenoh thread while the main loop may change them: a stale phase or due time
         # only hands over a tick more, which the main loop handles as before.
-        if msg.state == RunState.FINISHED.value or self._member_token is not None:
+        if msg.state == RunState.FINISHED.value:
             return True
         if self.phase is Phase.WAITING:
             return msg.timestamp_us >= self._next_try_us
@@ -323,11 +370,7 @@ class GuidanceNode:
                 self._next_check_us = tick.timestamp_us + int(round(self.cfg.check_period_s * 1e6))
                 self._check(tick)
         finally:
-            if self._member_token is not None and tick.mode == ClockMode.LOCKSTEP.value:
-                self.bus.publish(self.keys.lockstep_ack(NODE_ID), LockstepAck(
-                    tick.timestamp_us, NODE_ID, LockstepRole.TICK.value, tick.tick))
-        if self.phase is Phase.FLYING:
-            self._leave_lockstep()
+            self._ack(tick)
 
     def _leave_lockstep(self) -> None:
         if self._member_token is not None:
@@ -371,7 +414,7 @@ class GuidanceNode:
             self.event("landed: guidance done")
             self.phase = Phase.DONE
             return
-        est = self._estimate
+        est = self._estimate_at(tick.timestamp_us)
         if est is None or self.route_xy is None or est.position_enu_m[2] < 0.5 * self.cfg.altitude_m:
             return
         here = (float(est.position_enu_m[0]), float(est.position_enu_m[1]))
@@ -393,6 +436,15 @@ class GuidanceNode:
             return
         self.stats["replans"] += 1
         self.event(f"replanned ({why})", Severity.NOTICE)
+
+    def _estimate_at(self, t_us: int) -> NavEstimate | None:
+        """The autopilot's estimate at or before ``t_us``, once it has surely arrived (at most
+        ``ESTIMATE_WAIT_S``): the newest one to arrive would depend on which Zenoh link was faster."""
+        with self._estimate_arrived:
+            if not self._estimate_arrived.wait_for(
+                    lambda: sample_settled(self._estimates, t_us) or self._stop.is_set(), ESTIMATE_WAIT_S):
+                self.stats["estimate_late"] += 1
+            return sample_at(self._estimates, t_us)
 
     def _goals_reached(self, here: tuple[float, float]) -> int:
         """How many via-points lie behind the vehicle: the index of the leg it is closest to."""

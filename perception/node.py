@@ -34,7 +34,6 @@ no estimate had arrived yet).
 
 from __future__ import annotations
 
-import bisect
 import dataclasses
 import logging
 import math
@@ -64,6 +63,7 @@ from scenenav.core.contracts import (
 from scenenav.core.keys import Keys
 from scenenav.core.presence import announce_node
 from scenenav.core.rotations import aviation_euler_from_quat
+from scenenav.core.timed_history import sample_at, sample_settled
 
 if TYPE_CHECKING:
     from perception.pipeline import FixResult, Reason
@@ -134,8 +134,6 @@ FRAME_BACKLOG = 64
 #: Wall seconds the worker waits for the autopilot estimate of a frame's capture time (see
 #: ``_estimate_settled``); after that it aligns with the newest one it has (``stats["estimate_late"]``).
 ESTIMATE_WAIT_S = 0.5
-#: Estimates this many periods older than a frame mean the stream stopped: no waiting then.
-STALLED_ESTIMATE_PERIODS = 20
 
 class PerceptionNode:
     """See the module docstring. ``camera``: the camera this node expects (FOV and size)."""
@@ -226,20 +224,11 @@ class PerceptionNode:
             self._estimate_arrived.notify_all()
 
     def _estimate_settled(self, t_us: int) -> bool:
-        """Whether the estimate at or before ``t_us`` is known for sure: one stamped within an
-        estimate period before ``t_us``, or later, has arrived (the estimates come in order on the
-        autopilot's link). Without this the frame would take whichever estimate happened to have
-        arrived, and the autopilot's and the simulator's links race: two lockstep runs differed in
-        3 of 900 realistic fixes (2026-12-05). Call with ``_sensor_lock`` held."""
-        if len(self._tilts) < 2:
-            return True     # the autopilot has not published two yet: nothing to wait for
-        newest = self._tilts[-1][0]
-        period = newest - self._tilts[-2][0]     # between the last two estimates
-        if period <= 0:
-            return True
-        if newest < t_us - STALLED_ESTIMATE_PERIODS * period:
-            return True     # the estimates stopped (the autopilot left): do not wait for each frame
-        return newest > t_us - period
+        """Whether the estimate at or before ``t_us`` has surely arrived (``sample_settled``). Without
+        this the frame would take whichever estimate happened to have arrived, and the autopilot's and
+        the simulator's links race: two lockstep runs differed in 3 of 900 realistic fixes
+        (2026-12-05). Call with ``_sensor_lock`` held."""
+        return sample_settled(self._tilts, t_us)
 
     def _estimate_for(self, msg: CameraFrame) -> tuple[tuple[float, float] | None, tuple | None,
                                                       tuple[float, float] | None]:
@@ -254,24 +243,15 @@ class PerceptionNode:
             if not self._estimate_arrived.wait_for(lambda: self._estimate_settled(t) or self._stop.is_set(),
                                                    ESTIMATE_WAIT_S):
                 self.stats["estimate_late"] += 1
-            tilt = self._at(self._tilts, t) if want_tilt else None
-            prior = self._at(self._priors, t) if self.settings.uses_estimate_position else None
-            velocity = self._at(self._velocities, t) if self.settings.dr_from_estimate else None
+            tilt = sample_at(self._tilts, t) if want_tilt else None
+            prior = sample_at(self._priors, t) if self.settings.uses_estimate_position else None
+            velocity = sample_at(self._velocities, t) if self.settings.dr_from_estimate else None
         return tilt, prior, velocity
-
-    @staticmethod
-    def _at(history, t_us: int) -> float | None:
-        """The newest sample taken at or before ``t_us`` (the oldest one if all are later)."""
-        if not history:
-            return None
-        times = [t for t, _ in history]
-        i = bisect.bisect_right(times, t_us) - 1
-        return history[max(i, 0)][1]
 
     def _on_frame(self, msg: CameraFrame, _k: str) -> None:
         with self._sensor_lock:
-            heading = self._at(self._headings, msg.timestamp_us)
-            altitude = self._at(self._altitudes, msg.timestamp_us)
+            heading = sample_at(self._headings, msg.timestamp_us)
+            altitude = sample_at(self._altitudes, msg.timestamp_us)
         item = (msg, heading, altitude)
         # Never block here: this runs in Zenoh's receive thread, and a blocked receive thread stalls
         # every subscription of the node (after a SIGSTOP the backlog filled the queue and the node

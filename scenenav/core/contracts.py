@@ -252,7 +252,8 @@ class LockstepAck:
     timestamp_us: int
     node_id: str
     role: str                    # LockstepRole value
-    seq: int                     # tick number (role tick) or camera frame seq (role camera)
+    seq: int                     # tick number (role tick) or camera frame seq (role camera);
+    #                              answers every seq up to it (a tick member may answer ahead)
 
 
 @dataclass(frozen=True)

@@ -65,12 +65,14 @@ class LockstepBarrier:
         with self._cond:
             m = self._members.get(node_id)
             if m is not None and m.role == role and seq > m.last_ack:
+                answered_before = m.last_ack
                 m.last_ack = seq
                 if m.suspended:
                     m.suspended = False
                     self._rejoined.append(node_id)
                     log.info("lockstep member answers again: %s (%s)", node_id, role.value)
-                if seq == self._published[role] and role in self._published_at:
+                # timed once per published seq: by the first ack that covers it (an ack ahead too)
+                if answered_before < self._published[role] <= seq and role in self._published_at:
                     self._answer_s[node_id] = self._answer_s.get(node_id, 0.0) + \
                         time.perf_counter() - self._published_at[role]
                     self._answers[node_id] = self._answers.get(node_id, 0) + 1

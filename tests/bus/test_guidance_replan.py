@@ -18,7 +18,7 @@ from autopilot_bridge.params import ParameterStore
 from guidance.config import GuidanceRunConfig, PlannerConfig, RouteEnd
 from guidance.node import GuidanceNode
 from scenenav.core.bus import Bus, BusConfig, free_port
-from scenenav.core.contracts import ClockMode, ClockTick, NavEstimate, RunState
+from scenenav.core.contracts import ClockMode, ClockTick, LockstepAck, NavEstimate, RunState
 from scenenav.core.formats.world_manifest import WorldManifest
 from scenenav.core.frames import pixel_to_world
 from scenenav.core.keys import Keys
@@ -47,6 +47,15 @@ def wait_until(pred, timeout_s: float = 20.0) -> bool:
 
 @pytest.fixture
 def setup(tmp_path):
+    yield from running_guidance(tmp_path, lockstep=False)
+
+
+@pytest.fixture
+def lockstep_setup(tmp_path):
+    yield from running_guidance(tmp_path, lockstep=True)
+
+
+def running_guidance(tmp_path, lockstep: bool):
     map_path = tmp_path / "map.npz"
     np.savez(map_path, probability=lake_map())
     ns = f"t{uuid.uuid4().hex[:8]}"
@@ -57,7 +66,7 @@ def setup(tmp_path):
         cfg = GuidanceRunConfig(start_enu_m=START, goals_enu_m=(GOAL,), assistant_map=str(map_path),
                                  altitude_m=100.0, end=RouteEnd.LAND, replan_drift_m=40.0,
                                  check_period_s=1.0, start_after_s=1.0,
-                                 mavlink_url=f"tcp:127.0.0.1:{server.tcp_port}", lockstep=False)
+                                 mavlink_url=f"tcp:127.0.0.1:{server.tcp_port}", lockstep=lockstep)
         node = GuidanceNode(world, BusConfig(ns, hub.cfg.hub_port), cfg,
                             PlannerConfig(footprint_m=0.0, clearance_m=10.0, unvisited_weight=0.0),
                             out_dir=tmp_path)
@@ -73,15 +82,19 @@ def setup(tmp_path):
             hub.close()
 
 
-def tick(s, t_s: float, est_xy: tuple[float, float] | None = None) -> None:
-    t_us = int(t_s * 1e6)
+def estimate(s, t_s: float, est_xy: tuple[float, float]) -> None:
+    s["hub"].publish(s["keys"].nav_estimate, NavEstimate(
+        int(round(t_s * 1e6)), (est_xy[0], est_xy[1], 100.0), (10.0, 0.0, 0.0), (1.0, 0.0, 0.0, 0.0), 0.0,
+        (1.0, 1.0, 1.0), 6, "perception"))
+
+
+def tick(s, t_s: float, est_xy: tuple[float, float] | None = None,
+         mode: ClockMode = ClockMode.REALTIME) -> None:
     if est_xy is not None:
-        s["hub"].publish(s["keys"].nav_estimate, NavEstimate(
-            t_us, (est_xy[0], est_xy[1], 100.0), (10.0, 0.0, 0.0), (1.0, 0.0, 0.0, 0.0), 0.0,
-            (1.0, 1.0, 1.0), 6, "perception"))
+        estimate(s, t_s, est_xy)
         time.sleep(0.2)
-    s["hub"].publish(s["keys"].clock, ClockTick(t_us, int(t_s * 100), 10000, -1,
-                                                ClockMode.REALTIME.value, RunState.RUNNING.value))
+    s["hub"].publish(s["keys"].clock, ClockTick(int(round(t_s * 1e6)), int(round(t_s * 100)), 10000, -1,
+                                                mode.value, RunState.RUNNING.value))
 
 
 def missions(vehicle) -> list[int]:
@@ -175,3 +188,57 @@ def test_routes_stay_inside_the_autopilots_geofence(setup):
     assert distance_to_edges_m(dense, fence.inclusion_polygons[0]).min() >= 5.0 - 1e-6
     assert np.hypot(dense[:, 0], dense[:, 1] + 120.0).min() >= 25.0 - 1e-6
     assert s["node"].altitude_m() == pytest.approx(55.0)         # FENCE_ALT_MAX - FENCE_MARGIN
+
+
+def test_in_lockstep_the_node_holds_the_clock_through_start_and_replans(lockstep_setup):
+    """In lockstep the node stays a tick member in flight. Each ack answers ahead through the tick
+    before the next start try or check (ticks at 100 Hz, checks every simulated second), so the
+    ticks between send nothing; the ack of a tick whose check replans comes only after the new
+    mission is uploaded (the replan lands at a fixed simulated time); the check uses the estimate of
+    the tick's time even when a later one has already arrived (the links race)."""
+    s = setup = lockstep_setup
+    v = s["vehicle"]
+    acks: list[int] = []
+    uploaded: dict[int, int] = {}                   # ack seq -> missions uploaded when it arrived
+
+    def on_ack(msg: LockstepAck, _k: str) -> None:
+        uploaded[msg.seq] = len(missions(v))
+        acks.append(msg.seq)
+
+    s["hub"].subscribe(s["keys"].lockstep_ack("guidance"), LockstepAck, on_ack)
+    assert wait_until(lambda: s["hub"].session is not None)
+    time.sleep(1.0)
+
+    def step(t_s: float) -> None:                   # as the simulator: the next tick once answered
+        seq = int(round(t_s * 100))
+        tick(setup, t_s, mode=ClockMode.LOCKSTEP)
+        assert wait_until(lambda: bool(acks) and max(acks) >= seq, 30.0), (t_s, acks, v.calls)
+
+    step(0.5)
+    assert acks == [99] and uploaded[99] == 0       # through the tick before the start try at 1 s
+    step(1.0)                                       # start: plan, upload, arm, AUTO before the ack
+    assert acks == [99, 199] and uploaded[199] == 1 and s["node"].phase.value == "flying"
+    assert any(c[0] == "start_mission" for c in list(v.calls))
+    first = json.loads((s["dir"] / "route.json").read_text())
+    on_route = (first["waypoints"][2]["x_m"], first["waypoints"][2]["y_m"])
+    for t in (1.01, 1.02, 1.5):                     # flying, nothing due: answered already
+        step(t)
+    time.sleep(0.3)
+    assert acks == [99, 199] and s["node"]._member_token is not None
+
+    # the estimate of t = 2.0 is on the route; one of t = 2.05, 100 m off, has already arrived: the
+    # check at t = 2.0 must not replan on it
+    for t_e in (1.9, 1.95, 2.0):
+        estimate(s, t_e, on_route)
+    estimate(s, 2.05, (-150.0, -170.0))
+    time.sleep(0.3)
+    step(2.0)
+    assert acks[-1] == 299 and uploaded[299] == 1 and s["node"].stats["replans"] == 0
+
+    # the estimate of t = 3.0 is off the route: the ack of that tick comes after the new mission
+    for t_e in (2.95, 3.0):
+        estimate(s, t_e, (-150.0, -170.0))
+    step(3.0)
+    assert acks[-1] == 399 and uploaded[399] == 2 and s["node"].stats["replans"] == 1
+    assert any(c[0] == "set_current_mission_item" for c in list(v.calls))
+    assert s["node"].stats["estimate_late"] == 0

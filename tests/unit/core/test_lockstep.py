@@ -73,9 +73,16 @@ def test_answer_times_count_each_members_answers_to_the_current_seq():
     b.published(C, 0)
     b.ack("cam", C, 0)
     b.ack("cam", C, 5)                    # an ack for a frame not yet published is not timed
+    b.member_changed(T, "gd", True)       # a tick member answering ahead: timed for seq 3 ...
+    b.published(T, 3)
+    b.ack("gd", T, 9)
+    b.published(T, 4)                     # ... not for 4 (answered already), again for 10
+    b.published(T, 10)
+    b.ack("gd", T, 10)
+    assert b.wait(T, 4, 0.01) == ["ap"]   # gd answered 4 ahead, ap did not
     times = b.answer_times()
-    assert set(times) == {"ap", "cam"}
-    assert times["ap"][0] == 3 and times["cam"][0] == 1
+    assert set(times) == {"ap", "cam", "gd"}
+    assert times["ap"][0] == 3 and times["cam"][0] == 1 and times["gd"][0] == 2
     assert all(total >= 0.0 for _, total in times.values())
     b.member_changed(T, "ap", False)      # a member that left keeps its figures
     assert b.answer_times()["ap"][0] == 3
