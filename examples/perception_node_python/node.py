@@ -7,10 +7,14 @@ capture against the reference map) followed by the frame's LockstepAck. It leave
 (a ClockTick with ``state: "finished"``) or on SIGINT/SIGTERM.
 
     python node.py RUN_DIR [--node-id ID]
+    python node.py RUN_DIR --hub tcp/192.168.1.10:PORT --listen tcp/192.168.1.20:0   # another machine
 
 RUN_DIR may also come from the environment variable SCENENAV_RUN_DIR. Without ``--node-id`` the node
 takes the id of the first ``perception:ID`` in run.json's ``external`` list (``scenenav run
---external perception:ID``), else ``example_ncc``.
+--external perception:ID``), else ``example_ncc``. On another machine (the run started with
+``external.listen_host``), give RUN_DIR a copy of run.json, ``--hub`` one of its
+``bus.remote_endpoints``, ``--listen`` an address of this machine the run's machine can reach, and
+``--reference`` the reference map's copy if it is not at run.json's path.
 """
 
 from __future__ import annotations
@@ -58,12 +62,13 @@ def wait_for_run_json(run_dir: Path, timeout_s: float = 300.0) -> dict:
             time.sleep(0.1)
 
 
-def zenoh_config(endpoint: str) -> zenoh.Config:
-    """Peer on loopback, multicast scouting off, connect to the hub and retry until it answers."""
+def zenoh_config(endpoint: str, listen: str = "tcp/127.0.0.1:0") -> zenoh.Config:
+    """Peer (on loopback by default), multicast scouting off, connect to the hub and retry until it
+    answers."""
     return zenoh.Config.from_json5(json.dumps({
         "mode": "peer",
         "scouting": {"multicast": {"enabled": False}, "gossip": {"enabled": True}},
-        "listen": {"endpoints": ["tcp/127.0.0.1:0"]},
+        "listen": {"endpoints": [listen]},
         "connect": {"endpoints": [endpoint], "timeout_ms": -1, "exit_on_failure": False,
                     "retry": {"period_init_ms": 100, "period_max_ms": 1000, "period_increase_factor": 2}},
     }))
@@ -176,12 +181,13 @@ class Matcher:
 
 # ---------------------------------------------------------------------------------- the node
 class PerceptionNode:
-    def __init__(self, run_dir: Path, node_id: str | None):
+    def __init__(self, run_dir: Path, node_id: str | None, hub: str | None = None,
+                 listen: str = "tcp/127.0.0.1:0", reference: str | None = None):
         meta = wait_for_run_json(run_dir)
         self.node_id = node_id or next((s.split(":", 1)[1] for s in meta.get("external", [])
                                         if s.startswith("perception:")), "example_ncc")
         self.camera = meta["camera"]
-        self.matcher = Matcher(meta["reference_map"], meta["m_per_px"])
+        self.matcher = Matcher(reference or meta["reference_map"], meta["m_per_px"])
         prefix = meta["bus"]["key_prefix"]
         self.key = lambda tail: f"{prefix}/{tail}"
         self.headings: list[tuple[int, float]] = []
@@ -192,7 +198,8 @@ class PerceptionNode:
         self.malformed = 0
         self.answered = 0
 
-        self.session = zenoh.open(zenoh_config(meta["bus"]["endpoint"]))
+        hub = hub or meta["bus"]["endpoint"]
+        self.session = zenoh.open(zenoh_config(hub, listen))
         pub = lambda tail: self.session.declare_publisher(   # noqa: E731
             self.key(tail), congestion_control=zenoh.CongestionControl.BLOCK,
             reliability=zenoh.Reliability.RELIABLE)
@@ -211,7 +218,7 @@ class PerceptionNode:
         self.publish_info()
         self.worker = threading.Thread(target=self.work, daemon=True)
         self.worker.start()
-        log.info("perception node %s up on %s", self.node_id, meta["bus"]["endpoint"])
+        log.info("perception node %s up on %s", self.node_id, hub)
 
     def publish_info(self) -> None:
         self.session.put(self.key(f"info/{self.node_id}"), encode("NodeInfo", 1, {
@@ -336,11 +343,17 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("run_dir", nargs="?", default=os.environ.get("SCENENAV_RUN_DIR"),
                    help="the run folder (default: $SCENENAV_RUN_DIR)")
     p.add_argument("--node-id", help="node id on the bus (default: from run.json's external list)")
+    p.add_argument("--hub", help="the hub's Zenoh endpoint (default: run.json's bus.endpoint; from another "
+                                 "machine one of bus.remote_endpoints)")
+    p.add_argument("--listen", default="tcp/127.0.0.1:0",
+                   help="where this node listens for the run's other nodes (default tcp/127.0.0.1:0; on "
+                        "another machine tcp/<its address>:0)")
+    p.add_argument("--reference", help="the reference map (default: run.json's reference_map)")
     args = p.parse_args(argv)
     if not args.run_dir:
         p.error("give RUN_DIR or set SCENENAV_RUN_DIR")
     logging.basicConfig(level=logging.INFO, format="%(asctime)s %(levelname)s %(name)s: %(message)s")
-    node = PerceptionNode(Path(args.run_dir), args.node_id)
+    node = PerceptionNode(Path(args.run_dir), args.node_id, args.hub, args.listen, args.reference)
     for sig in (signal.SIGINT, signal.SIGTERM):
         signal.signal(sig, lambda *_: node.stop.set())
     while not node.stop.wait(0.2):

@@ -53,6 +53,15 @@ def port_number(text: str) -> int:
     return value
 
 
+def ipv4_address(text: str) -> str:
+    """A dotted IPv4 address (127.0.0.1, 0.0.0.0, 192.168.1.20)."""
+    import ipaddress
+    try:
+        return str(ipaddress.IPv4Address(text))
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"{text!r}: expected an IPv4 address such as 127.0.0.1") from None
+
+
 def add_flight_kind_arguments(parser: argparse.ArgumentParser, realism_default: str,
                               scripted_means: str) -> None:
     """``--realism {ideal,paper,realistic}`` and ``--scripted``, as the Table-2 flights take them

@@ -11,7 +11,13 @@ import re
 import sys
 from pathlib import Path
 
-from scenenav.app.arg_types import add_flight_kind_arguments, nonneg_int, port_number, positive_int
+from scenenav.app.arg_types import (
+    add_flight_kind_arguments,
+    ipv4_address,
+    nonneg_int,
+    port_number,
+    positive_int,
+)
 
 DEFAULT_LIVE_PORT = 8765          # Foxglove's default WebSocket port (scenenav.app.live)
 from scenenav.app.json_output import emit_json, run_json_aware
@@ -47,10 +53,10 @@ def _node(args: argparse.Namespace) -> int:
     from scenenav.core.bus import BusConfig
     run_dir = Path(args.run_dir) if getattr(args, "run_dir", None) else None
     if args.kind == "sim":
-        bus = BusConfig(args.namespace, args.hub_port, listen_hub=True)
+        bus = BusConfig(args.namespace, args.hub_port, listen_hub=True, listen_host=args.listen_host)
         expect = tuple(x for x in (args.expect or "").split(",") if x)
         return nodes.run_sim(run_dir, bus, expect)
-    bus = BusConfig(args.namespace, args.hub_port)
+    bus = BusConfig(args.namespace, args.hub_port, host=args.hub_host, listen_host=args.listen_host)
     if args.kind == "recorder":
         return nodes.run_recorder(run_dir, bus)
     if args.kind == "perception":
@@ -213,6 +219,12 @@ def build_parser(domain_commands: bool | str = True) -> argparse.ArgumentParser:
     bus_args.add_argument("--namespace", required=True, help="key namespace of the run (run.json: namespace)")
     bus_args.add_argument("--hub-port", required=True, type=int,
                           help="the simulator's Zenoh port (run.json: hub_port)")
+    bus_args.add_argument("--hub-host", type=ipv4_address, default="127.0.0.1",
+                          help="the address of the simulator's machine (run.json: bus.remote_endpoints "
+                               "from another machine; default 127.0.0.1)")
+    bus_args.add_argument("--listen-host", type=ipv4_address, default="127.0.0.1",
+                          help="the address this node listens on for the other nodes (default 127.0.0.1; "
+                               "on another machine its own address or 0.0.0.0)")
     bus_args.add_argument("--run-dir", help="run folder (reads scenario.yaml from it)")
     kinds = {"sim": "the simulator (the run's hub and clock)", "recorder": "the recorder (CSV, bus.mcap)",
              "perception": "a perception node (scene-matching fixes)", "autopilot": "the MAVLink autopilot",

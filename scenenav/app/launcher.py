@@ -17,6 +17,7 @@ from __future__ import annotations
 
 import dataclasses
 import errno
+import ipaddress
 import json
 import logging
 import os
@@ -87,6 +88,7 @@ class Launch:
     run_dir: Path
     namespace: str
     hub_port: int
+    listen_host: str = "127.0.0.1"     # external.listen_host: every node listens there
     children: list[Child] = field(default_factory=list)
     #: what run.json holds; written only once the hub listens (``publish_run_json``)
     meta: dict = field(default_factory=dict)
@@ -100,7 +102,8 @@ class Launch:
 
     def publish_run_json(self) -> None:
         """Write run.json: the hub listens on ``hub_port`` now, so a node may read it and join."""
-        self.meta.update(hub_port=self.hub_port, bus=bus_facts(self.namespace, self.hub_port))
+        self.meta.update(hub_port=self.hub_port,
+                         bus=bus_facts(self.namespace, self.hub_port, self.listen_host))
         write_atomic(self.run_dir / RUN_FILE, json.dumps(self.meta, indent=2))
         self.published = True
 
@@ -109,7 +112,8 @@ class Launch:
         logs.mkdir(parents=True, exist_ok=True)
         f = (logs / f"{name}.log").open("ab")
         cmd = [sys.executable, "-m", "scenenav.app.cli", "--log-level", "INFO", "node", *args,
-               "--namespace", self.namespace, "--hub-port", str(self.hub_port)]
+               "--namespace", self.namespace, "--hub-port", str(self.hub_port),
+               "--listen-host", self.listen_host]
         with stop_signals_deferred():     # a Ctrl-C now would leave a started child unrecorded
             proc = subprocess.Popen(cmd, stdout=f, stderr=subprocess.STDOUT, stdin=subprocess.DEVNULL,
                                     start_new_session=True, preexec_fn=die_with_parent)
@@ -250,7 +254,7 @@ def restart_on_new_hub_port(launch: Launch) -> None:
     launch.children.clear()
     for name in ("mavlink.json", HUB_FILE):
         (launch.run_dir / name).unlink(missing_ok=True)
-    launch.hub_port = free_port()
+    launch.hub_port = free_port(launch.listen_host)
     log.warning("the Zenoh hub port %d was taken before the simulator could listen on it: starting "
                 "the run again on port %d", old, launch.hub_port)
 
@@ -297,10 +301,27 @@ def spawn_recorder_and_perception(launch: Launch, cfg: ScenarioConfig,
     return camera
 
 
-def bus_facts(namespace: str, hub_port: int) -> dict:
-    """run.json's ``bus``: where a node connects and the key prefix of the run."""
-    return {"endpoint": f"tcp/127.0.0.1:{hub_port}", "namespace": namespace,
-            "key_prefix": f"scenenav/{namespace}"}
+def bus_facts(namespace: str, hub_port: int, listen_host: str = "127.0.0.1") -> dict:
+    """run.json's ``bus``: where a node connects and the key prefix of the run; with a
+    ``listen_host`` other than loopback also ``listen_host`` and ``remote_endpoints`` (where a node
+    on another machine connects: that address, or for 0.0.0.0 this machine's interface addresses)."""
+    facts: dict = {"endpoint": f"tcp/127.0.0.1:{hub_port}", "namespace": namespace,
+                   "key_prefix": f"scenenav/{namespace}"}
+    if not ipaddress.IPv4Address(listen_host).is_loopback:
+        hosts = interface_addresses() if listen_host == "0.0.0.0" else [listen_host]
+        facts.update(listen_host=listen_host, remote_endpoints=[f"tcp/{h}:{hub_port}" for h in hosts])
+    return facts
+
+
+def interface_addresses() -> list[str]:
+    """This machine's IPv4 addresses other than loopback (``ip -4 addr``; [] if none or no ``ip``)."""
+    try:
+        out = subprocess.run(["ip", "-4", "-o", "addr", "show"], capture_output=True, text=True,
+                             timeout=5, check=False).stdout
+    except (OSError, subprocess.SubprocessError):
+        return []
+    found = re.findall(r"\binet (\d+\.\d+\.\d+\.\d+)/", out)
+    return [a for a in found if not ipaddress.IPv4Address(a).is_loopback]
 
 
 def node_facts(cfg: ScenarioConfig, world) -> dict:
@@ -346,7 +367,8 @@ def prepare_run(cfg: ScenarioConfig, world, run_dir: Path, label: str, prefix: s
     try:
         run_dir.mkdir(parents=True, exist_ok=True)
         write_atomic(run_dir / "scenario.yaml", yaml.safe_dump(scenario_to_dict(cfg), sort_keys=False))
-        launch = Launch(run_dir, f"{prefix}-{uuid.uuid4().hex[:12]}", free_port())
+        host = cfg.external.listen_host
+        launch = Launch(run_dir, f"{prefix}-{uuid.uuid4().hex[:12]}", free_port(host), host)
         launch.meta = {"scenario": label, "namespace": launch.namespace, "hub_port": launch.hub_port,
                        "world": world.manifest.name, **node_facts(cfg, world),
                        "mavlink_tcp_port": cfg.autopilot.mavlink_tcp_port,

@@ -32,6 +32,7 @@ def validate_inputs(cfg: ScenarioConfig, world) -> None:
     _check_guidance(cfg, world)
     _check_route(cfg, world)
     _check_params_file(cfg)
+    _check_listen_host(cfg)
     _warn_rangefinder_limits(cfg)
 
 
@@ -152,6 +153,19 @@ def _check_params_file(cfg: ScenarioConfig) -> None:
     except UserError as exc:
         detail = str(exc).removeprefix("defaults: ").removeprefix(f"{a.params_file}: ")
         raise UserError(f"{key} = {a.params_file!r}: {detail}") from None
+
+
+def _check_listen_host(cfg: ScenarioConfig) -> None:
+    """``external.listen_host`` must be an address this machine can listen on."""
+    import socket
+    host = cfg.external.listen_host
+    with socket.socket(socket.AF_INET, socket.SOCK_STREAM) as s:
+        try:
+            s.bind((host, 0))
+        except OSError as exc:
+            raise UserError(f"external.listen_host: cannot listen on {host} ({exc.strerror}); expected "
+                            f"127.0.0.1, 0.0.0.0 or the address of one of this machine's interfaces "
+                            f"(`ip -4 addr`)") from None
 
 
 def _warn_rangefinder_limits(cfg: ScenarioConfig) -> None:

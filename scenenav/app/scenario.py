@@ -117,8 +117,19 @@ class ExternalConfig:
     # docs/interfaces.md "Presence"), then starts with a warning: loopback peers link within
     # milliseconds; a node on another machine needs Zenoh's scouting and gossip over the network
     link_timeout_s: float = 10.0
+    # the address every node of the run listens on (the hub included): 127.0.0.1 keeps the run on
+    # this machine; an address of one of its interfaces (or 0.0.0.0, all of them) lets a node on
+    # another machine join (docs/interfaces.md "A node on another machine")
+    listen_host: str = "127.0.0.1"
 
     def __post_init__(self) -> None:
+        import ipaddress
+        try:
+            ipaddress.IPv4Address(self.listen_host)
+        except ValueError:
+            check(False, "listen_host", self.listen_host,
+                  "an IPv4 address of this machine: 127.0.0.1 (this machine only), 0.0.0.0 (every "
+                  "interface) or one interface's address")
         members = [parse_external(s) for s in self.nodes]
         ids = [m.node_id for m in members]
         check(len(set(ids)) == len(ids), "nodes", list(self.nodes), "distinct node ids")

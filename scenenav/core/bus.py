@@ -2,8 +2,11 @@
 
 Topology of a run: the simulator listens on the run's hub endpoint ``tcp/127.0.0.1:<port>``; every
 other node connects to it and listens on an ephemeral loopback port; gossip scouting (over those
-links only) then meshes the peers. No multicast, nothing leaves 127.0.0.1, and each run has its own
-port and key namespace, so parallel runs never cross-talk.
+links only) then meshes the peers. No multicast, and each run has its own port and key namespace, so
+parallel runs never cross-talk. By default nothing leaves 127.0.0.1; with ``listen_host`` (the
+scenario's ``external.listen_host``) every node of the run listens on that address instead (an
+interface's, or 0.0.0.0 for all), so a node on another machine can connect to the hub and the
+gossip mesh can link it with every node (peers do not forward for each other).
 
 ``Bus`` wraps one session: typed publishers (reliable, congestion control BLOCK so nothing is lost),
 typed subscribers that decode, count and drop malformed payloads without ever raising into Zenoh,
@@ -38,15 +41,16 @@ class BusConfig:
     namespace: str
     hub_port: int                      # the simulator's listening port
     listen_hub: bool = False           # True for the node that owns the hub endpoint (the simulator)
-    host: str = "127.0.0.1"
+    host: str = "127.0.0.1"            # the hub's address, as this node connects to it
+    listen_host: str = ""              # the address this node listens on ("": ``host``)
 
     def zenoh_config(self) -> zenoh.Config:
-        hub = f"tcp/{self.host}:{self.hub_port}"
+        listen = self.listen_host or self.host
         conf: dict[str, Any] = {
             "mode": "peer",
             "scouting": {"multicast": {"enabled": False}, "gossip": {"enabled": True}},
-            "listen": {"endpoints": [hub] if self.listen_hub else [f"tcp/{self.host}:0"]},
-            "connect": {"endpoints": [] if self.listen_hub else [hub]},
+            "listen": {"endpoints": [f"tcp/{listen}:{self.hub_port if self.listen_hub else 0}"]},
+            "connect": {"endpoints": [] if self.listen_hub else [f"tcp/{self.host}:{self.hub_port}"]},
         }
         cfg = zenoh.Config()
         for key, value in conf.items():

@@ -42,6 +42,9 @@ def scenenav(*args):
     (["sitl", "--out", "{tmp}/l", "--tcp-port", "0", "--external", "nonsense"], "ROLE:ID"),
     (["cnn", "decision-data", "--out", "{tmp}/dd", "--worlds", "101,9050"], "reserved for held-out"),
     (["cnn", "decision-data", "--out", "{tmp}/de", "--set", "flight.altitude_m=-3"], "altitude_m"),
+    (["run", "--out", "{tmp}/lh", "--set", "external.listen_host=my-laptop"], "IPv4 address"),
+    # TEST-NET-3: an address no interface of a test machine has
+    (["run", "--out", "{tmp}/li", "--set", "external.listen_host=203.0.113.77"], "cannot listen on 203.0.113.77"),
 ])
 def test_one_line_error_exit_2(tmp_path, args, needle):
     bad = tmp_path / "bad.yaml"

@@ -144,6 +144,33 @@ def test_external_nodes_in_the_scenario():
     with pytest.raises(UserError, match="link_timeout_s"):
         load_scenario(None, ("external.link_timeout_s=-1",))
     assert load_scenario(None, ("external.link_timeout_s=45",)).external.link_timeout_s == 45.0
+    assert load_scenario(None).external.listen_host == "127.0.0.1"
+    with pytest.raises(UserError, match="listen_host"):
+        load_scenario(None, ("external.listen_host=256.1.1.1",))
+
+
+def test_bus_facts_name_the_remote_endpoints_only_beyond_loopback(monkeypatch):
+    from scenenav.app import launcher
+    local = launcher.bus_facts("ns", 7000)
+    assert local == {"endpoint": "tcp/127.0.0.1:7000", "namespace": "ns", "key_prefix": "scenenav/ns"}
+    one = launcher.bus_facts("ns", 7000, "192.168.5.4")
+    assert one["remote_endpoints"] == ["tcp/192.168.5.4:7000"] and one["listen_host"] == "192.168.5.4"
+    assert one["endpoint"] == "tcp/127.0.0.1:7000"          # the run's own nodes stay on loopback
+    monkeypatch.setattr(launcher, "interface_addresses", lambda: ["10.1.2.3", "192.168.5.4"])
+    every = launcher.bus_facts("ns", 7000, "0.0.0.0")
+    assert every["remote_endpoints"] == ["tcp/10.1.2.3:7000", "tcp/192.168.5.4:7000"]
+
+
+def test_a_node_listens_where_it_is_told_and_connects_to_the_hub():
+    from scenenav.core.bus import BusConfig
+    hub = BusConfig("ns", 7000, listen_hub=True, listen_host="0.0.0.0").zenoh_config()
+    assert hub.get_json("listen/endpoints") == '["tcp/0.0.0.0:7000"]'
+    assert hub.get_json("connect/endpoints") == "[]"
+    node = BusConfig("ns", 7000, host="10.0.0.5", listen_host="10.0.0.9").zenoh_config()
+    assert node.get_json("listen/endpoints") == '["tcp/10.0.0.9:0"]'
+    assert node.get_json("connect/endpoints") == '["tcp/10.0.0.5:7000"]'
+    default = BusConfig("ns", 7000).zenoh_config()
+    assert default.get_json("listen/endpoints") == '["tcp/127.0.0.1:0"]'
 
 
 class _Proc:

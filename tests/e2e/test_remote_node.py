@@ -1,0 +1,163 @@
+"""A node on another machine joins a run started with ``external.listen_host``.
+
+The "other machine" is a Linux network namespace joined to this one by a veth pair: its own
+interfaces, its own loopback (it cannot reach this machine's 127.0.0.1), one /30 link to this
+machine, as a companion computer on a LAN. The example node (examples/perception_node_python)
+runs there with ``--hub`` one of run.json's ``bus.remote_endpoints`` and ``--listen`` its own
+address. With ``external.listen_host: 0.0.0.0`` the run waits for it, every node of the run links
+to it (gossip gives them its address) and the autopilot flies on its fixes; with the default
+(127.0.0.1) the same node cannot reach the run, which ends with its one-line message.
+
+Without the rights to create a namespace (not root, or no ``ip``), the node runs on this machine
+but connects only through this machine's first non-loopback address, and listens there: the hub
+still has to listen beyond loopback for it to join (the weaker form; the test says which it ran).
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import random
+import shutil
+import subprocess
+import sys
+import time
+import uuid
+from pathlib import Path
+
+import pytest
+import yaml
+from support import REPO_ROOT
+
+EXAMPLE = REPO_ROOT / "examples" / "perception_node_python" / "node.py"
+NODE_ID = "remote1"
+RUN_TIMEOUT_S = 300
+#: The flight of tests/e2e/test_external_node.py (GPS off, the vehicle navigates on the node's fixes).
+SCENARIO = {
+    "name": "remote_node", "seed": 5, "duration_s": 20,
+    "flight": {"mode": "autopilot", "altitude_m": 50, "start_enu_m": [60, -60],
+               "route_enu_m": [[60, -95], [95, -95]]},
+    "sim": {"gps": {"enabled": False}, "camera": {"rate_hz": 5.0, "relief": False}},
+    "perception": {"reference": "orthophoto"},
+    "recorder": {"camera_every_n": 0},
+    "autopilot": {"mavlink_tcp_port": 0, "mavlink_udp_out": "none",
+                  "params": {"SN_VIS_MIN_ALT": 35, "WPNAV_SPEED_UP": 500, "WPNAV_SPEED_DN": 300,
+                             "LAND_SPEED": 200}},
+    "external": {"nodes": [f"perception:{NODE_ID}"], "listen_host": "0.0.0.0", "join_timeout_s": 60},
+}
+
+
+class OtherMachine:
+    """Where the node runs: a network namespace behind a veth pair, or (fallback) this machine
+    through its non-loopback address."""
+
+    def __init__(self) -> None:
+        self.netns: str | None = None
+        tag = uuid.uuid4().hex[:6]
+        octet = random.randrange(0, 64) * 4
+        self.host_addr, self.node_addr = f"10.231.{octet}.1", f"10.231.{octet}.2"
+        name, host_if, node_if = f"sn{tag}", f"sna{tag}", f"snb{tag}"
+        steps = [["ip", "netns", "add", name],
+                 ["ip", "link", "add", host_if, "type", "veth", "peer", "name", node_if],
+                 ["ip", "link", "set", node_if, "netns", name],
+                 ["ip", "addr", "add", f"{self.host_addr}/30", "dev", host_if],
+                 ["ip", "link", "set", host_if, "up"],
+                 ["ip", "netns", "exec", name, "ip", "addr", "add", f"{self.node_addr}/30", "dev", node_if],
+                 ["ip", "netns", "exec", name, "ip", "link", "set", node_if, "up"],
+                 ["ip", "netns", "exec", name, "ip", "link", "set", "lo", "up"]]
+        if shutil.which("ip") and os.geteuid() == 0:
+            try:
+                for step in steps:
+                    subprocess.run(step, check=True, capture_output=True, timeout=10)
+                self.netns = name
+                return
+            except (subprocess.SubprocessError, OSError):
+                subprocess.run(["ip", "netns", "del", name], capture_output=True, timeout=10)
+                subprocess.run(["ip", "link", "del", host_if], capture_output=True, timeout=10)
+        from scenenav.app.launcher import interface_addresses
+        found = interface_addresses()
+        assert found, "neither a network namespace nor a non-loopback address to reach the run by"
+        self.host_addr = self.node_addr = found[0]
+
+    def start_node(self, run_dir: Path, hub_port: int, log: Path) -> subprocess.Popen:
+        cmd = [sys.executable, str(EXAMPLE), str(run_dir), "--hub", f"tcp/{self.host_addr}:{hub_port}",
+               "--listen", f"tcp/{self.node_addr}:0"]
+        if self.netns:
+            cmd = ["ip", "netns", "exec", self.netns, *cmd]
+        with log.open("wb") as f:
+            return subprocess.Popen(cmd, stdout=f, stderr=subprocess.STDOUT, stdin=subprocess.DEVNULL,
+                                    cwd=REPO_ROOT)
+
+    def close(self) -> None:
+        if self.netns:      # deleting the namespace deletes its veth end, and so the pair
+            subprocess.run(["ip", "netns", "del", self.netns], capture_output=True, timeout=10)
+
+
+def _fly(tmp: Path, machine: OtherMachine, name: str, overrides: list[str]) -> dict:
+    scenario = tmp / f"{name}.yaml"
+    scenario.write_text(yaml.safe_dump(SCENARIO))
+    out = tmp / name
+    run = subprocess.Popen([sys.executable, "-m", "scenenav.app.cli", "run", str(scenario), "--out", str(out),
+                            "--quiet", *overrides], stdout=subprocess.PIPE, stderr=subprocess.PIPE,
+                           text=True, cwd=REPO_ROOT, stdin=subprocess.DEVNULL)
+    node = None
+    try:
+        deadline = time.monotonic() + 120
+        while not (out / "run.json").exists():
+            assert run.poll() is None and time.monotonic() < deadline, run.communicate()
+            time.sleep(0.2)
+        meta = json.loads((out / "run.json").read_text())
+        node = machine.start_node(out, meta["hub_port"], tmp / f"{name}-node.log")
+        stdout, stderr = run.communicate(timeout=RUN_TIMEOUT_S)
+    finally:
+        for proc in (run, node):
+            if proc is not None and proc.poll() is None:
+                proc.kill()
+                proc.wait(timeout=10)
+    return {"code": run.returncode, "stdout": stdout, "stderr": stderr, "out": out, "meta": meta,
+            "node_log": (tmp / f"{name}-node.log").read_text()}
+
+
+@pytest.fixture(scope="module")
+def flights(tmp_path_factory):
+    tmp = tmp_path_factory.mktemp("remote")
+    machine = OtherMachine()
+    try:
+        yield {"machine": machine,
+               "open": _fly(tmp, machine, "open", []),
+               "local": _fly(tmp, machine, "local", ["--set", "external.listen_host=127.0.0.1",
+                                                     "--set", "external.join_timeout_s=4"])}
+    finally:
+        machine.close()
+
+
+def test_a_node_on_another_machine_flies_the_vehicle(flights):
+    f = flights["open"]
+    machine = flights["machine"]
+    print("other machine:", f"network namespace {machine.netns}" if machine.netns else
+          f"this machine through {machine.host_addr}")
+    assert f["code"] == 0, (f["stderr"][-2000:], f["node_log"][-2000:])
+    bus = f["meta"]["bus"]
+    assert bus["listen_host"] == "0.0.0.0"
+    assert f"tcp/{machine.host_addr}:{f['meta']['hub_port']}" in bus["remote_endpoints"], bus
+    run = f["out"]
+    joined = json.loads((run / "external.json").read_text())
+    assert joined["joined"] == [f"perception:{NODE_ID}"] and joined["unlinked"] == [], joined
+    from scenenav.app.evaluation import read_csv
+    fixes = read_csv(run / "fixes.csv")
+    sim = json.loads((run / "sim_stats.json").read_text())
+    assert len(fixes["t_s"]) == sim["camera_frames"] and sim["ack_timeouts"] == 0
+    assert set(fixes["node_id"]) == {NODE_ID}
+    stats = json.loads((run / "autopilot_stats.json").read_text())
+    assert stats["core"]["vision_fused"] > 10, stats["core"]
+    summary = json.loads((run / "summary.json").read_text())
+    assert summary["gps_used"] is False and summary["rms_error_m"] < 5.0, summary
+
+
+def test_by_default_the_run_stays_on_its_machine(flights):
+    f = flights["local"]
+    assert f["code"] == 1, f["stderr"][-2000:]
+    assert "remote_endpoints" not in f["meta"]["bus"] and "listen_host" not in f["meta"]["bus"]
+    errors = [line for line in f["stderr"].splitlines() if "ERROR" in line]
+    assert len(errors) == 1 and f"external node perception:{NODE_ID} did not join within 4 s" in errors[0]
+    assert json.loads((f["out"] / "external.json").read_text())["missing"] == [f"perception:{NODE_ID}"]
