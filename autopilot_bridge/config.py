@@ -14,7 +14,9 @@ dimensionless gain; ``_per_rt_hz`` marks a continuous-time noise spectral densit
 
 from __future__ import annotations
 
+import ipaddress
 import math
+import socket
 from dataclasses import dataclass, field
 from enum import Enum, IntEnum
 
@@ -359,6 +361,25 @@ def parse_udp_out(text: str) -> tuple[str, int] | None:
     return host, int(port)
 
 
+def udp_bind_host_for(target_host: str) -> str:
+    """Where the UDP socket binds to reach ``target_host``: 127.0.0.1 for a loopback target, else
+    0.0.0.0 (a socket bound to 127.0.0.1 cannot send to another machine: the kernel refuses with
+    EINVAL). A name that does not resolve binds 0.0.0.0 too."""
+    try:
+        address = socket.gethostbyname(target_host)
+    except OSError:
+        return "0.0.0.0"
+    return "127.0.0.1" if ipaddress.IPv4Address(address).is_loopback else "0.0.0.0"
+
+
+def _ipv4_ok(text: str) -> bool:
+    try:
+        ipaddress.IPv4Address(text)
+    except ValueError:
+        return False
+    return True
+
+
 def _udp_out_ok(text: str) -> bool:
     try:
         parse_udp_out(text)
@@ -371,7 +392,10 @@ def _udp_out_ok(text: str) -> bool:
 class AutopilotNodeConfig:
     """The scenario's ``autopilot:`` section (the autopilot node)."""
 
-    mavlink_tcp_port: int = 5760       # MAVLink TCP server on 127.0.0.1 (0 = off)
+    mavlink_tcp_port: int = 5760       # MAVLink TCP server port (0 = off)
+    # the address the MAVLink TCP server binds: 127.0.0.1 (this machine only); 0.0.0.0 or an
+    # interface's address lets a ground station on another machine connect (docs/mavlink.md)
+    mavlink_tcp_host: str = "127.0.0.1"
     mavlink_udp_out: str = "127.0.0.1:14550"   # MAVLink UDP output HOST:PORT, or none
     auto_start: bool = True            # autopilot flights: arm and start AUTO once the EKF is aligned
     mission_end: MissionEndMode = MissionEndMode.LAND   # autopilot flights: after the last waypoint
@@ -384,6 +408,9 @@ class AutopilotNodeConfig:
     def __post_init__(self) -> None:
         check(0 <= self.mavlink_tcp_port <= 65535, "mavlink_tcp_port", self.mavlink_tcp_port,
               "a TCP port 1..65535, or 0 for off")
+        check(_ipv4_ok(self.mavlink_tcp_host), "mavlink_tcp_host", self.mavlink_tcp_host,
+              "an IPv4 address: 127.0.0.1 (this machine only), 0.0.0.0 (every interface) or one "
+              "interface's address")
         check(_udp_out_ok(self.mavlink_udp_out), "mavlink_udp_out", self.mavlink_udp_out,
               "HOST:PORT (e.g. 127.0.0.1:14550), or none")
         check(self.vision_wait_s >= 0, "vision_wait_s", self.vision_wait_s, ">= 0 s")

@@ -61,7 +61,7 @@ from typing import Any
 import numpy as np
 import zenoh
 
-from autopilot_bridge.config import AutopilotSetup, PositionSource
+from autopilot_bridge.config import AutopilotSetup, PositionSource, udp_bind_host_for
 from autopilot_bridge.flight_core import FlightCore
 from autopilot_bridge.fusion import GpsReading, ImuReading, flow_reading
 from autopilot_bridge.mavlink_server import MavlinkServer, MavlinkServerConfig
@@ -95,6 +95,7 @@ from scenenav.core.contracts import (
     decode,
 )
 from scenenav.core.errors import UserError
+from scenenav.core.formats.atomic_file import write_atomic
 from scenenav.core.keys import Keys
 from scenenav.core.presence import announce_node
 
@@ -240,8 +241,9 @@ class AutopilotNode:
         key_path = (str(key_path_beside(a.params_store)) if a.params_store
                     else str(self.run_dir / SIGNING_KEY_FILE) if self.run_dir else "")
         cfg = MavlinkServerConfig(
-            tcp_enabled=a.mavlink_tcp_port != 0, tcp_port=a.mavlink_tcp_port or 5760,
+            tcp_enabled=a.mavlink_tcp_port != 0, tcp_host=a.mavlink_tcp_host, tcp_port=a.mavlink_tcp_port or 5760,
             udp_enabled=udp is not None, udp_target_host=udp[0] if udp else "127.0.0.1",
+            udp_bind_host=udp_bind_host_for(udp[0]) if udp else "127.0.0.1",
             udp_target_port=udp[1] if udp else 14550, tlog_path=tlog, signing_key_path=key_path)
         try:
             server = MavlinkServer(self.core, self.params, cfg)
@@ -261,10 +263,9 @@ class AutopilotNode:
             info = {"tcp_host": cfg.tcp_host if server.tcp_port else None,
                     "tcp_port": server.tcp_port, "udp_port": server.udp_port,
                     "udp_out": f"{cfg.udp_target_host}:{cfg.udp_target_port}" if udp else None,
+                    "udp_bind_host": cfg.udp_bind_host if udp else None,
                     "system_id": server.system_id}
-            tmp = self.run_dir / (MAVLINK_FILE + ".tmp")
-            tmp.write_text(json.dumps(info, indent=2))
-            tmp.replace(self.run_dir / MAVLINK_FILE)
+            write_atomic(self.run_dir / MAVLINK_FILE, json.dumps(info, indent=2))
         return server
 
     # ------------------------------------------------------------------ callbacks (Zenoh threads)

@@ -130,7 +130,7 @@ def _relief(args: argparse.Namespace) -> int:
 def _sitl(args: argparse.Namespace) -> int:
     from scenenav.app.sitl_cmd import SitlOptions, run_sitl
     opts = SitlOptions(scenario=args.scenario, world=args.world, gps=not args.no_gps,
-                       speedup=args.speedup, out=args.out, tcp_port=args.tcp_port,
+                       speedup=args.speedup, out=args.out, tcp_port=args.tcp_port, tcp_host=args.tcp_host,
                        udp_out=args.udp_out, perception=args.perception, lockstep=args.lockstep,
                        overrides=tuple(args.set or ()), instance=args.instance, wipe=args.wipe,
                        live_port=args.live_port if args.live else None,
@@ -335,9 +335,13 @@ def build_parser(domain_commands: bool | str = True) -> argparse.ArgumentParser:
                     help="simulated seconds per wall second (default 1)")
     st.add_argument("--out", metavar="RUN_DIR", help="run folder to create (default runs/sitl-<time>)")
     st.add_argument("--tcp-port", type=int, default=5760,
-                    help="MAVLink TCP server port on 127.0.0.1 (default 5760; 0 = off)")
+                    help="MAVLink TCP server port (default 5760; 0 = off)")
+    st.add_argument("--tcp-host", type=ipv4_address, default=None,
+                    help="address the MAVLink TCP server listens on (default 127.0.0.1, this machine "
+                         "only; 0.0.0.0 lets a ground station on another machine connect)")
     st.add_argument("--udp-out", default="127.0.0.1:14550", metavar="HOST:PORT",
-                    help="MAVLink UDP output (default 127.0.0.1:14550; 0 or none = off)")
+                    help="MAVLink UDP output (default 127.0.0.1:14550; 0 or none = off; another "
+                         "machine's address sends telemetry there, e.g. to QGroundControl on a laptop)")
     st.add_argument("--perception", choices=["cnn", "assistant-map", "statistical", "none", "off"],
                     help="false-match method of the perception node, or off for no perception node "
                          "(default: the scenario's; 'none' accepts every match)")

@@ -32,7 +32,7 @@ def validate_inputs(cfg: ScenarioConfig, world) -> None:
     _check_guidance(cfg, world)
     _check_route(cfg, world)
     _check_params_file(cfg)
-    _check_listen_host(cfg)
+    check_listen_hosts(cfg)
     _warn_rangefinder_limits(cfg)
 
 
@@ -155,16 +155,22 @@ def _check_params_file(cfg: ScenarioConfig) -> None:
         raise UserError(f"{key} = {a.params_file!r}: {detail}") from None
 
 
-def _check_listen_host(cfg: ScenarioConfig) -> None:
-    """``external.listen_host`` must be an address this machine can listen on."""
+def check_listen_hosts(cfg: ScenarioConfig) -> None:
+    """The addresses the run listens on (``external.listen_host``, ``autopilot.mavlink_tcp_host``)
+    must be ones this machine can listen on."""
+    _check_bindable("external.listen_host", cfg.external.listen_host)
+    if cfg.autopilot.mavlink_tcp_port != 0:
+        _check_bindable("autopilot.mavlink_tcp_host", cfg.autopilot.mavlink_tcp_host)
+
+
+def _check_bindable(key: str, host: str) -> None:
     import socket
-    host = cfg.external.listen_host
     with socket.socket(socket.AF_INET, socket.SOCK_STREAM) as s:
         try:
             s.bind((host, 0))
         except OSError as exc:
-            raise UserError(f"external.listen_host: cannot listen on {host} ({exc.strerror}); expected "
-                            f"127.0.0.1, 0.0.0.0 or the address of one of this machine's interfaces "
+            raise UserError(f"{key}: cannot listen on {host} ({exc.strerror}); expected 127.0.0.1, "
+                            f"0.0.0.0 or the address of one of this machine's interfaces "
                             f"(`ip -4 addr`)") from None
 
 

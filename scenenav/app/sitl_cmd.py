@@ -32,11 +32,13 @@ from scenenav.app.launcher import (
     announce_live,
     await_hub,
     external_wait_text,
+    interface_addresses,
     prepare_run,
     resolve_world,
     restart_on_new_hub_port,
     spawn_recorder_and_perception,
 )
+from scenenav.app.preflight import check_listen_hosts
 from scenenav.app.realism import apply_realism
 from scenenav.app.scenario import ScenarioConfig, scenario_yaml, with_external
 from scenenav.app.signals import interrupt_on_stop_signals
@@ -62,6 +64,7 @@ class SitlOptions:
     speedup: float = 1.0               # realtime clock: simulated seconds per wall second
     out: str | None = None             # run folder (default runs/sitl-<time>)
     tcp_port: int = 5760               # MAVLink TCP server port (0: off)
+    tcp_host: str | None = None        # the address it listens on (None: the scenario's, 127.0.0.1)
     udp_out: str = "127.0.0.1:14550"   # MAVLink UDP output HOST:PORT (0: off)
     perception: str | None = None      # method, "off" for no perception node, None: the scenario's
     lockstep: bool = False             # lockstep clock (as fast as the nodes allow) instead of realtime
@@ -94,6 +97,8 @@ def sitl_scenario(opts: SitlOptions) -> ScenarioConfig:
     set_dotted(data, "clock.speed_factor", float(opts.speedup))
     set_dotted(data, "sim.gps.enabled", bool(opts.gps))
     set_dotted(data, "autopilot.mavlink_tcp_port", int(opts.tcp_port))
+    if opts.tcp_host is not None:
+        set_dotted(data, "autopilot.mavlink_tcp_host", opts.tcp_host)
     set_dotted(data, "autopilot.mavlink_udp_out", opts.udp_out)
     set_dotted(data, "autopilot.params_store", str(params_store_path(opts.instance)))
     if opts.world:
@@ -118,15 +123,15 @@ def sitl_scenario(opts: SitlOptions) -> ScenarioConfig:
     return cfg
 
 
-def _check_tcp_port(port: int) -> None:
+def _check_tcp_port(host: str, port: int) -> None:
     if port == 0:
         return
     with socket.socket(socket.AF_INET, socket.SOCK_STREAM) as s:
         s.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)
         try:
-            s.bind(("127.0.0.1", port))
+            s.bind((host, port))
         except OSError as exc:
-            raise UserError(f"--tcp-port {port}: 127.0.0.1:{port} is not free ({exc.strerror}); "
+            raise UserError(f"--tcp-port {port}: {host}:{port} is not free ({exc.strerror}); "
                             f"is another SITL running? choose another port") from None
 
 
@@ -170,11 +175,17 @@ def _connect_text(cfg: ScenarioConfig, run_dir: Path, mavlink: dict) -> str:
              f"run folder: {run_dir}"]
     if cfg.autopilot.params_store:
         lines.append(f"parameters kept in {cfg.autopilot.params_store} (--wipe resets them)")
+    host = mavlink.get("tcp_host") or "127.0.0.1"
+    local = "127.0.0.1" if host in ("127.0.0.1", "0.0.0.0") else host    # where a client here connects
     if tcp:
-        lines += [f"MAVLink TCP server: 127.0.0.1:{tcp}",
-                  f"  MAVProxy:       mavproxy.py --master tcp:127.0.0.1:{tcp}",
-                  f"  MAVSDK:         tcpout://127.0.0.1:{tcp}",
-                  f"  QGroundControl: Application Settings > Comm Links > TCP 127.0.0.1:{tcp}"]
+        lines += [f"MAVLink TCP server: {host}:{tcp}",
+                  f"  MAVProxy:       mavproxy.py --master tcp:{local}:{tcp}",
+                  f"  MAVSDK:         tcpout://{local}:{tcp}",
+                  f"  QGroundControl: Application Settings > Comm Links > TCP {local}:{tcp}"]
+        if host != "127.0.0.1":
+            others = interface_addresses() if host == "0.0.0.0" else [host]
+            lines.append("  from another machine: " + (" or ".join(f"{a}:{tcp}" for a in others)
+                                                       or f"this machine's address, port {tcp}"))
     if udp:
         lines += [f"MAVLink UDP out:    {udp} (QGroundControl listens on 14550 by default; "
                   f"MAVSDK udpin://0.0.0.0:{udp.rsplit(':', 1)[-1]})"]
@@ -192,7 +203,8 @@ def run_sitl(opts: SitlOptions, announce: Callable[[str], None]) -> dict:
 def _run_sitl(opts: SitlOptions, announce: Callable[[str], None]) -> dict:
     cfg = sitl_scenario(opts)
     world = resolve_world(cfg)
-    _check_tcp_port(cfg.autopilot.mavlink_tcp_port)
+    check_listen_hosts(cfg)
+    _check_tcp_port(cfg.autopilot.mavlink_tcp_host, cfg.autopilot.mavlink_tcp_port)
     store = Path(cfg.autopilot.params_store) if cfg.autopilot.params_store else None
     if store is not None:
         _check_params_store(store, wipe=opts.wipe)

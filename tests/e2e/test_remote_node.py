@@ -10,24 +10,22 @@ to it (gossip gives them its address) and the autopilot flies on its fixes; with
 
 Without the rights to create a namespace (not root, or no ``ip``), the node runs on this machine
 but connects only through this machine's first non-loopback address, and listens there: the hub
-still has to listen beyond loopback for it to join (the weaker form; the test says which it ran).
+still has to listen beyond loopback for it to join (the weaker form; the test says which it ran;
+``support.other_machine``).
 """
 
 from __future__ import annotations
 
 import json
-import os
-import random
-import shutil
 import subprocess
 import sys
 import time
-import uuid
 from pathlib import Path
 
 import pytest
 import yaml
 from support import REPO_ROOT
+from support.other_machine import OtherMachine
 
 EXAMPLE = REPO_ROOT / "examples" / "perception_node_python" / "node.py"
 NODE_ID = "remote1"
@@ -47,52 +45,6 @@ SCENARIO = {
 }
 
 
-class OtherMachine:
-    """Where the node runs: a network namespace behind a veth pair, or (fallback) this machine
-    through its non-loopback address."""
-
-    def __init__(self) -> None:
-        self.netns: str | None = None
-        tag = uuid.uuid4().hex[:6]
-        octet = random.randrange(0, 64) * 4
-        self.host_addr, self.node_addr = f"10.231.{octet}.1", f"10.231.{octet}.2"
-        name, host_if, node_if = f"sn{tag}", f"sna{tag}", f"snb{tag}"
-        steps = [["ip", "netns", "add", name],
-                 ["ip", "link", "add", host_if, "type", "veth", "peer", "name", node_if],
-                 ["ip", "link", "set", node_if, "netns", name],
-                 ["ip", "addr", "add", f"{self.host_addr}/30", "dev", host_if],
-                 ["ip", "link", "set", host_if, "up"],
-                 ["ip", "netns", "exec", name, "ip", "addr", "add", f"{self.node_addr}/30", "dev", node_if],
-                 ["ip", "netns", "exec", name, "ip", "link", "set", node_if, "up"],
-                 ["ip", "netns", "exec", name, "ip", "link", "set", "lo", "up"]]
-        if shutil.which("ip") and os.geteuid() == 0:
-            try:
-                for step in steps:
-                    subprocess.run(step, check=True, capture_output=True, timeout=10)
-                self.netns = name
-                return
-            except (subprocess.SubprocessError, OSError):
-                subprocess.run(["ip", "netns", "del", name], capture_output=True, timeout=10)
-                subprocess.run(["ip", "link", "del", host_if], capture_output=True, timeout=10)
-        from scenenav.app.launcher import interface_addresses
-        found = interface_addresses()
-        assert found, "neither a network namespace nor a non-loopback address to reach the run by"
-        self.host_addr = self.node_addr = found[0]
-
-    def start_node(self, run_dir: Path, hub_port: int, log: Path) -> subprocess.Popen:
-        cmd = [sys.executable, str(EXAMPLE), str(run_dir), "--hub", f"tcp/{self.host_addr}:{hub_port}",
-               "--listen", f"tcp/{self.node_addr}:0"]
-        if self.netns:
-            cmd = ["ip", "netns", "exec", self.netns, *cmd]
-        with log.open("wb") as f:
-            return subprocess.Popen(cmd, stdout=f, stderr=subprocess.STDOUT, stdin=subprocess.DEVNULL,
-                                    cwd=REPO_ROOT)
-
-    def close(self) -> None:
-        if self.netns:      # deleting the namespace deletes its veth end, and so the pair
-            subprocess.run(["ip", "netns", "del", self.netns], capture_output=True, timeout=10)
-
-
 def _fly(tmp: Path, machine: OtherMachine, name: str, overrides: list[str]) -> dict:
     scenario = tmp / f"{name}.yaml"
     scenario.write_text(yaml.safe_dump(SCENARIO))
@@ -107,7 +59,9 @@ def _fly(tmp: Path, machine: OtherMachine, name: str, overrides: list[str]) -> d
             assert run.poll() is None and time.monotonic() < deadline, run.communicate()
             time.sleep(0.2)
         meta = json.loads((out / "run.json").read_text())
-        node = machine.start_node(out, meta["hub_port"], tmp / f"{name}-node.log")
+        node = machine.start([sys.executable, str(EXAMPLE), str(out), "--hub",
+                              f"tcp/{machine.host_addr}:{meta['hub_port']}", "--listen",
+                              f"tcp/{machine.node_addr}:0"], tmp / f"{name}-node.log")
         stdout, stderr = run.communicate(timeout=RUN_TIMEOUT_S)
     finally:
         for proc in (run, node):
@@ -134,8 +88,7 @@ def flights(tmp_path_factory):
 def test_a_node_on_another_machine_flies_the_vehicle(flights):
     f = flights["open"]
     machine = flights["machine"]
-    print("other machine:", f"network namespace {machine.netns}" if machine.netns else
-          f"this machine through {machine.host_addr}")
+    print("other machine:", machine.describe())
     assert f["code"] == 0, (f["stderr"][-2000:], f["node_log"][-2000:])
     bus = f["meta"]["bus"]
     assert bus["listen_host"] == "0.0.0.0"

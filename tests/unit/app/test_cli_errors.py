@@ -45,6 +45,10 @@ def scenenav(*args):
     (["run", "--out", "{tmp}/lh", "--set", "external.listen_host=my-laptop"], "IPv4 address"),
     # TEST-NET-3: an address no interface of a test machine has
     (["run", "--out", "{tmp}/li", "--set", "external.listen_host=203.0.113.77"], "cannot listen on 203.0.113.77"),
+    (["run", "--out", "{tmp}/lj", "--set", "autopilot.mavlink_tcp_host=203.0.113.78"],
+     "autopilot.mavlink_tcp_host: cannot listen on 203.0.113.78"),
+    (["sitl", "--out", "{tmp}/lk", "--tcp-port", "0", "--set", "external.listen_host=203.0.113.79"],
+     "external.listen_host: cannot listen on 203.0.113.79"),
 ])
 def test_one_line_error_exit_2(tmp_path, args, needle):
     bad = tmp_path / "bad.yaml"
