@@ -5,7 +5,9 @@ lockstep member, so a slow or absent viewer never holds the clock.
 
 Inputs: everything under ``scenenav/<ns>/**`` (like the recorder) and the run folder
 (``scenario.yaml`` for the world and the assistant map, the guidance node's ``route*.json``).
-Outputs: a WebSocket server speaking ``foxglove.websocket.v1`` on ``127.0.0.1:<port>`` (under
+Outputs: a WebSocket server speaking ``foxglove.websocket.v1`` on ``127.0.0.1:<port>`` (on the
+run's ``external.listen_host`` instead when that is not loopback, for a viewer on another machine;
+under
 that name and foxglove-sdk's ``foxglove.sdk.v1``: :mod:`scenenav.app.ws_subprotocol`)
 (``live.json`` in the run folder names the bound port and URL), with the channels
 ``bus.mcap`` records (``scenenav.app.viz``): every bus message on its key (JSON, schema
@@ -54,16 +56,18 @@ class LiveNode:
         # the SDK's server on a private port; the public one is the bridge that also accepts the
         # protocol's old subprotocol name (Lichtblick, @foxglove/ws-protocol clients)
         self.server = foxglove.start_server(name=f"scenenav {bus_cfg.namespace}", host=HOST, port=0)
+        host = bus_cfg.listen_host or HOST      # the run's external.listen_host: a remote viewer
         try:
-            self.bridge = SubprotocolBridge(HOST, port, self.server.port)
+            self.bridge = SubprotocolBridge(host, port, self.server.port, upstream_host=HOST)
         except OSError as exc:
             self.server.stop()
             raise RuntimeError(str(exc)) from exc
         self.port = self.bridge.port
+        local = HOST if host in (HOST, "0.0.0.0") else host     # where a viewer here connects
         write_atomic(self.run_dir / LIVE_FILE,
-                     json.dumps({"host": HOST, "port": self.port, "url": f"ws://{HOST}:{self.port}",
+                     json.dumps({"host": host, "port": self.port, "url": f"ws://{local}:{self.port}",
                                  "protocol": "foxglove.websocket.v1"}, indent=2))
-        log.info("live view: ws://%s:%d", HOST, self.port)
+        log.info("live view: ws://%s:%d", host, self.port)
         self.bus = Bus(bus_cfg)
         self.bus.subscribe_raw(self.keys.everything, self._on_sample)
         self.presence = announce_node(self.bus, self.keys, "live", NODE_ID)

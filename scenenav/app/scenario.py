@@ -117,9 +117,9 @@ class ExternalConfig:
     # docs/interfaces.md "Presence"), then starts with a warning: loopback peers link within
     # milliseconds; a node on another machine needs Zenoh's scouting and gossip over the network
     link_timeout_s: float = 10.0
-    # the address every node of the run listens on (the hub included): 127.0.0.1 keeps the run on
-    # this machine; an address of one of its interfaces (or 0.0.0.0, all of them) lets a node on
-    # another machine join (docs/interfaces.md "A node on another machine")
+    # the address every node of the run listens on (the hub and the live view included): 127.0.0.1
+    # keeps the run on this machine; an address of one of its interfaces (or 0.0.0.0, all of them)
+    # lets a node or a viewer on another machine join (docs/interfaces.md "A node on another machine")
     listen_host: str = "127.0.0.1"
 
     def __post_init__(self) -> None:

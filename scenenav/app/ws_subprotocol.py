@@ -100,11 +100,12 @@ def _pump(src: socket.socket, dst: socket.socket) -> None:
 
 class SubprotocolBridge:
     """Listen on ``host:port`` (0: any free port; :attr:`port` is the bound one) and forward every
-    connection to ``host:upstream_port``, renaming the subprotocol in the handshake as the module
-    says. Raises OSError when the port cannot be bound."""
+    connection to ``upstream_host:upstream_port``, renaming the subprotocol in the handshake as the
+    module says. Raises OSError when the port cannot be bound."""
 
-    def __init__(self, host: str, port: int, upstream_port: int) -> None:
+    def __init__(self, host: str, port: int, upstream_port: int, upstream_host: str = "127.0.0.1") -> None:
         self.host = host
+        self.upstream_host = upstream_host
         self.upstream_port = upstream_port
         self._listener = socket.create_server((host, port))
         self.port = self._listener.getsockname()[1]
@@ -138,7 +139,7 @@ class SubprotocolBridge:
                 return
             head, rest = request
             head, renamed = rename_offer(head)
-            upstream = socket.create_connection((self.host, self.upstream_port), timeout=10)
+            upstream = socket.create_connection((self.upstream_host, self.upstream_port), timeout=10)
             upstream.settimeout(None)
             self._track(upstream)
             upstream.sendall(head + rest)

@@ -5,8 +5,9 @@ interfaces, its own loopback (it cannot reach this machine's 127.0.0.1), one /30
 machine, as a companion computer on a LAN. The example node (examples/perception_node_python)
 runs there with ``--hub`` one of run.json's ``bus.remote_endpoints`` and ``--listen`` its own
 address. With ``external.listen_host: 0.0.0.0`` the run waits for it, every node of the run links
-to it (gossip gives them its address) and the autopilot flies on its fixes; with the default
-(127.0.0.1) the same node cannot reach the run, which ends with its one-line message.
+to it (gossip gives them its address) and the autopilot flies on its fixes, and a viewer there
+gets the live view's (``--live``) server info; with the default (127.0.0.1) the same node cannot
+reach the run, which ends with its one-line message.
 
 Without the rights to create a namespace (not root, or no ``ip``), the node runs on this machine
 but connects only through this machine's first non-loopback address, and listens there: the hub
@@ -45,6 +46,19 @@ SCENARIO = {
 }
 
 
+VIEWER = r'''
+import asyncio, json, sys
+import websockets
+
+async def main(url):
+    async with websockets.connect(url, subprotocols=["foxglove.websocket.v1"], max_size=None) as ws:
+        first = json.loads(await asyncio.wait_for(ws.recv(), 30))
+        print("subprotocol", ws.subprotocol, "first op", first.get("op"), flush=True)
+
+asyncio.run(main(sys.argv[1]))
+'''
+
+
 def _fly(tmp: Path, machine: OtherMachine, name: str, overrides: list[str]) -> dict:
     scenario = tmp / f"{name}.yaml"
     scenario.write_text(yaml.safe_dump(SCENARIO))
@@ -59,6 +73,16 @@ def _fly(tmp: Path, machine: OtherMachine, name: str, overrides: list[str]) -> d
             assert run.poll() is None and time.monotonic() < deadline, run.communicate()
             time.sleep(0.2)
         meta = json.loads((out / "run.json").read_text())
+        viewer = None
+        if "--live" in overrides:       # the live view comes up beside the recorder, before the wait
+            while not (out / "live.json").exists():
+                assert run.poll() is None and time.monotonic() < deadline, run.communicate()
+                time.sleep(0.2)
+            port = json.loads((out / "live.json").read_text())["port"]
+            (tmp / "viewer.py").write_text(VIEWER)
+            viewer = machine.start([sys.executable, str(tmp / "viewer.py"), f"ws://{machine.host_addr}:{port}"],
+                                   tmp / f"{name}-viewer.log")
+            assert viewer.wait(timeout=60) == 0, (tmp / f"{name}-viewer.log").read_text()
         node = machine.start([sys.executable, str(EXAMPLE), str(out), "--hub",
                               f"tcp/{machine.host_addr}:{meta['hub_port']}", "--listen",
                               f"tcp/{machine.node_addr}:0"], tmp / f"{name}-node.log")
@@ -69,7 +93,8 @@ def _fly(tmp: Path, machine: OtherMachine, name: str, overrides: list[str]) -> d
                 proc.kill()
                 proc.wait(timeout=10)
     return {"code": run.returncode, "stdout": stdout, "stderr": stderr, "out": out, "meta": meta,
-            "node_log": (tmp / f"{name}-node.log").read_text()}
+            "node_log": (tmp / f"{name}-node.log").read_text(),
+            "viewer_log": (tmp / f"{name}-viewer.log").read_text() if viewer else None}
 
 
 @pytest.fixture(scope="module")
@@ -78,7 +103,7 @@ def flights(tmp_path_factory):
     machine = OtherMachine()
     try:
         yield {"machine": machine,
-               "open": _fly(tmp, machine, "open", []),
+               "open": _fly(tmp, machine, "open", ["--live", "--live-port", "0"]),
                "local": _fly(tmp, machine, "local", ["--set", "external.listen_host=127.0.0.1",
                                                      "--set", "external.join_timeout_s=4"])}
     finally:
@@ -105,6 +130,10 @@ def test_a_node_on_another_machine_flies_the_vehicle(flights):
     assert stats["core"]["vision_fused"] > 10, stats["core"]
     summary = json.loads((run / "summary.json").read_text())
     assert summary["gps_used"] is False and summary["rms_error_m"] < 5.0, summary
+    # the live view listened on the run's listen_host too: the viewer there got the server info
+    assert "subprotocol foxglove.websocket.v1 first op serverInfo" in f["viewer_log"], f["viewer_log"]
+    live = json.loads((run / "live.json").read_text())
+    assert live["host"] == "0.0.0.0" and live["url"] == f"ws://127.0.0.1:{live['port']}"
 
 
 def test_by_default_the_run_stays_on_its_machine(flights):
