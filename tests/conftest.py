@@ -42,6 +42,7 @@ LONG_MODULES = (
     "tests/e2e/test_external_node.py",
     "tests/e2e/test_run_e2e.py",
     "tests/faults/test_fault_two_runs.py",
+    "tests/e2e/test_replan_determinism.py",
 )
 
 
