@@ -22,25 +22,13 @@ from pathlib import Path
 import pytest
 import yaml
 from support import REPO_ROOT
+from support.external_flight import EXAMPLE_NODE, external_flight
 
-EXAMPLE = REPO_ROOT / "examples" / "perception_node_python" / "node.py"
+EXAMPLE = EXAMPLE_NODE
 BROKEN = REPO_ROOT / "tests" / "support" / "broken_perception_node.py"
 NODE_ID = "my_matcher"
 RUN_TIMEOUT_S = 400
-#: Over the houses east of the centre, world seen flat (as tests/e2e/test_autopilot_node.py's
-#: GPS-denied flight): the take-off waits ~7 s at rest for the gyro bias (the pre-arm check of a
-#: dead-reckoned climb, issue 12), then 50 m is reached after about 10 s, fixes are used from 35 m
-#: (SN_VIS_MIN_ALT, the flat worlds' value; the 3-D default is 50 m).
-SCENARIO = {
-    "name": "external_node", "seed": 5, "duration_s": 24,
-    "flight": {"mode": "autopilot", "altitude_m": 50, "start_enu_m": [60, -60],
-               "route_enu_m": [[60, -95], [95, -95]]},
-    "sim": {"gps": {"enabled": False}, "camera": {"rate_hz": 5.0, "relief": False}},
-    "perception": {"reference": "orthophoto"},
-    "recorder": {"camera_every_n": 0},
-    "autopilot": {"mavlink_tcp_port": 0, "mavlink_udp_out": "none",
-                  "params": {"SN_VIS_MIN_ALT": 35, "WPNAV_SPEED_UP": 500, "WPNAV_SPEED_DN": 300, "LAND_SPEED": 200}},
-}
+SCENARIO = external_flight("external_node", 24)
 
 
 def _cli(*args: str) -> list[str]:

@@ -26,24 +26,15 @@ from pathlib import Path
 import pytest
 import yaml
 from support import REPO_ROOT
+from support.external_flight import EXAMPLE_NODE, external_flight
 from support.other_machine import OtherMachine
 
-EXAMPLE = REPO_ROOT / "examples" / "perception_node_python" / "node.py"
+EXAMPLE = EXAMPLE_NODE
 NODE_ID = "remote1"
 RUN_TIMEOUT_S = 300
 #: The flight of tests/e2e/test_external_node.py (GPS off, the vehicle navigates on the node's fixes).
-SCENARIO = {
-    "name": "remote_node", "seed": 5, "duration_s": 20,
-    "flight": {"mode": "autopilot", "altitude_m": 50, "start_enu_m": [60, -60],
-               "route_enu_m": [[60, -95], [95, -95]]},
-    "sim": {"gps": {"enabled": False}, "camera": {"rate_hz": 5.0, "relief": False}},
-    "perception": {"reference": "orthophoto"},
-    "recorder": {"camera_every_n": 0},
-    "autopilot": {"mavlink_tcp_port": 0, "mavlink_udp_out": "none",
-                  "params": {"SN_VIS_MIN_ALT": 35, "WPNAV_SPEED_UP": 500, "WPNAV_SPEED_DN": 300,
-                             "LAND_SPEED": 200}},
-    "external": {"nodes": [f"perception:{NODE_ID}"], "listen_host": "0.0.0.0", "join_timeout_s": 60},
-}
+SCENARIO = {**external_flight("remote_node", 20),
+            "external": {"nodes": [f"perception:{NODE_ID}"], "listen_host": "0.0.0.0", "join_timeout_s": 60}}
 
 
 VIEWER = r'''
