@@ -113,7 +113,7 @@ class Launch:
         f = (logs / f"{name}.log").open("ab")
         cmd = [sys.executable, "-m", "scenenav.app.cli", "--log-level", "INFO", "node", *args,
                "--namespace", self.namespace, "--hub-port", str(self.hub_port),
-               "--listen-host", self.listen_host]
+               "--listen-host", self.listen_host, "--hub-host", hub_host(self.listen_host)]
         with stop_signals_deferred():     # a Ctrl-C now would leave a started child unrecorded
             proc = subprocess.Popen(cmd, stdout=f, stderr=subprocess.STDOUT, stdin=subprocess.DEVNULL,
                                     start_new_session=True, preexec_fn=die_with_parent)
@@ -301,11 +301,18 @@ def spawn_recorder_and_perception(launch: Launch, cfg: ScenarioConfig,
     return camera
 
 
+def hub_host(listen_host: str) -> str:
+    """Where a node on this machine connects to a hub listening on ``listen_host``: loopback, unless
+    the hub listens on one interface's address only (then nothing answers on 127.0.0.1)."""
+    return "127.0.0.1" if listen_host == "0.0.0.0" or ipaddress.IPv4Address(listen_host).is_loopback \
+        else listen_host
+
+
 def bus_facts(namespace: str, hub_port: int, listen_host: str = "127.0.0.1") -> dict:
     """run.json's ``bus``: where a node connects and the key prefix of the run; with a
     ``listen_host`` other than loopback also ``listen_host`` and ``remote_endpoints`` (where a node
     on another machine connects: that address, or for 0.0.0.0 this machine's interface addresses)."""
-    facts: dict = {"endpoint": f"tcp/127.0.0.1:{hub_port}", "namespace": namespace,
+    facts: dict = {"endpoint": f"tcp/{hub_host(listen_host)}:{hub_port}", "namespace": namespace,
                    "key_prefix": f"scenenav/{namespace}"}
     if not ipaddress.IPv4Address(listen_host).is_loopback:
         hosts = interface_addresses() if listen_host == "0.0.0.0" else [listen_host]

@@ -443,7 +443,9 @@ def run_check(opts: CheckOptions, say: Callable[[str], None] = lambda _t: None) 
         try:
             meta = _wait_run_json(run_dir, launcher)
             keys = Keys(meta["namespace"])
-            observer = Observer(BusConfig(meta["namespace"], int(meta["hub_port"])), opts.role, opts.node_id)
+            hub = meta["bus"]["endpoint"].split("/", 1)[1].rsplit(":", 1)[0]   # tcp/HOST:PORT
+            observer = Observer(BusConfig(meta["namespace"], int(meta["hub_port"]), host=hub),
+                                opts.role, opts.node_id)
             command = [a.replace("{run_dir}", str(run_dir)).replace("{node_id}", opts.node_id)
                        for a in opts.command]
             say(f"node check: starting {shlex.join(command)}")

@@ -4,7 +4,7 @@ The "other machine" is a Linux network namespace joined to this one by a veth pa
 interfaces, its own loopback (it cannot reach this machine's 127.0.0.1), one /30 link to this
 machine, as a companion computer on a LAN. The example node (examples/perception_node_python)
 runs there with ``--hub`` one of run.json's ``bus.remote_endpoints`` and ``--listen`` its own
-address. With ``external.listen_host: 0.0.0.0`` the run waits for it, every node of the run links
+address. With ``external.listen_host`` set to this machine's address on that link the run waits for it, every node of the run links
 to it (gossip gives them its address) and the autopilot flies on its fixes, and a viewer there
 gets the live view's (``--live``) server info; with the default (127.0.0.1) the same node cannot
 reach the run, which ends with its one-line message.
@@ -34,7 +34,7 @@ NODE_ID = "remote1"
 RUN_TIMEOUT_S = 300
 #: The flight of tests/e2e/test_external_node.py (GPS off, the vehicle navigates on the node's fixes).
 SCENARIO = {**external_flight("remote_node", 20),
-            "external": {"nodes": [f"perception:{NODE_ID}"], "listen_host": "0.0.0.0", "join_timeout_s": 60}}
+            "external": {"nodes": [f"perception:{NODE_ID}"], "join_timeout_s": 60}}
 
 
 VIEWER = r'''
@@ -94,7 +94,10 @@ def flights(tmp_path_factory):
     machine = OtherMachine()
     try:
         yield {"machine": machine,
-               "open": _fly(tmp, machine, "open", ["--live", "--live-port", "0"]),
+               # one interface's address, the harder case: the run's own nodes must reach the hub
+               # there too (nothing answers on 127.0.0.1); 0.0.0.0 is the GCS test's
+               "open": _fly(tmp, machine, "open", ["--live", "--live-port", "0", "--set",
+                                                   f"external.listen_host={machine.host_addr}"]),
                "local": _fly(tmp, machine, "local", ["--set", "external.listen_host=127.0.0.1",
                                                      "--set", "external.join_timeout_s=4"])}
     finally:
@@ -107,8 +110,9 @@ def test_a_node_on_another_machine_flies_the_vehicle(flights):
     print("other machine:", machine.describe())
     assert f["code"] == 0, (f["stderr"][-2000:], f["node_log"][-2000:])
     bus = f["meta"]["bus"]
-    assert bus["listen_host"] == "0.0.0.0"
-    assert f"tcp/{machine.host_addr}:{f['meta']['hub_port']}" in bus["remote_endpoints"], bus
+    hub = f"tcp/{machine.host_addr}:{f['meta']['hub_port']}"
+    assert bus["listen_host"] == machine.host_addr and bus["remote_endpoints"] == [hub], bus
+    assert bus["endpoint"] == hub
     run = f["out"]
     joined = json.loads((run / "external.json").read_text())
     assert joined["joined"] == [f"perception:{NODE_ID}"] and joined["unlinked"] == [], joined
@@ -124,7 +128,7 @@ def test_a_node_on_another_machine_flies_the_vehicle(flights):
     # the live view listened on the run's listen_host too: the viewer there got the server info
     assert "subprotocol foxglove.websocket.v1 first op serverInfo" in f["viewer_log"], f["viewer_log"]
     live = json.loads((run / "live.json").read_text())
-    assert live["host"] == "0.0.0.0" and live["url"] == f"ws://127.0.0.1:{live['port']}"
+    assert live["host"] == machine.host_addr and live["url"] == f"ws://{machine.host_addr}:{live['port']}"
 
 
 def test_by_default_the_run_stays_on_its_machine(flights):

@@ -110,7 +110,7 @@ def test_a_hub_port_taken_before_the_simulator_binds_it_starts_the_run_again(tmp
     taken = blocker.getsockname()[1]
     real = launcher.free_port
     handed = iter([taken])
-    monkeypatch.setattr(launcher, "free_port", lambda: next(handed, None) or real())
+    monkeypatch.setattr(launcher, "free_port", lambda host="127.0.0.1": next(handed, None) or real(host))
     out = tmp_path / "run"
     try:
         summary = launcher.run("scenarios/logging_flight.yaml", str(out),

@@ -155,7 +155,9 @@ def test_bus_facts_name_the_remote_endpoints_only_beyond_loopback(monkeypatch):
     assert local == {"endpoint": "tcp/127.0.0.1:7000", "namespace": "ns", "key_prefix": "scenenav/ns"}
     one = launcher.bus_facts("ns", 7000, "192.168.5.4")
     assert one["remote_endpoints"] == ["tcp/192.168.5.4:7000"] and one["listen_host"] == "192.168.5.4"
-    assert one["endpoint"] == "tcp/127.0.0.1:7000"          # the run's own nodes stay on loopback
+    assert one["endpoint"] == "tcp/192.168.5.4:7000"        # nothing answers on loopback then
+    assert launcher.hub_host("192.168.5.4") == "192.168.5.4"     # the hub answers only there
+    assert launcher.hub_host("0.0.0.0") == launcher.hub_host("127.0.0.1") == "127.0.0.1"
     monkeypatch.setattr(launcher, "interface_addresses", lambda: ["10.1.2.3", "192.168.5.4"])
     every = launcher.bus_facts("ns", 7000, "0.0.0.0")
     assert every["remote_endpoints"] == ["tcp/10.1.2.3:7000", "tcp/192.168.5.4:7000"]
