@@ -13,7 +13,8 @@ RUN_DIR may also come from the environment variable SCENENAV_RUN_DIR. Without ``
 takes the id of the first ``perception:ID`` in run.json's ``external`` list (``scenenav run
 --external perception:ID``), else ``example_ncc``. On another machine (the run started with
 ``external.listen_host``), give RUN_DIR a copy of run.json, ``--hub`` one of its
-``bus.remote_endpoints``, ``--listen`` an address of this machine the run's machine can reach, and
+``bus.remote_endpoints``, ``--listen`` an address of this machine (links can then form from
+either side; docs/interfaces.md "A node on another machine"), and
 ``--reference`` the reference map's copy if it is not at run.json's path.
 """
 
