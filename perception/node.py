@@ -179,6 +179,10 @@ class PerceptionNode:
         self._queue: queue.Queue = queue.Queue(maxsize=FRAME_BACKLOG)
         self._backlog_dropped: deque[CameraFrame] = deque()     # oldest frames pushed out
         self._stop = threading.Event()
+        # set before the worker starts: a node joining a flight gets its first frame at once
+        # (the swap test's second node lost its worker to an AttributeError here under load)
+        self._info = NodeInfo(0, node_id, "perception", self.settings.method)
+        self._info_repeated = False
         self.bus = Bus(bus_cfg)
         self._worker = threading.Thread(target=self._work, name="perception", daemon=True)
         self._worker.start()
@@ -191,8 +195,6 @@ class PerceptionNode:
         self.presence = announce_node(self.bus, self.keys, "perception", node_id)
         if self.settings.lockstep:
             self.bus.declare_token(self.keys.lockstep_member(LockstepRole.CAMERA, node_id))
-        self._info = NodeInfo(0, node_id, "perception", self.settings.method)
-        self._info_repeated = False
         self.bus.publish(self.keys.node_info(node_id), self._info)
         log.info("perception node %s up (method %s, lockstep %s)", node_id, self.settings.method, self.settings.lockstep)
 
@@ -306,17 +308,17 @@ class PerceptionNode:
             except queue.Empty:
                 continue
             msg, heading, altitude = item
-            tilt, prior, velocity = self._estimate_for(msg)
-            if not self._info_repeated:
-                # the first put can leave before the recorder's subscription reached this session
-                self.bus.publish(self.keys.node_info(self.node_id), self._info)
-                self._info_repeated = True
-            with self._sensor_lock:
-                dropped = list(self._backlog_dropped)
-                self._backlog_dropped.clear()
-            for old in dropped:
-                self._drop("backlog", old, f"more than {FRAME_BACKLOG} frames waiting: the oldest goes")
             try:
+                tilt, prior, velocity = self._estimate_for(msg)
+                if not self._info_repeated:
+                    # the first put can leave before the recorder's subscription reached this session
+                    self.bus.publish(self.keys.node_info(self.node_id), self._info)
+                    self._info_repeated = True
+                with self._sensor_lock:
+                    dropped = list(self._backlog_dropped)
+                    self._backlog_dropped.clear()
+                for old in dropped:
+                    self._drop("backlog", old, f"more than {FRAME_BACKLOG} frames waiting: the oldest goes")
                 mismatch = self.camera.mismatch(msg.fov_deg, msg.width_px, msg.height_px)
                 if mismatch is not None:
                     self._refuse(msg, mismatch)

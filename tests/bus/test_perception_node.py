@@ -91,6 +91,29 @@ def test_garbage_dropped_good_frames_fixed(world):
         assert node.bus.dropped[keys.compass] == 1
 
 
+def test_an_unexpected_error_costs_one_frame_not_the_worker(world):
+    """Whatever fails for a frame before matching (here the estimate lookup) is logged and counted,
+    the frame is still acknowledged, and the next frame is served: the worker thread used to die
+    on such an error (a node joining a flight lost it to a field set after its worker started)."""
+    with _live_node(world) as (hub, keys, node, fixes, acks):
+        real = node._estimate_for
+        calls = []
+
+        def broken_once(msg):
+            calls.append(msg.seq)
+            if len(calls) == 1:
+                raise AttributeError("a bug for one frame")
+            return real(msg)
+
+        node._estimate_for = broken_once
+        hub.publish(keys.camera, _frame(world, 0, 1000))
+        hub.publish(keys.camera, _frame(world, 1, 2000))
+        _wait_for(acks, 2)
+        assert [a.seq for a in acks] == [0, 1]
+        assert [f.frame_seq for f in fixes] == [1] and fixes[0].valid
+        assert node.stats["errors"] == 1
+
+
 def _run_node(world, camera, frames, n_answers):
     """Publish ``frames`` to a fresh node expecting ``camera``; return (fixes, acks, node stats)."""
     with _live_node(world, camera) as (hub, keys, node, fixes, acks):
