@@ -188,6 +188,13 @@ class PerceptionConfig:
     # mixture's posterior is then the prior, the fix says nothing, and fused with the mixture's wide
     # covariance ten times a second, a run of such false fixes pulls the estimate away. 0 = off.
     reject_ambiguity_below_posterior: float = 0.0
+    # An accepted ambiguous match that continues the previous matches at a constant velocity, this
+    # many times in a row (each within consistent_match_tol_m of the line through the two before it,
+    # the frames at most CONSISTENT_MATCH_MAX_GAP_S apart), is published with its own peak's
+    # covariance: independent searches of consecutive frames agreeing on one moving place
+    # (docs/perception.md "Resolving an ambiguous match by its consistent predecessors"). 0 = off.
+    resolve_consistent_matches: int = 0
+    consistent_match_tol_m: float = 2.0
 
     def __post_init__(self) -> None:
         check(0.0 < self.fov_deg < 170.0, "perception.fov_deg", self.fov_deg, "a number in (0, 170)")
@@ -223,6 +230,11 @@ class PerceptionConfig:
               self.resolve_ambiguity_min_posterior, "a share in [0, 1) (0 = off)")
         check(0.0 <= self.reject_ambiguity_below_posterior < 1.0, "perception.reject_ambiguity_below_posterior",
               self.reject_ambiguity_below_posterior, "a share in [0, 1) (0 = off)")
+        check(type(self.resolve_consistent_matches) is int and 0 <= self.resolve_consistent_matches <= 100,
+              "perception.resolve_consistent_matches", self.resolve_consistent_matches,
+              "an integer number of matches in [0, 100] (0 = off)")
+        check(0.0 < self.consistent_match_tol_m <= 100.0, "perception.consistent_match_tol_m",
+              self.consistent_match_tol_m, "a distance in (0, 100] m")
 
 
 #: ``PerceptionNodeConfig.alignment`` values: how a FIXED-mount capture is aligned with the map.
@@ -279,6 +291,10 @@ class PerceptionNodeConfig:
                                        # the autopilot's estimate (PerceptionConfig's; 0 = off)
     reject_ambiguity_below_posterior: float = 0.0  # reject one whose own peak holds less than this
                                        # share (reason ambiguous-far; PerceptionConfig's; 0 = off)
+    resolve_consistent_matches: int = 0   # publish an accepted ambiguous match with its local covariance
+                                       # when it continues this many matches at a constant velocity
+                                       # (PerceptionConfig's; 0 = off)
+    consistent_match_tol_m: float = 2.0   # how far from the constant-velocity line a match may lie
 
     def __post_init__(self) -> None:
         methods = ("cnn", "assistant-map", "statistical", "none")
@@ -313,6 +329,11 @@ class PerceptionNodeConfig:
               self.resolve_ambiguity_min_posterior, "a share in [0, 1) (0 = off)")
         check(0.0 <= self.reject_ambiguity_below_posterior < 1.0, "reject_ambiguity_below_posterior",
               self.reject_ambiguity_below_posterior, "a share in [0, 1) (0 = off)")
+        check(type(self.resolve_consistent_matches) is int and 0 <= self.resolve_consistent_matches <= 100,
+              "resolve_consistent_matches", self.resolve_consistent_matches,
+              "an integer number of matches in [0, 100] (0 = off)")
+        check(0.0 < self.consistent_match_tol_m <= 100.0, "consistent_match_tol_m",
+              self.consistent_match_tol_m, "a distance in (0, 100] m")
         check(0.0 <= self.reacquire_window_s <= 3600.0, "reacquire_window_s", self.reacquire_window_s,
               "a number of seconds in [0, 3600] (0 = off)")
         check(0.0 <= self.reacquire_min_radius_m <= 1000.0, "reacquire_min_radius_m",
@@ -331,6 +352,8 @@ class PerceptionNodeConfig:
             drop_rejected_track_s=self.drop_rejected_track_s, reacquire_window_s=self.reacquire_window_s,
             resolve_ambiguity_min_posterior=self.resolve_ambiguity_min_posterior,
             reject_ambiguity_below_posterior=self.reject_ambiguity_below_posterior,
+            resolve_consistent_matches=self.resolve_consistent_matches,
+            consistent_match_tol_m=self.consistent_match_tol_m,
             matcher=MatcherConfig(gradient_refine_radius_px=self.gradient_refine_radius_px))
 
     @property

@@ -406,6 +406,8 @@ class PerceptionNode:
             self.stats["ambiguities_resolved"] = self.pipeline.ambiguities_resolved
         if self.pipeline.ambiguities_rejected:
             self.stats["ambiguities_rejected"] = self.pipeline.ambiguities_rejected
+        if self.pipeline.ambiguities_resolved_by_consistency:
+            self.stats["ambiguities_resolved_by_consistency"] = self.pipeline.ambiguities_resolved_by_consistency
         log.info("perception node %s stats: %s", self.node_id, dict(self.stats))
         self.presence.close()
         self.bus.close()

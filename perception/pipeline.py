@@ -58,6 +58,7 @@ from perception.decision import (
 )
 from perception.fix_covariance import local_mode_posterior, pointing_covariance_m2
 from perception.heading_offset import HeadingDeviation, parabola_vertex, rotation_peaks
+from perception.match_consistency import MatchConsistency
 from perception.match_metrics import MatchMetrics, StageTimes
 from perception.ncc_search import MatchResult, SceneMatcher, SearchMode
 from perception.statistical import StatisticalDetector
@@ -167,6 +168,9 @@ class PerceptionPipeline:
         self.dropped_tracks = 0
         self.ambiguities_resolved = 0     # accepted ambiguous matches published with the local covariance
         self.ambiguities_rejected = 0     # ambiguous matches rejected as far from the estimate
+        #: the motion consistency of the latest valid matches (``cfg.resolve_consistent_matches``)
+        self.consistency = MatchConsistency(self.cfg.consistent_match_tol_m)
+        self.ambiguities_resolved_by_consistency = 0
         #: the time of the last accepted fix (``cfg.reacquire_window_s``)
         self._last_accept_s: float | None = None
         try:
@@ -225,6 +229,7 @@ class PerceptionPipeline:
         self._rejected_since_s = None
         self.reacquiring = False
         self._last_accept_s = None
+        self.consistency.reset()
         for det in self._variance:
             det.reset()
         if self._detector is not None:
@@ -386,6 +391,14 @@ class PerceptionPipeline:
             covariance_m2 = local_mode[1]
             resolved = True
             self.ambiguities_resolved += 1
+        consistent = self.consistency.observe(t_s, match.position_enu_m)
+        if (decision is Decision.ACCEPT and not resolved and cfg.resolve_consistent_matches > 0
+                and consistent >= cfg.resolve_consistent_matches and match.ambiguity_weight > 0.0
+                and match.local_covariance_m2 is not None):
+            covariance_m2 = (match.local_covariance_m2 if pointing is None
+                             else match.local_covariance_m2 + pointing)
+            resolved = True
+            self.ambiguities_resolved_by_consistency += 1
         if cfg.covariance_scale != 1.0:
             covariance_m2 = covariance_m2 * cfg.covariance_scale
         timings.total_ms = (time.perf_counter() - t_start) * _MS
