@@ -29,8 +29,9 @@ def test_warns_only_when_the_module_reaches_beyond_the_autopilots_limit(caplog, 
         assert "RNGFND1_MAX_CM to 10000" in lines[0]
 
 
-def test_the_realistic_scenario_uses_its_whole_lidar(caplog):
+def test_the_realistic_scenario_uses_its_whole_range_finder(caplog):
     cfg = load_scenario("scenarios/gps_denied_realistic.yaml")
     with caplog.at_level(logging.WARNING, logger="scenenav.app.preflight"):
         _warn_rangefinder_limits(cfg)
-    assert cfg.sim.flow.range_max_m == 100 and not caplog.records
+    # 200 m: it reaches the street from the 100 m survey (docs/realism.md "Velocity between fixes")
+    assert cfg.sim.flow.range_max_m == 200 and not caplog.records
