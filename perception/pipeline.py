@@ -391,7 +391,8 @@ class PerceptionPipeline:
             covariance_m2 = local_mode[1]
             resolved = True
             self.ambiguities_resolved += 1
-        consistent = self.consistency.observe(t_s, match.position_enu_m)
+        consistent = (self.consistency.observe(t_s, match.position_enu_m)
+                      if cfg.resolve_consistent_matches > 0 else 0)
         if (decision is Decision.ACCEPT and not resolved and cfg.resolve_consistent_matches > 0
                 and consistent >= cfg.resolve_consistent_matches and match.ambiguity_weight > 0.0
                 and match.local_covariance_m2 is not None):
