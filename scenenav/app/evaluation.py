@@ -128,15 +128,27 @@ def _interp_heading_rad(truth: dict, t: np.ndarray) -> np.ndarray:
 def run_reference(run_dir: Path) -> ReferenceInfo:
     """The reference of the world a run flew over (its misregistration), read from the world's
     manifest named by the run's ``scenario.yaml``; a folder without a scenario (hand-made in a test)
-    has no stated misregistration."""
-    from scenenav.app.scenario import load_scenario
+    has no stated misregistration. Only the scenario's ``world`` is read, not the whole scenario
+    validated: a finished run written by another version of scenenav (a key added or dropped since)
+    is still evaluated (a campaign's report over such runs used to stop at the first one)."""
+    import yaml
+
     from scenenav.core.formats.world_manifest import read_manifest
     from worlds.default import world_folder
     path = Path(run_dir) / "scenario.yaml"
     if not path.is_file():
         log.debug("%s: no scenario.yaml, no reference misregistration to undo", run_dir)
         return ReferenceInfo()
-    return read_manifest(world_folder(load_scenario(path).world)).reference
+    try:
+        data = yaml.safe_load(path.read_text(encoding="utf-8"))
+    except (OSError, UnicodeDecodeError, yaml.YAMLError) as exc:
+        raise UserError(f"{path}: unreadable ({exc.__class__.__name__}); expected the scenario a run "
+                        "wrote") from None
+    world = data.get("world", "default") if isinstance(data, dict) else None
+    if not isinstance(world, str) or not world:
+        raise UserError(f"{path}: world = {world!r}; expected a world folder, 'default' or "
+                        "'generated:seed=N,...'")
+    return read_manifest(world_folder(world)).reference
 
 
 def fix_table(run_dir: Path, threshold_m: float,

@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import json
 import math
+import re
 
 import numpy as np
 import pytest
@@ -138,3 +139,28 @@ def test_hillshade_lights_slopes_facing_the_sun():
     h[:, 25:] = np.arange(25)[None, :] * 1.0             # rises towards the east: faces west
     sh = hillshade(h, 1.0, azimuth_deg=270.0, altitude_deg=45.0)   # sun in the west
     assert sh[25, 40] > sh[25, 5] > 0.5 and hillshade(h, 1.0, azimuth_deg=90.0)[25, 40] < sh[25, 5]
+
+
+def test_a_run_written_by_another_version_is_still_evaluated_against_its_world(tmp_path):
+    """fix_table without a reference reads the world from the run's scenario.yaml; a key that this
+    version does not know (a run from a newer scenenav, or an older one's dropped key) must not stop
+    it: a campaign's report over 28 finished flights once failed at the end on exactly this."""
+    ref = _reference()
+    _world(None, ref).save(tmp_path / "world")
+    truth = np.column_stack([np.linspace(-60, 60, 25), np.linspace(30, -40, 25)])
+    ox, oy = ref.offset_m(truth[:, 0], truth[:, 1])
+    run = tmp_path / "run"
+    _write_run(run, truth, truth + np.column_stack([ox, oy]))
+    (run / "scenario.yaml").write_text(f"world: {tmp_path / 'world'}\nperception:\n  a_key_from_elsewhere: 3\n")
+    fx = fix_table(run, 5.0)
+    np.testing.assert_allclose(fx["error_m"], 0.0, atol=1e-3)      # the world's misregistration undone
+
+
+@pytest.mark.parametrize(("text", "what"), [("world: [1, 2]\n", "world = [1, 2]"), ("a: [\n", "unreadable")])
+def test_a_broken_run_scenario_is_one_clear_error(tmp_path, text, what):
+    from scenenav.core.errors import UserError
+    run = tmp_path / "run"
+    _write_run(run, np.zeros((3, 2)), np.zeros((3, 2)))
+    (run / "scenario.yaml").write_text(text)
+    with pytest.raises(UserError, match=re.escape(what)):
+        fix_table(run, 5.0)
