@@ -131,20 +131,14 @@ def run_reference(run_dir: Path) -> ReferenceInfo:
     has no stated misregistration. Only the scenario's ``world`` is read, not the whole scenario
     validated: a finished run written by another version of scenenav (a key added or dropped since)
     is still evaluated (a campaign's report over such runs used to stop at the first one)."""
-    import yaml
-
+    from scenenav.core.config import load_yaml
     from scenenav.core.formats.world_manifest import read_manifest
     from worlds.default import world_folder
     path = Path(run_dir) / "scenario.yaml"
     if not path.is_file():
         log.debug("%s: no scenario.yaml, no reference misregistration to undo", run_dir)
         return ReferenceInfo()
-    try:
-        data = yaml.safe_load(path.read_text(encoding="utf-8"))
-    except (OSError, UnicodeDecodeError, yaml.YAMLError) as exc:
-        raise UserError(f"{path}: unreadable ({exc.__class__.__name__}); expected the scenario a run "
-                        "wrote") from None
-    world = data.get("world", "default") if isinstance(data, dict) else None
+    world = load_yaml(path).get("world", "default")
     if not isinstance(world, str) or not world:
         raise UserError(f"{path}: world = {world!r}; expected a world folder, 'default' or "
                         "'generated:seed=N,...'")

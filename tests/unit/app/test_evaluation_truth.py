@@ -156,7 +156,7 @@ def test_a_run_written_by_another_version_is_still_evaluated_against_its_world(t
     np.testing.assert_allclose(fx["error_m"], 0.0, atol=1e-3)      # the world's misregistration undone
 
 
-@pytest.mark.parametrize(("text", "what"), [("world: [1, 2]\n", "world = [1, 2]"), ("a: [\n", "unreadable")])
+@pytest.mark.parametrize(("text", "what"), [("world: [1, 2]\n", "world = [1, 2]"), ("a: [\n", "is not valid YAML")])
 def test_a_broken_run_scenario_is_one_clear_error(tmp_path, text, what):
     from scenenav.core.errors import UserError
     run = tmp_path / "run"
