@@ -528,17 +528,21 @@ def _watch(launcher: subprocess.Popen, node: subprocess.Popen, observer: Observe
                             node.returncode)
                 _interrupt(launcher)
         if alive is None and seen.injected_at is not None and time.monotonic() - seen.injected_at > 1.0:
-            alive = node.poll() is None
+            alive = _survived(exited_at, seen.finished_at)
         time.sleep(0.1)
     if exited_at is None and node.poll() is not None:
         exited_at = time.monotonic()
     if alive is None and observer.seen.injected_at is not None:
         # the run ended within a second of the malformed frames (a run that raced on without the
-        # node after an ack timeout): the node survived them if it was still running when the run's
-        # clock finished; leaving after that is the normal end, not a crash
-        end = observer.seen.finished_at
-        alive = exited_at is None or (end is not None and exited_at >= end)
+        # node after an ack timeout)
+        alive = _survived(exited_at, observer.seen.finished_at)
     return alive, exited_at
+
+
+def _survived(exited_at: float | None, finished_at: float | None) -> bool:
+    """The node survived the malformed frames: it is still running, or it left after the run's clock
+    finished (the normal end, not a crash; the launcher may still be closing the run then)."""
+    return exited_at is None or (finished_at is not None and exited_at >= finished_at)
 
 
 def _await_leave(node: subprocess.Popen, seen: Observed, exited_at: float | None

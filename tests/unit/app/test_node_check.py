@@ -211,3 +211,20 @@ def test_a_run_that_ends_right_after_the_malformed_frames(node_exits_before_end)
     alive, exited_at = _watch(_Proc(exits_after=2), _Proc(exits_after=0), _Observer(seen))
     assert exited_at is not None
     assert alive is (not node_exits_before_end)
+
+
+def test_a_node_that_leaves_at_the_runs_end_while_the_launcher_closes_it_survived():
+    """The malformed frames went out more than a second before the run's clock finished; the node left
+    at the end while the launcher was still closing the run (CI, 2026-12-06: judged "exited after the
+    malformed frames"). Leaving after the end is the normal end; leaving before it is not."""
+    import time
+
+    from scenenav.app.node_check import _watch
+    for finished_offset_s, expected in ((-0.5, True), (30.0, False)):
+        seen = Observed()
+        now = time.monotonic()
+        seen.injected_at = now - 2.0
+        seen.tokens.append((now - 3.0, "x", True))
+        seen.finished_at = now + finished_offset_s
+        alive, exited_at = _watch(_Proc(exits_after=3), _Proc(exits_after=0), _Observer(seen))
+        assert exited_at is not None and alive is expected, finished_offset_s
