@@ -534,14 +534,18 @@ def _watch(launcher: subprocess.Popen, node: subprocess.Popen, observer: Observe
         # judged once the run is over, not a fixed while after the frames: a node that takes longer
         # to die on a loaded machine still died, and one that leaves at the run's end while the
         # launcher closes the run did not
-        alive = _survived(exited_at, observer.seen.finished_at)
+        alive = _survived(exited_at, node.returncode, observer.seen.finished_at)
     return alive, exited_at
 
 
-def _survived(exited_at: float | None, finished_at: float | None) -> bool:
-    """The node survived the malformed frames: it is still running, or it left after the run's clock
-    finished (the normal end, not a crash; the launcher may still be closing the run then)."""
-    return exited_at is None or (finished_at is not None and exited_at >= finished_at)
+def _survived(exited_at: float | None, returncode: int | None, finished_at: float | None) -> bool:
+    """The node survived the malformed frames: it is still running, or it left cleanly (exit code 0)
+    after the run's clock finished (the normal end; the launcher may still be closing the run then).
+    A non-zero exit is a crash whenever it is seen: a short run's clock can finish before a dying
+    node's process is gone."""
+    if exited_at is None:
+        return True
+    return returncode == 0 and finished_at is not None and exited_at >= finished_at
 
 
 def _await_leave(node: subprocess.Popen, seen: Observed, exited_at: float | None
