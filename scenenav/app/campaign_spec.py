@@ -5,8 +5,10 @@ A campaign file (YAML, docs/campaigns.md) names a ``base`` scenario (relative to
 override bundles; the runs are the cross product), ``random`` draws (scenario key -> distribution, with
 ``draws`` and ``seed``) and ``repeat`` (each point flown N times with seeds derived from the point).
 Every run is resolved into a whole ``ScenarioConfig`` here, before any flight starts, so a bad key or
-value is one ``error: ...`` line; its id is a hash of the resolved scenario, so the same run has the
-same id in every invocation (resume) and in every campaign that contains it.
+value is one ``error: ...`` line. Its id (and a repetition's derived seed) is a hash of what its
+resolved scenario sets differently from the scenario defaults (:func:`canonical_scenario_text`), so the
+same run has the same id in every invocation (resume), in every campaign that contains it, and on a
+later scenenav that adds a scenario key with a default.
 """
 
 from __future__ import annotations
@@ -230,15 +232,67 @@ def load_campaign(path: str | Path, extra_sets: tuple[str, ...] = ()) -> Campaig
                         group_by=tuple(group_by), description=str(data.get("description", "")))
 
 
-def run_id_of(scenario: dict) -> str:
-    """The stable id of a run: a hash of its resolved scenario (canonical JSON)."""
-    text = json.dumps(scenario, sort_keys=True, separators=(",", ":"))
-    return hashlib.sha256(text.encode()).hexdigest()[:RUN_ID_CHARS]
+def default_scenario() -> dict:
+    """The resolved scenario of no file and no overrides (``realism: ideal``, no profile settings): the
+    schema's defaults, what :func:`canonical_scenario_text` leaves out."""
+    from scenenav.app.scenario import load_scenario, scenario_to_dict
+    return scenario_to_dict(load_scenario(None))
 
 
-def derived_seed(scenario: dict, repetition: int) -> int:
-    """Seed of repetition ``repetition`` of a point: a hash of the point's resolved scenario."""
-    text = json.dumps(scenario, sort_keys=True, separators=(",", ":")) + f"|repeat={repetition}"
+_ABSENT = object()
+
+
+def _json(value: Any) -> str:
+    return json.dumps(value, sort_keys=True, separators=(",", ":"))
+
+
+def _changes(scenario: dict, defaults: dict, path: tuple[str, ...], unset: list[list[str]]) -> dict:
+    out: dict[str, Any] = {}
+    for key, value in scenario.items():
+        default = defaults.get(key, _ABSENT)
+        if isinstance(value, dict) and isinstance(default, dict):
+            nested = _changes(value, default, (*path, key), unset)
+            if nested:
+                out[key] = nested
+        elif default is _ABSENT or _json(value) != _json(default):
+            out[key] = value
+    # only a free-form mapping (autopilot.params) can lack a key of its default; a section has them all
+    unset.extend([*path, key] for key in defaults if key not in scenario)
+    return out
+
+
+def canonical_scenario_text(scenario: dict, defaults: dict | None = None) -> str:
+    """What a run's id and derived seeds hash: canonical JSON of the keys of the resolved ``scenario``
+    whose value differs from ``defaults`` (None: :func:`default_scenario`).
+
+    Mappings are compared key by key (a section whose keys all equal the defaults is left out whole);
+    lists and other values whole, as JSON (``true`` and ``1`` differ). A key of the defaults that the
+    scenario lacks is listed as unset. So a later scenenav that adds a scenario key with a default keeps
+    every id and derived seed (the new key is left out, as it equals the new defaults), and a campaign
+    resumes instead of flying every run again; any value that differs from the defaults, nested or not,
+    changes the text. The trade-off: a changed *default* value changes no id of a run that kept the
+    default (its text names no value of that key), so a run flown with the old default counts as
+    complete although the new code would fly it differently, and a run that set the new default's value
+    now has that run's id; after such a change, fly the campaign in a new ``--out`` folder. The
+    defaults are ``realism: ideal``'s, so a profile's settings are part of the text of a run that
+    selects it.
+    """
+    unset: list[list[str]] = []
+    changes = _changes(scenario, default_scenario() if defaults is None else defaults, (), unset)
+    return _json([changes, sorted(unset)] if unset else changes)
+
+
+def run_id_of(scenario: dict, defaults: dict | None = None) -> str:
+    """The stable id of a run: a hash of its resolved scenario's differences from the scenario defaults
+    (:func:`canonical_scenario_text`: unchanged by a new key with a default, changed by any value)."""
+    return hashlib.sha256(canonical_scenario_text(scenario, defaults).encode()).hexdigest()[:RUN_ID_CHARS]
+
+
+def derived_seed(scenario: dict, repetition: int, defaults: dict | None = None) -> int:
+    """Seed of repetition ``repetition`` of a point: a hash of the point's resolved scenario's
+    differences from the scenario defaults (:func:`canonical_scenario_text`) and ``repetition``, so a
+    new key with a default keeps the seeds of a ``repeat`` campaign."""
+    text = canonical_scenario_text(scenario, defaults) + f"|repeat={repetition}"
     return int.from_bytes(hashlib.sha256(text.encode()).digest()[:4], "big") & 0x7FFFFFFF
 
 
@@ -278,6 +332,7 @@ def expand(spec: CampaignSpec, max_repeat: int | None = None) -> list[PlannedRun
     ``max_repeat`` flies only the first repetitions of each point (a reduced campaign whose runs are
     the same runs, same ids, as the full one's)."""
     _resolve(spec, spec.set_overrides, "set")   # the common overrides alone, for a clear message
+    defaults = default_scenario()
     runs: list[PlannedRun] = []
     seen: dict[str, int] = {}
     for point, sets in _points(spec):
@@ -287,10 +342,10 @@ def expand(spec: CampaignSpec, max_repeat: int | None = None) -> list[PlannedRun
         for rep in range(min(spec.repeat, max_repeat or spec.repeat)):
             run_point, run_overrides, resolved = point, overrides, scenario
             if spec.repeat > 1:
-                run_overrides = overrides + (override_text("seed", derived_seed(scenario, rep)),)
+                run_overrides = overrides + (override_text("seed", derived_seed(scenario, rep, defaults)),)
                 run_point = point + (("repeat", rep),)
                 resolved = _resolve(spec, run_overrides, f"run {where}, repeat {rep}")
-            rid = run_id_of(resolved)
+            rid = run_id_of(resolved, defaults)
             if rid in seen:
                 raise UserError(f"{spec.path}: runs {seen[rid]} and {len(runs)} resolve to the same scenario "
                                 f"({where}); every run must differ in some scenario key")
