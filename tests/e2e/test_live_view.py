@@ -27,18 +27,24 @@ _OP_MESSAGE_DATA = 0x01
 _MESSAGE_HEADER = struct.Struct("<BIQ")      # opcode, subscription id, log time (ns)
 
 
-async def _watch(url: str, n_each: int, timeout_s: float) -> tuple[str, dict, dict]:
-    """Connect, subscribe to WANTED as they are advertised; the negotiated subprotocol, every
-    advertised channel by topic, and the decoded messages per wanted topic."""
+async def _watch(url: str, n_each: int, timeout_s: float) -> tuple[str, dict, dict, str]:
+    """Connect, subscribe to WANTED as they are advertised, and stay connected until the server
+    ends the connection (the run's end) or ``timeout_s``; the negotiated subprotocol, every
+    advertised channel by topic, the decoded messages per wanted topic (the first ``n_each``), and
+    how the connection ended ("close frame": the server's closing handshake)."""
     async with websockets.connect(url, subprotocols=SUBPROTOCOLS, max_size=None) as ws:
         channels: dict[str, dict] = {}
         subs: dict[int, str] = {}
         got: dict[str, list] = {t: [] for t in WANTED}
         deadline = time.monotonic() + timeout_s
-        while time.monotonic() < deadline and not all(len(v) >= n_each for v in got.values()):
+        ended = f"still open after {timeout_s} s"
+        while time.monotonic() < deadline:
             try:
                 raw = await asyncio.wait_for(ws.recv(), timeout=max(0.1, deadline - time.monotonic()))
             except asyncio.TimeoutError:
+                break
+            except websockets.ConnectionClosed as exc:
+                ended = "close frame" if exc.rcvd is not None else f"{type(exc).__name__}: {exc}"
                 break
             if isinstance(raw, str):
                 op = json.loads(raw)
@@ -52,8 +58,9 @@ async def _watch(url: str, n_each: int, timeout_s: float) -> tuple[str, dict, di
                                 {"id": sid, "channelId": ch["id"]}]}))
             elif raw[0] == _OP_MESSAGE_DATA:
                 _op, sid, log_ns = _MESSAGE_HEADER.unpack_from(raw)
-                got[subs[sid]].append((log_ns, json.loads(raw[_MESSAGE_HEADER.size:])))
-        return ws.subprotocol, channels, got
+                if len(got[subs[sid]]) < n_each:
+                    got[subs[sid]].append((log_ns, json.loads(raw[_MESSAGE_HEADER.size:])))
+        return ws.subprotocol, channels, got, ended
 
 
 def _mcap_channels(path: Path) -> dict[str, tuple[str, bytes, str]]:
@@ -83,7 +90,9 @@ def test_live_view_streams_camera_and_estimate_during_a_flight(tmp_path):
             assert time.monotonic() - t0 < 120, "the live view never wrote live.json"
             time.sleep(0.1)
         url = json.loads((run / "live.json").read_text())["url"]
-        protocol, channels, got = asyncio.run(_watch(url, n_each=3, timeout_s=120))
+        # the client stays until the run ends: the live view then ends every viewer's session with
+        # a close frame (it once cut them: "no close frame received or sent")
+        protocol, channels, got, ended = asyncio.run(_watch(url, n_each=3, timeout_s=240))
         out, err = launcher.communicate(timeout=300)
         assert launcher.returncode == 0, err[-3000:]
     finally:
@@ -91,6 +100,7 @@ def test_live_view_streams_camera_and_estimate_during_a_flight(tmp_path):
             launcher.send_signal(signal.SIGINT)
             launcher.wait(60)
     assert protocol == "foxglove.websocket.v1"
+    assert ended == "close frame", ended          # the run's end, said to the viewer
     assert f"live view: {url}" in err
     for topic in WANTED:
         assert len(got[topic]) >= 3, f"{topic}: {len(got[topic])} messages"

@@ -130,8 +130,15 @@ def describe(world: World) -> str:
     return "\n".join(lines)
 
 
+def _world_of(spec: str) -> World:
+    """The world a scenario's ``world`` value names: a folder, ``default`` or ``generated:KEY=VALUE,...``
+    (generated and cached on first use, as a run does)."""
+    from worlds.default import is_generated_spec, world_folder
+    return load_world(world_folder(spec) if is_generated_spec(spec) else spec)
+
+
 def _info(args: argparse.Namespace) -> int:
-    print(describe(load_world(args.dir)))
+    print(describe(_world_of(args.dir)))
     return 0
 
 
@@ -161,7 +168,7 @@ def render_preview(world: World, max_width_px: int) -> np.ndarray:
 
 
 def _preview(args: argparse.Namespace) -> int:
-    world = load_world(args.dir)
+    world = _world_of(args.dir)
     img = render_preview(world, args.max_width_px)
     out = Path(args.out)
     if out.suffix.lower() != ".png":
@@ -171,6 +178,10 @@ def _preview(args: argparse.Namespace) -> int:
         raise UserError(f"--out {out}: cannot write (does the folder exist?)")
     print(f"wrote {out} ({img.shape[1]}x{img.shape[0]} px)")
     return 0
+
+
+WORLD_ARG_HELP = ("world folder, or what a scenario's world key takes: default, or generated:seed=N,... "
+                  "(generated and cached on first use)")
 
 
 def register(subparsers) -> None:
@@ -259,7 +270,7 @@ def register(subparsers) -> None:
     n = sub.add_parser("info", help="print a world's manifest, land-cover shares and junction counts",
                        description=f"Print a world's manifest, land-cover shares and junction counts. "
                                    f"Land-cover classes: {legend}.")
-    n.add_argument("dir", metavar="DIR", help="world folder")
+    n.add_argument("dir", metavar="WORLD", help=WORLD_ARG_HELP)
     n.set_defaults(func=_info)
 
     v = sub.add_parser("preview", help="write orthophoto | reference | land cover side by side",
@@ -267,7 +278,7 @@ def register(subparsers) -> None:
                                    "map (colours in docs/worlds.md) side by side; junctions are circled "
                                    "(red cross, orange tee, magenta wye, cyan corner, yellow bend) and "
                                    "labelled with their arm count.")
-    v.add_argument("dir", metavar="DIR", help="world folder")
+    v.add_argument("dir", metavar="WORLD", help=WORLD_ARG_HELP)
     v.add_argument("--out", required=True, metavar="PNG", help="preview image to write (.png)")
     v.add_argument("--max-width-px", type=int, default=3000, metavar="PX",
                    help="downscale so the whole preview is at most this wide (default 3000)")

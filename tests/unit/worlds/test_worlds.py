@@ -505,3 +505,17 @@ def test_the_first_use_of_a_generated_world_is_the_world_every_later_use_loads(t
         assert (a is None) == (b is None), name
         if a is not None:
             assert a.dtype == b.dtype and np.array_equal(a, b), name
+
+
+def test_world_info_and_preview_take_what_a_scenario_world_key_takes(tmp_path, monkeypatch, capsys):
+    # `scenenav world info generated:seed=N,...` (and `default`) name the world a scenario flies:
+    # generated and cached on first use, as a run does; a bad spec is one clear error
+    monkeypatch.setenv("SCENENAV_CACHE_DIR", str(tmp_path / "cache"))
+    spec = "generated:seed=6,width_px=300,height_px=280"
+    assert _cli(["world", "info", spec]) == 0
+    text = capsys.readouterr().out
+    assert "300 x 280 px" in text and "junctions:" in text
+    assert _cli(["world", "preview", spec, "--out", str(tmp_path / "p.png")]) == 0
+    assert cv2.imread(str(tmp_path / "p.png")) is not None
+    with pytest.raises((UserError, ConfigError), match="seed"):
+        _cli(["world", "info", "generated:seed=oops"])
