@@ -39,6 +39,9 @@ LIVE_FILE = "live.json"
 MAP_REPEAT_S = 5.0
 ROUTE_POLL_S = 1.0
 HOST = "127.0.0.1"
+#: Wall seconds the viewers get, once the run is over, to answer the server's close frame before
+#: their connections are cut.
+CLOSE_GRACE_S = 2.0
 
 
 class LiveNode:
@@ -126,8 +129,17 @@ class LiveNode:
     def close(self) -> dict:
         self.presence.close()
         self.bus.close()
-        self.bridge.close()
-        self.server.stop()
+        stop_serving(self.server, self.bridge)
         return {"port": self.port, "messages_sent": self.sent, "dropped": self.dropped,
                 "viewer_connections": self.bridge.connections,
                 "viewers_on_the_old_subprotocol_name": self.bridge.renamed}
+
+
+def stop_serving(server, bridge: SubprotocolBridge, grace_s: float = CLOSE_GRACE_S) -> None:
+    """End every viewer's session with a WebSocket close frame: no new viewer, then the SDK's server
+    stops (it sends each one a close frame, through the bridge), then the bridge, after up to
+    ``grace_s`` for the closing handshakes. The bridge closed first (as once) cut the connections
+    under the server: a viewer saw the run's end as "closed without a close frame"."""
+    bridge.stop_accepting()
+    server.stop()
+    bridge.close(drain_s=grace_s)

@@ -111,6 +111,7 @@ class SubprotocolBridge:
         self.port = self._listener.getsockname()[1]
         self._closing = threading.Event()
         self._lock = threading.Lock()
+        self._ended = threading.Condition(self._lock)        # a forwarded connection ended
         self._open: set[socket.socket] = set()
         self.connections = 0
         self.renamed = 0
@@ -164,16 +165,25 @@ class SubprotocolBridge:
                     s.close()
                     with self._lock:
                         self._open.discard(s)
+                        self._ended.notify_all()
 
-    def close(self) -> None:
-        """Stop listening and end every forwarded connection."""
+    def stop_accepting(self) -> None:
+        """Stop listening (a new viewer is refused); the forwarded connections go on."""
         self._closing.set()
         try:
             self._listener.shutdown(socket.SHUT_RDWR)     # wakes the blocked accept() (close alone does not)
         except OSError:
             pass
         self._listener.close()
+
+    def close(self, drain_s: float = 0.0) -> None:
+        """Stop listening and end every forwarded connection: those still open after ``drain_s``
+        seconds are cut. Cutting one ends its WebSocket without a close frame; so a caller that
+        stopped the upstream server first (which sends each client its close frame, and closes
+        the connection once the client answered) gives the connections ``drain_s`` to end so."""
+        self.stop_accepting()
         with self._lock:
+            self._ended.wait_for(lambda: not self._open, timeout=drain_s)
             socks = list(self._open)
         for s in socks:
             try:

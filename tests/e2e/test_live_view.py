@@ -78,7 +78,7 @@ def test_live_view_streams_camera_and_estimate_during_a_flight(tmp_path):
     # 12, and once (load 8-10, CI of 2026-12-04) with 30, the flight of a loaded machine ended before
     # the client had its messages
     launcher = subprocess.Popen(
-        [sys.executable, "-m", "scenenav.app.cli", "run", "--out", str(run), "--set", "duration_s=30",
+        [sys.executable, "-m", "scenenav.app.cli", "run", "--out", str(run), "--set", "duration_s=60",
          "--set", "flight.mode=autopilot", "--set", "perception.enabled=false", "--set", "clock.mode=realtime", "--set", "clock.speed_factor=2",
          "--set", "autopilot.mavlink_tcp_port=0", "--set", "autopilot.mavlink_udp_out=none",
          "--live", "--live-port", "0", "--quiet"],

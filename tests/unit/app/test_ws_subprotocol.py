@@ -7,6 +7,7 @@ import asyncio
 import json
 import socket
 import struct
+import threading
 
 import foxglove
 import pytest
@@ -130,3 +131,55 @@ def test_close_ends_open_connections_and_a_taken_port_raises(served):
         s.settimeout(5)
         while s.recv(4096):         # the server's closing frames, then the end
             pass
+
+
+@pytest.mark.parametrize("offer", [["foxglove.websocket.v1"], ["foxglove.sdk.v1"]])
+def test_the_live_view_ends_a_viewer_s_session_with_a_close_frame(offer):
+    """The live node's shutdown (scenenav.app.live.stop_serving), while it streams to a viewer: the
+    viewer gets the server's close frame (with the bridge closed first it saw "no close frame
+    received or sent": CI, tests/e2e/test_live_view.py), and a viewer coming later is refused."""
+    from scenenav.app.live import stop_serving
+    server = foxglove.start_server(name="close test", host="127.0.0.1", port=0)
+    bridge = SubprotocolBridge("127.0.0.1", 0, server.port)
+    channel = foxglove.Channel("t/closing", message_encoding="json")
+    stopped = threading.Event()
+    first_data = threading.Event()
+
+    def stream_then_stop() -> None:      # the run: messages all along, then its end
+        while not first_data.is_set() and not stopped.is_set():
+            channel.log({"n": 1})
+            first_data.wait(0.005)
+        for _ in range(20):             # still streaming as the live view stops
+            channel.log({"n": 2})
+        stop_serving(server, bridge)
+        stopped.set()
+
+    async def view() -> websockets.ConnectionClosed:
+        async with websockets.connect(f"ws://127.0.0.1:{bridge.port}", subprotocols=offer) as ws:
+            run = threading.Thread(target=stream_then_stop)
+            run.start()
+            try:
+                while True:
+                    raw = await asyncio.wait_for(ws.recv(), 10)
+                    if isinstance(raw, str) and json.loads(raw)["op"] == "advertise":
+                        ids = [c["id"] for c in json.loads(raw)["channels"] if c["topic"] == "t/closing"]
+                        await ws.send(json.dumps({"op": "subscribe",
+                                                  "subscriptions": [{"id": 1, "channelId": ids[0]}]}))
+                    elif isinstance(raw, bytes):
+                        first_data.set()
+            except websockets.ConnectionClosed as exc:
+                return exc
+            finally:
+                first_data.set()
+                await asyncio.to_thread(run.join, 10)
+
+    try:
+        ended = asyncio.run(view())
+        assert stopped.is_set()
+        assert ended.rcvd is not None, f"no close frame: {ended!r}"
+        assert isinstance(ended, websockets.ConnectionClosedOK)
+        with pytest.raises(OSError):
+            socket.create_connection(("127.0.0.1", bridge.port), timeout=5).close()
+    finally:
+        bridge.close()
+        server.stop()
