@@ -53,9 +53,9 @@ def cache_key(world_dir: Path, weights: Path, stride_px: int, altitude_m: float,
     from scenenav.core.formats.world_manifest import (
         DSM_FILE,
         ORTHOPHOTO_FILE,
-        PERSPECTIVE_REFERENCE_FILE,
         REFERENCE_FILE,
         read_manifest,
+        reference_file,
     )
     man = read_manifest(world_dir)
     h = hashlib.sha256()
@@ -70,7 +70,7 @@ def cache_key(world_dir: Path, weights: Path, stride_px: int, altitude_m: float,
         kind = man.reference.kind.value if reference == "default" else reference
         h.update(f"reference={kind}".encode())
         if kind == "perspective":
-            h.update(_file_digest(world_dir / PERSPECTIVE_REFERENCE_FILE).encode())
+            h.update(_file_digest(world_dir / reference_file(man, kind)).encode())
     return h.hexdigest()[:16]
 
 

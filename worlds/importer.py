@@ -20,6 +20,7 @@ is then optimistic: same day, same sensor).
 
 from __future__ import annotations
 
+import dataclasses
 import logging
 import math
 from pathlib import Path
@@ -31,7 +32,12 @@ from tqdm import tqdm
 from scenenav.core.errors import UserError
 from scenenav.core.formats.world_manifest import CONVENTIONS, FORMAT_VERSION, GroundTruth, WorldManifest, WorldSource
 from worlds import georaster
+from worlds.city_config import CityConfig
 from worlds.ground import DEFAULT_GROUND_WINDOW_M, DsmKind, heights_above_ground
+from worlds.perspective import perspective_reference
+
+#: The eye of the perspective reference an import renders with a DSM: the generator's (the paper's 500 m).
+DEFAULT_REFERENCE_HEIGHT_M = CityConfig.reference_height_m
 from worlds.world import World
 
 log = logging.getLogger(__name__)
@@ -101,7 +107,8 @@ def import_world(image: Path, m_per_px: float | None, out_dir: Path, reference: 
                  origin_lat_lon: tuple[float, float] | None = None,
                  name: str | None = None, dsm: Path | None = None,
                  dsm_kind: DsmKind | str = DsmKind.NDSM, dtm: Path | None = None,
-                 ground_window_m: float = DEFAULT_GROUND_WINDOW_M, progress: bool = False) -> World:
+                 ground_window_m: float = DEFAULT_GROUND_WINDOW_M, progress: bool = False,
+                 reference_height_m: float = DEFAULT_REFERENCE_HEIGHT_M) -> World:
     """Build a world folder in ``out_dir`` from an orthophoto and return the world.
 
     ``m_per_px`` is the ground resolution of the world (metres per pixel, > 0); for a georeferenced
@@ -110,8 +117,10 @@ def import_world(image: Path, m_per_px: float | None, out_dir: Path, reference: 
     ``origin_lat_lon`` the geodetic position of a plain image's centre in degrees (a georeferenced
     image knows its own). ``dsm`` is an optional surface model of ``dsm_kind`` (``dtm`` the ground
     under a DSM; without one the ground is estimated with a ``ground_window_m`` opening, see
-    worlds/ground.py). Every input is checked before anything is written. ``progress``: a progress
-    bar of the reprojection steps on stderr (when it is a terminal).
+    worlds/ground.py). With a DSM, the reference is also rendered in perspective from
+    ``reference_height_m`` above the map centre (``reference_perspective.png``, what the ``paper`` and
+    ``realistic`` profiles match against; 0: not rendered). Every input is checked before anything is
+    written. ``progress``: a progress bar of the reprojection steps on stderr (when it is a terminal).
     """
     image = Path(image)
     if not image.is_file():
@@ -125,21 +134,39 @@ def import_world(image: Path, m_per_px: float | None, out_dir: Path, reference: 
                         "ground); expected --dsm-kind dsm")
     if isinstance(ground_window_m, bool) or not math.isfinite(ground_window_m) or ground_window_m <= 0:
         raise UserError(f"--ground-window-m = {ground_window_m!r}: expected a positive number of metres")
+    if (isinstance(reference_height_m, bool) or not math.isfinite(reference_height_m)
+            or not (reference_height_m == 0 or 50.0 <= reference_height_m <= 20000.0)):
+        raise UserError(f"--reference-height-m = {reference_height_m!r}: expected 50 .. 20000 m (or 0: no "
+                        f"perspective reference)")
     info = None if _is_plain(image) else georaster.inspect_raster(image, "image")
     if info is not None and info.georeferenced:
         if origin_lat_lon is not None:
             raise UserError(f"--origin: not used with the georeferenced {image} (its geodetic origin is "
                             f"its centre, from its CRS); drop --origin")
-        return _import_georeferenced(image, info, m_per_px, out_dir, reference, name, dsm, kind, dtm,
-                                     ground_window_m, progress)
+        world = _import_georeferenced(image, info, m_per_px, out_dir, reference, name, dsm, kind, dtm,
+                                      ground_window_m, progress)
+        return _save(world, out_dir, reference_height_m)
     if m_per_px is None:
         where = "has no CRS" if info is not None else "is a plain image"
         raise UserError(f"{image}: {where}, so its scale is unknown; pass --m-per-px M (it is then "
                         f"imported as a plain image, north up)")
     if info is not None:
         log.warning("%s: no CRS; importing it as a plain image at %g m/px, north up", image, m_per_px)
-    return _import_plain(image, float(m_per_px), out_dir, reference, _check_origin(origin_lat_lon), name,
-                         dsm, kind, dtm, ground_window_m)
+    world = _import_plain(image, float(m_per_px), out_dir, reference, _check_origin(origin_lat_lon), name,
+                          dsm, kind, dtm, ground_window_m)
+    return _save(world, out_dir, reference_height_m)
+
+
+def _save(world: World, out_dir: Path, reference_height_m: float) -> World:
+    """Add the perspective reference to a world with relief (``import_world``) and write the folder."""
+    if world.dsm_m is not None and reference_height_m > 0:
+        persp = perspective_reference(world.reference, world.dsm_m, None, world.m_per_px,
+                                      float(reference_height_m))
+        ref = dataclasses.replace(world.manifest.reference, camera_height_m=float(reference_height_m))
+        world = dataclasses.replace(world, manifest=dataclasses.replace(world.manifest, reference=ref),
+                                    reference_perspective=persp)
+    world.save(out_dir)
+    return world
 
 
 def _import_plain(image: Path, m_per_px: float, out_dir: Path, reference: Path | None,
@@ -179,9 +206,7 @@ def _import_plain(image: Path, m_per_px: float, out_dir: Path, reference: Path |
         source=WorldSource.IMPORTED.value, seed=None, has_landcover=False, has_junctions=False,
         missing_ground_truth=tuple(missing), conventions=CONVENTIONS, generator=generator,
         has_dsm=heights is not None)
-    world = World(manifest=manifest, orthophoto=ortho, reference=ref, dsm_m=heights)
-    world.save(out_dir)
-    return world
+    return World(manifest=manifest, orthophoto=ortho, reference=ref, dsm_m=heights)
 
 
 def _aligned_heights(path: Path, label: str, image: Path, w: int, h: int) -> np.ndarray:
@@ -333,10 +358,8 @@ def _reproject_all(image: Path, info: "georaster.RasterInfo", grid: "georaster.L
         has_landcover=False, has_junctions=False, missing_ground_truth=tuple(missing),
         conventions=CONVENTIONS, generator=generator, has_dsm=heights is not None,
         source_crs=georaster.crs_label(info.crs), local_projection=grid.proj)
-    world = World(manifest=manifest, orthophoto=ortho, reference=ref, dsm_m=heights)
-    world.save(out_dir)
     bar.update()
-    return world
+    return World(manifest=manifest, orthophoto=ortho, reference=ref, dsm_m=heights)
 
 
 def _to_rgb8(rgb_f: np.ndarray) -> tuple[np.ndarray, float]:

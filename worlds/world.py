@@ -44,6 +44,7 @@ from scenenav.core.formats.world_manifest import (
     REFERENCE_FILE,
     ReferenceKind,
     WorldManifest,
+    reference_file,
 )
 from worlds.landcover import Junction, LandCover
 
@@ -102,12 +103,8 @@ class World:
 
     def reference_map(self, kind: ReferenceKind | str | None = None) -> np.ndarray:
         """The reference map of ``kind`` (default: the manifest's ``reference.kind``)."""
-        k = ReferenceKind(kind) if kind is not None else self.manifest.reference.kind
-        if k is ReferenceKind.PERSPECTIVE:
-            if self.reference_perspective is None:
-                raise UserError(f"world {self.manifest.name!r} has no perspective reference "
-                                f"({PERSPECTIVE_REFERENCE_FILE}); generate it with a reference height, or "
-                                f"use the orthophoto reference")
+        if reference_file(self.manifest, kind) == PERSPECTIVE_REFERENCE_FILE:
+            assert self.reference_perspective is not None      # __post_init__: with camera_height_m
             return self.reference_perspective
         return self.reference
 

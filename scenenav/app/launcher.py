@@ -335,16 +335,12 @@ def node_facts(cfg: ScenarioConfig, world) -> dict:
     """What a node needs to work in this run, for run.json: the world folder, the reference map it
     matches against, the assistant map if any, the camera (docs/interfaces.md section 1)."""
     from scenenav.core.camera_geometry import focal_length_px
-    from scenenav.core.formats.world_manifest import (
-        PERSPECTIVE_REFERENCE_FILE,
-        REFERENCE_FILE,
-        ReferenceKind,
-    )
+    from scenenav.core.formats.world_manifest import ReferenceKind, reference_file
     from worlds.default import world_folder
     folder = world_folder(cfg.world).resolve()
     ref = cfg.perception.reference
     kind = world.manifest.reference.kind if ref == "default" else ReferenceKind(ref)
-    reference = PERSPECTIVE_REFERENCE_FILE if kind is ReferenceKind.PERSPECTIVE else REFERENCE_FILE
+    reference = reference_file(world.manifest, kind)
     amap = cfg.perception.assistant_map or cfg.guidance.assistant_map
     cam = cfg.sim.camera
     f = focal_length_px(cam.width_px, cam.fov_deg)

@@ -1,5 +1,6 @@
 """A GeoTIFF with a DSM imports and flies: `scenenav world import` of a UTM orthophoto, its
-reference of another day and an nDSM, then a short lockstep `scenenav run` over the imported world.
+reference of another day and an nDSM, then a short lockstep `scenenav run` over the imported world,
+matching against the perspective reference the import rendered from the DSM.
 
 The rasters are a generated city (its two days and its land cover, heights given to buildings and
 trees) written as UTM zone 32N GeoTIFFs 2.2 degrees east of the central meridian, so the import
@@ -45,13 +46,18 @@ def test_geotiff_with_dsm_imports_and_flies(tmp_path, small_world):
     world = load_world(world_dir)
     assert world.manifest.has_dsm and world.manifest.source_crs == UTM
     assert abs(float(np.mean(world.heights_m > 6.0)) - float(np.mean(ndsm > 6.0))) < 0.02
+    # the reference the paper and realistic profiles match against, rendered from 500 m with the DSM
+    assert world.manifest.reference.camera_height_m == 500.0 and world.reference_perspective is not None
 
     out = tmp_path / "run"
     r = scenenav("run", "--out", str(out), "--quiet", "--set", f"world={world_dir}",
                  "--set", "duration_s=5", "--set", "perception.method=statistical",
+                 "--set", "perception.reference=perspective",
                  "--set", "autopilot.mavlink_tcp_port=0", "--set", "autopilot.mavlink_udp_out=none")
     assert r.returncode == 0, r.stderr[-2000:]
     s = json.loads((out / "summary.json").read_text())
     assert 4.9 <= s["sim_time_s"] <= 5.1
     assert s["fixes_total"] >= 40                     # 10 Hz camera for 5 s, minus the latency
     assert s["fixes_accepted"] >= 10 and s["fix_rms_error_accepted_m"] < 5.0
+    facts = json.loads((out / "run.json").read_text())
+    assert facts["reference_map"].endswith("reference_perspective.png") and facts["reference_kind"] == "perspective"

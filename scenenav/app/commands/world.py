@@ -13,6 +13,7 @@ import numpy as np
 from scenenav.app.arg_types import positive_float
 from scenenav.core.errors import UserError
 from worlds.ground import DEFAULT_GROUND_WINDOW_M, DsmKind
+from worlds.importer import DEFAULT_REFERENCE_HEIGHT_M
 from worlds.landcover import LANDCOVER_COLOURS_RGB, JunctionKind, LandCover, colourise, cover_shares
 from worlds.world import World, load_world
 
@@ -73,7 +74,8 @@ def _import(args: argparse.Namespace) -> int:
                          origin_lat_lon=origin, name=args.name,
                          dsm=Path(args.dsm) if args.dsm else None, dsm_kind=args.dsm_kind,
                          dtm=Path(args.dtm) if args.dtm else None,
-                         ground_window_m=args.ground_window_m, progress=not args.quiet)
+                         ground_window_m=args.ground_window_m, progress=not args.quiet,
+                         reference_height_m=args.reference_height_m)
     m = world.manifest
     if m.source_crs is not None:
         crs = m.source_crs if len(m.source_crs) <= 40 else m.source_crs[:37] + "..."
@@ -83,6 +85,8 @@ def _import(args: argparse.Namespace) -> int:
         geo = "not georeferenced: a plain image, north up"
     heights = (f"DSM up to {float(world.dsm_m.max()):.1f} m" if world.dsm_m is not None
                else "no DSM: the world is flat")
+    if m.reference.camera_height_m is not None:
+        heights += f", reference also rendered in perspective from {m.reference.camera_height_m:g} m"
     print(f"wrote {args.out}: {world.width_px}x{world.height_px} px at {world.m_per_px:.4g} m/px, {geo}; "
           f"{heights}; missing ground truth: {', '.join(m.missing_ground_truth) or 'none'}")
     return 0
@@ -237,7 +241,9 @@ def register(subparsers) -> None:
                     "records the source CRS. Pixels with no source data are black. A PNG/JPEG (or a TIFF "
                     "without CRS) is used pixel for pixel at --m-per-px, north up. Imported worlds have no "
                     "land cover and no junction ground truth; without --reference the image is also the "
-                    "reference map; without --dsm the world is flat (and the manifest says so). "
+                    "reference map; with --dsm the reference is also rendered in perspective from "
+                    "--reference-height-m (what the paper and realistic profiles match against); without "
+                    "--dsm the world is flat (and the manifest says so). "
                     "See docs/worlds.md, 'Real places'.")
     i.add_argument("image", metavar="IMAGE",
                    help="orthophoto: a GeoTIFF with a CRS, or a north-up PNG/JPEG/TIFF (>= 256 px a side)")
@@ -263,6 +269,11 @@ def register(subparsers) -> None:
     i.add_argument("--ground-window-m", type=positive_float, default=DEFAULT_GROUND_WINDOW_M, metavar="M",
                    help=f"window of the ground estimate of a DSM without --dtm: objects narrower than this "
                         f"are raised above the ground (default {DEFAULT_GROUND_WINDOW_M:g} m)")
+    i.add_argument("--reference-height-m", type=float, default=DEFAULT_REFERENCE_HEIGHT_M, metavar="M",
+                   help="with --dsm: also render the reference in perspective from M above the map centre "
+                        "(reference_perspective.png, what the paper and realistic profiles match against: "
+                        f"the paper's reference was taken from 500 m; default {DEFAULT_REFERENCE_HEIGHT_M:g}; "
+                        "0: none). A flat world needs none: its perspective view is its orthophoto")
     i.add_argument("--name", default=None, help="world name (default: the image file name)")
     i.add_argument("--quiet", action="store_true", help="no progress bar")
     i.set_defaults(func=_import)

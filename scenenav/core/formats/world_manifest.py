@@ -313,3 +313,25 @@ def read_manifest(world_dir: str | Path) -> WorldManifest:
         raise UserError(f"{path}: cannot read the world manifest ({exc.strerror}); expected a world "
                         "folder made by `scenenav world generate` or `scenenav world import`") from None
     return WorldManifest.from_json(text, str(path))
+
+
+def reference_file(manifest: WorldManifest, kind: ReferenceKind | str | None = None) -> str:
+    """The file of the world's reference map of ``kind`` (None: the manifest's ``reference.kind``).
+
+    ``perspective`` is ``reference_perspective.png`` when the world has one. A flat world
+    (``has_dsm`` false) without one uses ``reference.png``: seen from any height straight above,
+    a flat ground drawn back onto the map grid is its orthophoto, so the two are the same map. A
+    world with relief and no perspective reference is a one-line UserError saying how to get one.
+    """
+    k = manifest.reference.kind if kind is None else ReferenceKind(kind)
+    if k is not ReferenceKind.PERSPECTIVE:
+        return REFERENCE_FILE
+    if manifest.reference.camera_height_m is not None:
+        return PERSPECTIVE_REFERENCE_FILE
+    if not manifest.has_dsm:
+        return REFERENCE_FILE
+    raise UserError(f"world {manifest.name!r} has relief but no perspective reference "
+                    f"({PERSPECTIVE_REFERENCE_FILE}), which perception.reference = perspective asks for "
+                    f"(the paper and realistic profiles do): import it again with this scenenav (`scenenav "
+                    f"world import ... --dsm RASTER` renders one from --reference-height-m), or set "
+                    f"perception.reference=orthophoto")

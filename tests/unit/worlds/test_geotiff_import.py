@@ -267,3 +267,45 @@ def test_manifest_geo_fields_are_optional_and_checked():
     for key, bad in (("source_crs", 32632), ("local_projection", "  ")):
         with pytest.raises(UserError, match=f"m.json: {key}"):
             WorldManifest.from_dict(dict(base, **{key: bad}), "m.json")
+
+
+def _roof_centre_m(world, img):
+    """ENU centre (m) of the blue roof in ``img`` (a map-grid image of ``world``)."""
+    rgb = img.astype(int)
+    rows, cols = np.nonzero((rgb[..., 2] - rgb[..., 0]) > 100)
+    assert rows.size > 100, "roof not found"
+    x = (cols.mean() + 0.5 - world.width_px / 2.0) * world.m_per_px
+    y = (world.height_px / 2.0 - (rows.mean() + 0.5)) * world.m_per_px
+    return np.array([x, y])
+
+
+def test_an_import_with_relief_renders_the_perspective_reference_the_profiles_match_against(tmp_path):
+    from scenenav.core.formats.world_manifest import PERSPECTIVE_REFERENCE_FILE, REFERENCE_FILE, reference_file
+    rgb, tr = _paint(UTM, LAT0, LON0, 0.5, box=True)
+    write_raster(tmp_path / "utm.tif", rgb, UTM, tr)
+    ndsm = np.zeros((SIZE, SIZE), dtype=np.float32)
+    x, y = pixel_enu(UTM, tr, SIZE, SIZE, LAT0, LON0)
+    ndsm[(x >= BOX[0]) & (x < BOX[1]) & (y >= BOX[2]) & (y < BOX[3])] = 60.0      # a 60 m tower
+    write_raster(tmp_path / "ndsm.tif", ndsm, UTM, tr)
+    import_world(tmp_path / "utm.tif", None, tmp_path / "w", dsm=tmp_path / "ndsm.tif", reference_height_m=300)
+    world = load_world(tmp_path / "w")
+    assert world.manifest.reference.camera_height_m == 300.0
+    assert reference_file(world.manifest, "perspective") == PERSPECTIVE_REFERENCE_FILE
+    persp = world.reference_map("perspective")
+    assert persp is world.reference_perspective
+    # seen from 300 m above the centre, the roof 60 m up is drawn away from the centre by 300 / 240
+    top, seen = _roof_centre_m(world, world.reference), _roof_centre_m(world, persp)
+    assert np.linalg.norm(seen) / np.linalg.norm(top) == pytest.approx(300.0 / 240.0, rel=0.03)
+    # 0: no perspective reference; a profile asking for one gets one line saying how to get it
+    import_world(tmp_path / "utm.tif", None, tmp_path / "none", dsm=tmp_path / "ndsm.tif", reference_height_m=0)
+    bare = load_world(tmp_path / "none")
+    assert bare.reference_perspective is None
+    with pytest.raises(UserError, match="relief but no perspective reference.*--reference-height-m"):
+        bare.reference_map("perspective")
+    # a flat world's perspective view is its orthophoto: the same map, no file needed
+    import_world(tmp_path / "utm.tif", None, tmp_path / "flat")
+    flat = load_world(tmp_path / "flat")
+    assert reference_file(flat.manifest, "perspective") == REFERENCE_FILE
+    assert flat.reference_map("perspective") is flat.reference
+    with pytest.raises(UserError, match="reference-height-m"):
+        import_world(tmp_path / "utm.tif", None, tmp_path / "bad", reference_height_m=10.0)
