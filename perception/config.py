@@ -295,10 +295,21 @@ class PerceptionNodeConfig:
                                        # when it continues this many matches at a constant velocity
                                        # (PerceptionConfig's; 0 = off)
     consistent_match_tol_m: float = 2.0   # how far from the constant-velocity line a match may lie
+    confirm_successors: int = 0        # hold each fix until this many more valid matches arrived and
+                                       # accept it only if they lie on one constant-velocity track with it
+                                       # (perception/match_confirmation.py, docs/perception.md); 0 = off
+    confirm_tol_m: float = 2.0         # how far from that track a match may lie
+    confirm_max_span_s: float = 0.8    # successors later than this after the fix: unconfirmed (keep it
+                                       # below the autopilot's vision_max_age_s, or held fixes go stale)
 
     def __post_init__(self) -> None:
         methods = ("cnn", "assistant-map", "statistical", "none")
         check(self.method in methods, "method", self.method, "one of cnn, assistant-map, statistical, none")
+        check(type(self.confirm_successors) is int and 0 <= self.confirm_successors <= 50,
+              "confirm_successors", self.confirm_successors, "an integer number of matches in [0, 50] (0 = off)")
+        check(0.0 < self.confirm_tol_m <= 100.0, "confirm_tol_m", self.confirm_tol_m, "a distance in (0, 100] m")
+        check(0.0 < self.confirm_max_span_s <= 10.0, "confirm_max_span_s", self.confirm_max_span_s,
+              "a number of seconds in (0, 10]")
         check(self.decision_rule in ("paper", "combined"), "decision_rule", self.decision_rule,
               "paper or combined")
         check(self.reference in ("default", "orthophoto", "perspective"), "reference", self.reference,

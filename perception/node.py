@@ -46,6 +46,7 @@ from typing import TYPE_CHECKING
 import numpy as np
 
 from perception.config import ExpectedCamera, PerceptionConfig, PerceptionNodeConfig
+from perception.match_confirmation import MatchConfirmation
 from perception.match_metrics import MatchMetrics
 from scenenav.core.bus import Bus, BusConfig
 from scenenav.core.contracts import (
@@ -155,6 +156,8 @@ class PerceptionNode:
         import cv2
         cv2.setNumThreads(1)
         self.pipeline = make_pipeline(world, settings, fov_deg=self.camera.fov_deg, weights=weights)
+        self._confirm: MatchConfirmation[tuple[CameraFrame, FixResult, bool]] = MatchConfirmation(
+            settings.confirm_successors, settings.confirm_tol_m, settings.confirm_max_span_s)
         self._diag = None
         if out_dir is not None:
             try:
@@ -285,8 +288,33 @@ class PerceptionNode:
         docs/interfaces.md), so the autopilot does not wait its vision timeout for it."""
         from perception.pipeline import Reason
         res = self.pipeline.refused(msg.timestamp_us * 1e-6, reason or Reason.BAD_INPUT)
-        self.bus.publish(self.keys.vision_fix(self.node_id), self._fix_message(msg, res))
+        self._emit(msg, res, diag=False)
         return res
+
+    def _emit(self, msg: CameraFrame, res: FixResult, diag: bool = True) -> None:
+        """Publish a frame's fix (and its diagnostics row with ``diag``) through the confirmation
+        (``perception.confirm_successors``): what it decides now leaves, in frame order; an accepted
+        fix its successors did not confirm leaves rejected (reason ``unconfirmed``)."""
+        from perception.pipeline import Reason
+        xy = (float(res.position_enu_m[0]), float(res.position_enu_m[1]))
+        for (m, r, d), confirmed in self._confirm.push((msg, res, diag), res.timestamp_s, xy, res.valid):
+            if r.valid and r.accepted and not confirmed:
+                r = dataclasses.replace(r, accepted=False, reason=Reason.UNCONFIRMED)
+                self.stats["unconfirmed"] += 1
+            self.bus.publish(self.keys.vision_fix(self.node_id), self._fix_message(m, r))
+            if d:
+                self._write_diag(m, r)
+
+    def _flush_confirmation(self) -> None:
+        """The run ends: publish the fixes still waiting for their successors (unconfirmed)."""
+        from perception.pipeline import Reason
+        for (m, r, d), confirmed in self._confirm.flush():
+            if r.valid and r.accepted and not confirmed:
+                r = dataclasses.replace(r, accepted=False, reason=Reason.UNCONFIRMED)
+                self.stats["unconfirmed"] += 1
+            self.bus.publish(self.keys.vision_fix(self.node_id), self._fix_message(m, r))
+            if d:
+                self._write_diag(m, r)
 
     def _refuse(self, msg: CameraFrame, mismatch: str) -> None:
         """A frame from another camera than configured: count, log once, answer with an invalid fix."""
@@ -298,7 +326,8 @@ class PerceptionNode:
             log.warning("%s", text)
             self.bus.publish(self.keys.events(self.node_id), Event(
                 msg.timestamp_us, self.node_id, int(Severity.WARNING), text))
-        self._write_diag(msg, self._answer_invalid(msg, Reason.CAMERA_MISMATCH))
+        res = self.pipeline.refused(msg.timestamp_us * 1e-6, Reason.CAMERA_MISMATCH)
+        self._emit(msg, res)
 
     def _work(self) -> None:
         from perception.pipeline import BadInput
@@ -348,9 +377,7 @@ class PerceptionNode:
                         self._drop("bad_input", msg, str(exc))
                         self._answer_invalid(msg)
                     else:
-                        self.bus.publish(self.keys.vision_fix(self.node_id),
-                                         self._fix_message(msg, res))
-                        self._write_diag(msg, res)
+                        self._emit(msg, res)
                         self.stats["fixes"] += 1
             except Exception:   # keep serving frames whatever one frame did
                 log.exception("frame %d failed", msg.seq)
@@ -392,6 +419,8 @@ class PerceptionNode:
     def close(self) -> None:
         self._stop.set()
         self._worker.join(timeout=5)
+        if not self._worker.is_alive():
+            self._flush_confirmation()
         if self._diag is not None:
             self._diag.close()
             self._diag = None

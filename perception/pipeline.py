@@ -94,6 +94,8 @@ class Reason(str, Enum):
     BELOW_RATED_HEIGHT = "below-rated-height"  # cnn / assistant-map: captured too low for the area rating
     TRACK_CONTINUATION = "track-continuation"  # below the rated height, continuing an accepted track
     AMBIGUOUS_FAR = "ambiguous-far"          # an ambiguous match whose own peak the estimate all but rules out
+    UNCONFIRMED = "unconfirmed"              # accepted, but its successors did not confirm it (the node's
+                                             # perception.confirm_successors, perception/match_confirmation.py)
 
 
 @dataclass(frozen=True)

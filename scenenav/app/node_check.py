@@ -8,7 +8,9 @@ frames part-way, and judges each rule of docs/interfaces.md ("Conformance") with
 
 * ``liveliness``: ``nodes/<role>/<id>`` and ``lockstep/member/camera/<id>`` declared, the clock started with them;
 * ``acks``: a LockstepAck (role camera, the frame's seq) for every frame within ``--ack-timeout-s``;
-* ``fixes``: a VisionFix for every frame (valid or not), published before the frame's ack;
+* ``fixes``: a VisionFix for every frame (valid or not), published before the frame's ack, or (a
+  node that holds its fixes, like the built-in one with ``perception.confirm_successors``) before the
+  ack of a frame captured at most ``HELD_FIX_MAX_AGE_S`` later;
 * ``encoding``: every message on the node's keys decodes with the real codec (type, version, fields);
 * ``timestamps``: fix and ack carry the frame's capture time, ``frame_seq`` and ``node_id`` are right;
 * ``fields``: ranges and units (positions on the map, probabilities in [0, 1], times >= 0, ...);
@@ -56,6 +58,9 @@ from scenenav.core.keys import Keys, check_name
 log = logging.getLogger(__name__)
 
 ROLES = ("perception",)
+#: A held fix must leave before the ack of a frame captured at most this much later: the autopilot
+#: fuses no fix older than its vision_max_age_s (1 s, autopilot_bridge/config.py).
+HELD_FIX_MAX_AGE_S = 1.0
 RULES = ("liveliness", "acks", "fixes", "encoding", "timestamps", "fields", "covariance", "malformed",
          "leaves")
 #: Answers the node gives before the check sends it the malformed frames.
@@ -252,7 +257,14 @@ def judge(seen: Observed, keys: Keys, role: str, node_id: str, ack_timeout_s: fl
     for t, f in seen.fixes:
         fixes.setdefault(f.frame_seq, (t, f))
     no_fix = sorted(s for s in frames if s not in fixes)
-    after_ack = sorted(s for s, (t, _) in fixes.items() if s in acks and t > acks[s])
+    def held_in_time(seq: int, t: float) -> bool:
+        """A held fix (published with a later frame's answer) came before the ack of a frame
+        captured at most HELD_FIX_MAX_AGE_S after its own."""
+        cap = frames[seq][1]
+        return any(s2 > seq and 0 <= frames[s2][1] - cap <= HELD_FIX_MAX_AGE_S * 1e6 and t <= acks.get(s2, -math.inf)
+                   for s2 in frames)
+    after_ack = sorted(s for s, (t, _) in fixes.items()
+                       if s in acks and t > acks[s] and (s not in frames or not held_in_time(s, t)))
     n_valid = sum(1 for _, f in fixes.values() if f.valid)
     problems = []
     if no_fix:
@@ -260,7 +272,8 @@ def judge(seen: Observed, keys: Keys, role: str, node_id: str, ack_timeout_s: fl
                         "publish valid: false when there is no match")
     if after_ack:
         problems.append(f"the fix came after the ack for seq {_first(after_ack)} (publish the fix first, "
-                        "from the same session)")
+                        f"from the same session; a held fix before the ack of a frame at most "
+                        f"{HELD_FIX_MAX_AGE_S:g} s younger)")
     out.append(RuleResult("fixes", bool(frames) and not problems, "; ".join(problems) or
                           f"a VisionFix for every frame ({n_valid} valid, {len(fixes) - n_valid} invalid)"))
 

@@ -34,7 +34,7 @@ def _frame(world, seq, t_us, size=200, fov_deg=60.0, altitude_m=100.0):
 
 
 @contextlib.contextmanager
-def _live_node(world, camera=None, alignment="rotation-scale"):
+def _live_node(world, camera=None, alignment="rotation-scale", **settings):
     """A perception node (method none, lockstep) and a hub on a fresh bus, the node's fixes and acks
     collected; yields (hub, keys, node, fixes, acks) once the node is a lockstep member."""
     from perception.config import PerceptionNodeConfig
@@ -48,7 +48,8 @@ def _live_node(world, camera=None, alignment="rotation-scale"):
     up = threading.Event()
     hub.watch_liveliness(keys.lockstep_member_all, lambda k, a: up.set() if a else None)
     node = PerceptionNode(world, BusConfig("pn", port), "p1",
-                          PerceptionNodeConfig(method="none", lockstep=True, alignment=alignment), camera=camera)
+                          PerceptionNodeConfig(method="none", lockstep=True, alignment=alignment, **settings),
+                          camera=camera)
     try:
         assert up.wait(15)
         hub.publish(keys.compass, CompassSample(0, 0.0))
@@ -89,6 +90,29 @@ def test_garbage_dropped_good_frames_fixed(world):
         assert node.stats["dropped_nan_sensor"] == 1
         assert node.bus.dropped[keys.camera] == 1                        # the truncated one
         assert node.bus.dropped[keys.compass] == 1
+
+
+def test_confirmation_holds_each_fix_for_its_successors_and_keeps_the_frame_order(world):
+    """perception.confirm_successors 2: frame k's fix leaves with frame k + 2 (before that frame's
+    ack, so lockstep stays repeatable), confirmed by the two matches after it; a refused frame keeps
+    its place; the fixes still held when the node closes leave unconfirmed (rejected)."""
+    with _live_node(world, confirm_successors=2, confirm_tol_m=2.0) as (hub, keys, node, fixes, acks):
+        for seq in range(6):
+            size = 120 if seq == 2 else 200                                # frame 2: another camera
+            hub.publish(keys.camera, _frame(world, seq, 100_000 * (seq + 1), size=size))
+            _wait_for(acks, seq + 1)
+            # a fix leaves once two more valid matches came: frame 0 with frame 3 (frame 2 was
+            # refused), frame 1 with frame 4 and the refused frame 2 right behind it, 3 with 5
+            expected = {0: [], 1: [], 2: [], 3: [0], 4: [0, 1, 2], 5: [0, 1, 2, 3]}[seq]
+            _wait_for(fixes, len(expected))
+            assert [f.frame_seq for f in fixes] == expected
+        assert [a.seq for a in acks] == list(range(6))
+        before_close = len(fixes)
+    assert [f.frame_seq for f in fixes] == list(range(6))
+    assert before_close == 4 and all(f.accepted for f in fixes if f.frame_seq in (0, 1, 3))
+    assert not fixes[2].valid and not fixes[2].accepted                    # the refused frame
+    assert all(f.valid and not f.accepted for f in fixes[4:])              # never confirmed
+    assert node.stats["unconfirmed"] == 2
 
 
 def test_an_unexpected_error_costs_one_frame_not_the_worker(world):

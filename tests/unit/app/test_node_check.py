@@ -88,8 +88,19 @@ def test_liveliness_is_judged_from_the_runs_side():
 
 def test_fix_after_its_ack_fails_fixes():
     seen = _good()
-    seen.fixes[1] = (seen.acks[1][0] + 0.01, seen.fixes[1][1])
+    seen.fixes[1] = (seen.acks[-1][0] + 0.01, seen.fixes[1][1])     # after every later frame's ack too
     assert "after the ack for seq 1" in _judge(seen)["fixes"]
+
+
+def test_a_held_fix_passes_when_it_leaves_before_the_ack_of_a_frame_at_most_1_s_younger():
+    # frames every 0.1 s of capture time: a fix held for 5 frames (perception.confirm_successors 5)
+    # leaves before frame 6's ack; one held past the ack of every frame within 1 s is too late
+    held = _good()
+    held.fixes[1] = (held.acks[6][0] - 0.01, held.fixes[1][1])
+    assert _judge(held)["fixes"] is None
+    stale = _good()
+    stale.fixes[1] = (stale.acks[12][0] - 0.01, stale.fixes[1][1])     # frame 12: 1.1 s younger
+    assert "after the ack for seq 1" in _judge(stale)["fixes"]
 
 
 def test_malformed_and_leaving():
