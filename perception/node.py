@@ -293,22 +293,15 @@ class PerceptionNode:
 
     def _emit(self, msg: CameraFrame, res: FixResult, diag: bool = True) -> None:
         """Publish a frame's fix (and its diagnostics row with ``diag``) through the confirmation
-        (``perception.confirm_successors``): what it decides now leaves, in frame order; an accepted
-        fix its successors did not confirm leaves rejected (reason ``unconfirmed``)."""
-        from perception.pipeline import Reason
+        (``perception.confirm_successors``): what it decides now leaves, in frame order."""
         xy = (float(res.position_enu_m[0]), float(res.position_enu_m[1]))
-        for (m, r, d), confirmed in self._confirm.push((msg, res, diag), res.timestamp_s, xy, res.valid):
-            if r.valid and r.accepted and not confirmed:
-                r = dataclasses.replace(r, accepted=False, reason=Reason.UNCONFIRMED)
-                self.stats["unconfirmed"] += 1
-            self.bus.publish(self.keys.vision_fix(self.node_id), self._fix_message(m, r))
-            if d:
-                self._write_diag(m, r)
+        self._publish_decided(self._confirm.push((msg, res, diag), res.timestamp_s, xy, res.valid))
 
-    def _flush_confirmation(self) -> None:
-        """The run ends: publish the fixes still waiting for their successors (unconfirmed)."""
+    def _publish_decided(self, decided) -> None:
+        """Publish fixes the confirmation decided: an accepted fix its successors did not confirm
+        leaves rejected (reason ``unconfirmed``)."""
         from perception.pipeline import Reason
-        for (m, r, d), confirmed in self._confirm.flush():
+        for (m, r, d), confirmed in decided:
             if r.valid and r.accepted and not confirmed:
                 r = dataclasses.replace(r, accepted=False, reason=Reason.UNCONFIRMED)
                 self.stats["unconfirmed"] += 1
@@ -419,8 +412,8 @@ class PerceptionNode:
     def close(self) -> None:
         self._stop.set()
         self._worker.join(timeout=5)
-        if not self._worker.is_alive():
-            self._flush_confirmation()
+        if not self._worker.is_alive():     # the run ends: the fixes still held leave unconfirmed
+            self._publish_decided(self._confirm.flush())
         if self._diag is not None:
             self._diag.close()
             self._diag = None
