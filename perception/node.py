@@ -16,7 +16,9 @@ Inputs
                                          reject_ambiguity_below_posterior, and
                                          its velocity with dr_from_estimate)
 Outputs
-  ``perception/fix/<node_id>``   VisionFix  (one per frame; ``valid`` false when no match)
+  ``perception/fix/<node_id>``   VisionFix  (one per frame; ``valid`` false when no match; with
+                                            ``confirm_successors`` N > 0 held until N more matches
+                                            decide it, then published in frame order)
   ``lockstep/ack/<node_id>``     LockstepAck (role camera, after the fix) when in lockstep
   liveliness ``nodes/perception/<node_id>`` and, in lockstep, ``lockstep/member/camera/<node_id>``
   ``info/<node_id>``, ``events/<node_id>``

@@ -61,8 +61,16 @@ def test_reference_choice():
     assert persp.reference_kind is ReferenceKind.PERSPECTIVE
     np.testing.assert_allclose(persp.reference_gray * 255.0,
                                cv2.cvtColor(b, cv2.COLOR_RGB2GRAY).astype(np.float32), atol=1.0)
+    # a world with relief and no perspective reference: one line saying how to get one
+    relief = np.zeros((SIZE, SIZE), np.float32)
+    relief[150:250, 150:250] = 25.0
     with pytest.raises(UserError, match="perspective"):
-        CaptureScene.from_world(_world(a, None), CaptureSettings(reference="perspective"))
+        CaptureScene.from_world(_world(a, relief), CaptureSettings(reference="perspective"))
+    # a flat world's perspective reference is its orthophoto one (flat ground seen from straight
+    # above, drawn back onto the map grid, is the orthophoto)
+    flat = CaptureScene.from_world(_world(a, None, reference=b), CaptureSettings(reference="perspective"))
+    np.testing.assert_allclose(flat.reference_gray * 255.0,
+                               cv2.cvtColor(b, cv2.COLOR_RGB2GRAY).astype(np.float32), atol=1.0)
     with pytest.raises(UserError, match="expected default, orthophoto or perspective"):
         CaptureSettings(reference="oblique")
 
