@@ -285,12 +285,12 @@ class PerceptionNode:
             self.bus.publish(self.keys.events(self.node_id), Event(
                 msg.timestamp_us, self.node_id, int(Severity.WARNING), text))
 
-    def _answer_invalid(self, msg: CameraFrame, reason: Reason | None = None) -> FixResult:
+    def _answer_invalid(self, msg: CameraFrame, reason: Reason | None = None, diag: bool = False) -> FixResult:
         """The invalid VisionFix a frame that cannot be matched still gets (every frame is answered,
         docs/interfaces.md), so the autopilot does not wait its vision timeout for it."""
         from perception.pipeline import Reason
         res = self.pipeline.refused(msg.timestamp_us * 1e-6, reason or Reason.BAD_INPUT)
-        self._emit(msg, res, diag=False)
+        self._emit(msg, res, diag=diag)
         return res
 
     def _emit(self, msg: CameraFrame, res: FixResult, diag: bool = True) -> None:
@@ -299,7 +299,7 @@ class PerceptionNode:
         xy = (float(res.position_enu_m[0]), float(res.position_enu_m[1]))
         self._publish_decided(self._confirm.push((msg, res, diag), res.timestamp_s, xy, res.valid))
 
-    def _publish_decided(self, decided) -> None:
+    def _publish_decided(self, decided: list[tuple[tuple[CameraFrame, FixResult, bool], bool]]) -> None:
         """Publish fixes the confirmation decided: an accepted fix its successors did not confirm
         leaves rejected (reason ``unconfirmed``)."""
         from perception.pipeline import Reason
@@ -321,8 +321,7 @@ class PerceptionNode:
             log.warning("%s", text)
             self.bus.publish(self.keys.events(self.node_id), Event(
                 msg.timestamp_us, self.node_id, int(Severity.WARNING), text))
-        res = self.pipeline.refused(msg.timestamp_us * 1e-6, Reason.CAMERA_MISMATCH)
-        self._emit(msg, res)
+        self._answer_invalid(msg, Reason.CAMERA_MISMATCH, diag=True)
 
     def _work(self) -> None:
         from perception.pipeline import BadInput

@@ -40,6 +40,7 @@ from pathlib import Path
 
 import numpy as np
 
+from autopilot_bridge.config import FlightCoreConfig
 from scenenav.app.launcher import RUN_FILE
 from scenenav.core.bus import Bus, BusConfig
 from scenenav.core.contracts import (
@@ -59,8 +60,8 @@ log = logging.getLogger(__name__)
 
 ROLES = ("perception",)
 #: A held fix must leave before the ack of a frame captured at most this much later: the autopilot
-#: fuses no fix older than its vision_max_age_s (1 s, autopilot_bridge/config.py).
-HELD_FIX_MAX_AGE_S = 1.0
+#: fuses no fix older than its vision_max_age_s.
+HELD_FIX_MAX_AGE_S = FlightCoreConfig.vision_max_age_s
 RULES = ("liveliness", "acks", "fixes", "encoding", "timestamps", "fields", "covariance", "malformed",
          "leaves")
 #: Answers the node gives before the check sends it the malformed frames.
