@@ -11,8 +11,10 @@ fixes vs truth), ``fix_recall`` / ``fix_precision`` (of the false-fix rejection)
 
 report.md groups the completed runs by the campaign's ``group_by`` columns and gives, per group, the
 median / 95th percentile / max of the estimate error and of the accepted-fix error (all samples of
-the group's runs pooled), the median fix RMS over runs, the pooled recall and precision and the
-mission success rate, each with a 95 % bootstrap interval that resamples whole runs (samples within
+the group's runs pooled), the median fix RMS over runs, the pooled recall and precision, the
+share of missions completed and the mission success rate (completed and ended within the scenario's
+``evaluation.goal_tolerance_m`` of the last goal: a mission flown on a false lock completes its
+route far from where it was sent), each with a 95 % bootstrap interval that resamples whole runs (samples within
 a flight are correlated; the run is the independent unit). Plots: error CDFs per perception method,
 success rate per group (PNG beside report.md).
 """
@@ -202,8 +204,22 @@ def _pooled_ratio(num: str, extra: str | None, den: str | None) -> Callable[[lis
     return stat
 
 
-def _success(runs: list[RunData]) -> float | None:
+def _completed(runs: list[RunData]) -> float | None:
     return float(np.mean([bool(r.row.get("mission_completed")) for r in runs])) if runs else None
+
+
+def _succeeded(row: dict) -> bool:
+    """A run's ``mission_succeeded`` (completed and ended within ``goal_tolerance_m`` of its last
+    goal, scenenav.app.evaluation.mission_succeeded); a summary written before that figure existed
+    counts as its ``mission_completed``."""
+    value = row.get("mission_succeeded")
+    if value is None or (isinstance(value, float) and math.isnan(value)):
+        return bool(row.get("mission_completed"))
+    return bool(value)
+
+
+def _success(runs: list[RunData]) -> float | None:
+    return float(np.mean([_succeeded(r.row) for r in runs])) if runs else None
 
 
 METRICS: tuple[tuple[str, Callable[[list[RunData]], float | None], str], ...] = (
@@ -216,6 +232,7 @@ METRICS: tuple[tuple[str, Callable[[list[RunData]], float | None], str], ...] = 
     ("fix RMS, median over runs (m)", _median_of("fix_rms_error_accepted_m"), "{:.2f}"),
     ("recall of false fixes", _pooled_ratio("false_fixes_rejected", None, "false_fixes"), "{:.3f}"),
     ("precision of rejections", _pooled_ratio("false_fixes_rejected", "true_fixes_rejected", None), "{:.3f}"),
+    ("missions completed", _completed, "{:.2f}"),
     ("mission success rate", _success, "{:.2f}"),
 )
 

@@ -15,6 +15,8 @@ works on a run that was interrupted. Definitions:
   the accepted fixes;
 * a fix is *false* when it is valid and its error exceeds ``evaluation.false_fix_threshold_m``
   (default 5 m); an invalid fix (no match computed) is neither true nor false;
+* ``mission_succeeded``: ``mission_completed`` and, for a guided flight, an end within
+  ``evaluation.goal_tolerance_m`` of the last goal (``end_distance_to_goal_m``);
 * ``rms_error_m`` / ``max_error_m`` are of the autopilot's own estimate against truth (horizontal),
   null when the run had no autopilot, over the whole run; ``rms_error_airborne_m`` /
   ``max_error_airborne_m`` the same over the estimates taken while the vehicle was more than
@@ -372,6 +374,9 @@ def evaluate_run(run_dir: Path, cfg, world, wall_time_s: float | None, interrupt
     })
     summary.update(_guidance_metrics(run_dir))
     summary.update(_end_position(cfg, truth, status))
+    summary["goal_tolerance_m"] = cfg.evaluation.goal_tolerance_m
+    summary["mission_succeeded"] = mission_succeeded(mission_completed, summary.get("end_distance_to_goal_m"),
+                                                     cfg.evaluation.goal_tolerance_m)
     if recorder_stopped_early is None:
         recorder_stopped_early = not rec
     summary["recording_ended_early"] = bool(recorder_stopped_early or rec.get("write_failed"))
@@ -471,6 +476,16 @@ def _end_position(cfg, truth: dict, status: dict) -> dict[str, Any]:
         out["goal_enu_m"] = [float(goal[0]), float(goal[1])]
         out["end_distance_to_goal_m"] = round(math.hypot(end[0] - goal[0], end[1] - goal[1]), 2)
     return out
+
+
+def mission_succeeded(completed: bool, end_distance_to_goal_m: float | None, tolerance_m: float) -> bool:
+    """Whether a mission succeeded: it was completed and, when it had goals (a guided flight), the
+    vehicle ended within ``tolerance_m`` of the last one. A GPS-denied mission flown on a false lock
+    completes its route where the estimate says, possibly hundreds of metres from where it was sent:
+    completed, not succeeded."""
+    if not completed:
+        return False
+    return end_distance_to_goal_m is None or end_distance_to_goal_m <= tolerance_m
 
 
 def _distance(truth: dict) -> float:
@@ -600,7 +615,7 @@ def format_summary(summary: dict) -> str:
             "real_time_factor", "distance_flown_m", "fixes_total", "fixes_accepted", "false_fixes",
             "false_fixes_rejected", "true_fixes_rejected", "fix_rms_error_accepted_m",
             "fix_time_ms_median", "rms_error_m", "max_error_m", "rms_error_airborne_m",
-            "max_error_airborne_m", "mission_completed", "gps_used",
+            "max_error_airborne_m", "mission_completed", "mission_succeeded", "gps_used",
             "end_reason", "recording_ended_early"]
     lines = ["summary:"]
     for k in keys:
@@ -673,8 +688,13 @@ def plain_summary(summary: dict, run_dir: Path | None = None) -> str:
         if summary.get("end_distance_to_goal_m") is not None:
             g = summary["goal_enu_m"]
             text += f", {summary['end_distance_to_goal_m']:.1f} m from the goal ({g[0]:.0f}, {g[1]:.0f})"
-        mission = "the mission was completed" if summary.get("mission_completed") else \
-            f"the run ended: {summary.get('end_reason')}"
+        if not summary.get("mission_completed"):
+            mission = f"the run ended: {summary.get('end_reason')}"
+        elif summary.get("mission_succeeded", True):
+            mission = "the mission was completed"
+        else:
+            mission = (f"the mission was completed but did not succeed: it ended over "
+                       f"{summary.get('goal_tolerance_m', 0.0):g} m from its last goal")
         lines.append(f"{text}; {mission}.")
     if run_dir is not None:
         pics = [p for p in ("trajectory.png",) if (Path(run_dir) / p).is_file()]
