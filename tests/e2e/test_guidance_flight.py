@@ -75,6 +75,8 @@ def test_guidance_node_flies_the_planned_route(flights):
     events = (run_dir / "events.csv").read_text()
     assert "mission uploaded" in events and "mission started" in events
     assert summary["mission_completed"] and not summary["gps_used"]
+    # landed at the goal: the mission succeeded (within evaluation.goal_tolerance_m)
+    assert summary["end_distance_to_goal_m"] <= summary["goal_tolerance_m"] and summary["mission_succeeded"]
     truth = read_csv(run_dir / "truth.csv")
     high = truth["z_m"] > CRUISE_MIN_Z_M
     pts = np.stack([truth["x_m"][high], truth["y_m"][high]], axis=1)

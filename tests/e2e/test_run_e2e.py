@@ -58,7 +58,7 @@ def test_run_folder_contract(two_runs):
     s = json.loads((out / "summary.json").read_text())
     for key in ("rms_error_m", "max_error_m", "fixes_total", "fixes_accepted", "false_fixes",
                 "false_fixes_rejected", "true_fixes_rejected", "fix_time_ms_median",
-                "mission_completed", "gps_used", "sim_time_s", "wall_time_s"):
+                "mission_completed", "mission_succeeded", "gps_used", "sim_time_s", "wall_time_s"):
         assert key in s, key
     assert 5.9 <= s["sim_time_s"] <= 6.1
     assert 50 <= s["fixes_total"] <= 62          # 10 Hz camera for 6 s, minus the camera latency
