@@ -134,6 +134,7 @@ class Bus:
         self._tokens: list[Any] = []
         self.dropped: Counter[str] = Counter()   # malformed messages per key
         self._lock = threading.Lock()
+        self._closing = False                    # set by close(): callbacks racing it stay quiet
 
     # --------------------------------------------------------------------------- publishing
     def publisher(self, key: str):
@@ -176,7 +177,7 @@ class Bus:
             try:
                 callback(msg, k)
             except Exception:  # a bug in a handler must not kill the Zenoh callback thread
-                log.exception("handler for %s failed", k)
+                self._handler_failed("handler for %s failed", k)
         self._subscribers.append(self.session.declare_subscriber(key, _direct(handler)))
 
     def subscribe_raw(self, key: str, callback: Callable[[bytes, str], None]) -> None:
@@ -184,7 +185,7 @@ class Bus:
             try:
                 callback(sample.payload.to_bytes(), str(sample.key_expr))
             except Exception:
-                log.exception("raw handler for %s failed", sample.key_expr)
+                self._handler_failed("raw handler for %s failed", sample.key_expr)
         self._subscribers.append(self.session.declare_subscriber(key, _direct(handler)))
 
     def subscribe_inbox(self, key: str, capacity: int) -> Inbox:
@@ -234,11 +235,21 @@ class Bus:
             try:
                 on_change(str(sample.key_expr), sample.kind == zenoh.SampleKind.PUT)
             except Exception:
-                log.exception("liveliness handler failed")
+                self._handler_failed("liveliness handler for %s failed", sample.key_expr)
         self._subscribers.append(
             self.session.liveliness().declare_subscriber(key, handler, history=True))
 
+    def _handler_failed(self, what: str, key: Any) -> None:
+        """A callback raised: logged with its traceback, unless the bus is closing. Zenoh may still
+        deliver a sample (a member's token withdrawn at the end of a run, say) while ``close`` runs,
+        and a callback that publishes then meets the closed session: an expected race, not a bug."""
+        if self._closing:
+            log.debug(what + " while the bus was closing", key, exc_info=True)
+        else:
+            log.exception(what, key)
+
     def close(self) -> None:
+        self._closing = True
         for tok in self._tokens:
             try:
                 tok.undeclare()

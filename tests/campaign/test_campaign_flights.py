@@ -35,13 +35,13 @@ def _finish(proc, timeout_s=900):
     return proc.returncode, stdout, stderr
 
 
-@pytest.mark.timeout(900)     # six short flights plus one flown again, two at a time, then a resume
-def test_six_runs_complete_through_a_worker_kill_then_rerun_flies_nothing(tmp_path):
-    """Six runs on two workers; a Dask worker is SIGKILLed during the first flight: its flight
+@pytest.mark.timeout(900)     # four short flights plus one flown again, two at a time, then a resume
+def test_four_runs_complete_through_a_worker_kill_then_rerun_flies_nothing(tmp_path):
+    """Four runs on two workers; a Dask worker is SIGKILLed during the first flight: its flight
     stops its nodes and is flown again, no row is lost, and a second invocation flies nothing."""
-    campaign = write_campaign(tmp_path / "six.yaml", name="six", base=str(SCRIPTED),
+    campaign = write_campaign(tmp_path / "four.yaml", name="four", base=str(SCRIPTED),
                               set={"duration_s": FLIGHT_S},
-                              grid={"perception.method": ["statistical", "none"], "seed": [1, 2, 3]})
+                              grid={"perception.method": ["statistical", "none"], "seed": [1, 2]})
     out = tmp_path / "out"
     proc = start_campaign(campaign, out, "--workers", "2")
     try:
@@ -55,13 +55,13 @@ def test_six_runs_complete_through_a_worker_kill_then_rerun_flies_nothing(tmp_pa
             os.killpg(proc.pid, signal.SIGKILL)
     assert rc == 0, stderr
     rows = _table(out)
-    assert len(rows) == 6 and all(r["run_status"] == "ok" and r["run_exit_status"] == 0 for r in rows), \
+    assert len(rows) == 4 and all(r["run_status"] == "ok" and r["run_exit_status"] == 0 for r in rows), \
         [r["run_status"] for r in rows]
     assert sorted((r["override.perception.method"], r["override.seed"]) for r in rows) == sorted(
-        (m, s) for m in ("statistical", "none") for s in (1, 2, 3))
+        (m, s) for m in ("statistical", "none") for s in (1, 2))
     assert all(r["override.duration_s"] == FLIGHT_S and r["sim_time_s"] >= FLIGHT_S - 0.5 for r in rows)
     assert {r["perception_method"] for r in rows} == {"statistical", "none"}
-    assert len({r["run_mavlink_tcp_port"] for r in rows}) == 6       # every run its own port
+    assert len({r["run_mavlink_tcp_port"] for r in rows}) == 4       # every run its own port
     for r in rows:   # what was flown is the planned scenario
         assert (out / "runs" / r["run_id"] / "summary.json").is_file()
     report = (out / "report.md").read_text()
@@ -73,9 +73,9 @@ def test_six_runs_complete_through_a_worker_kill_then_rerun_flies_nothing(tmp_pa
 
     rc, _stdout, stderr = _finish(start_campaign(campaign, out, "--workers", "2"))
     assert rc == 0, stderr
-    assert "6 already complete, 0 to fly" in stderr
+    assert "4 already complete, 0 to fly" in stderr
     assert {r["run_id"]: (out / "runs" / r["run_id"] / "campaign_run.json").read_text() for r in rows} == records
-    assert len(_table(out)) == 6
+    assert len(_table(out)) == 4
 
 
 def test_failing_run_is_recorded_and_the_others_complete(tmp_path):
@@ -100,7 +100,7 @@ def test_failing_run_is_recorded_and_the_others_complete(tmp_path):
 
 def test_ctrl_c_leaves_no_orphans_and_a_readable_table_then_resumes(tmp_path):
     campaign = write_campaign(tmp_path / "stop.yaml", name="stop", base=str(SCRIPTED),
-                              set={"duration_s": STOPPED_FLIGHT_S}, grid={"seed": [1, 2, 3, 4]})
+                              set={"duration_s": STOPPED_FLIGHT_S}, grid={"seed": [1, 2, 3]})
     out = tmp_path / "out"
     proc = start_campaign(campaign, out, "--workers", "2")
     try:
@@ -115,18 +115,18 @@ def test_ctrl_c_leaves_no_orphans_and_a_readable_table_then_resumes(tmp_path):
     assert rc == 130, stderr
     assert processes_mentioning(str(out)) == []         # no launcher, no node left on the worker host
     rows = _table(out)
-    assert len(rows) == 4
+    assert len(rows) == 3
     assert {r["run_status"] for r in rows} <= {"ok", "pending"} and "pending" in {r["run_status"] for r in rows}
     done_before = sum(r["run_status"] == "ok" for r in rows)
 
     rc, _stdout, stderr = _finish(start_campaign(campaign, out, "--workers", "2"))
     assert rc == 0, stderr
-    assert f"{done_before} already complete, {4 - done_before} to fly" in stderr
+    assert f"{done_before} already complete, {3 - done_before} to fly" in stderr
     assert all(r["run_status"] == "ok" for r in _table(out))
 
 
 def test_flight_over_its_time_limit_is_stopped_and_recorded(tmp_path):
-    campaign = write_campaign(tmp_path / "slow.yaml", name="slow", base=str(SCRIPTED), timeout_s=15,
+    campaign = write_campaign(tmp_path / "slow.yaml", name="slow", base=str(SCRIPTED), timeout_s=10,
                               set={"duration_s": 600}, grid={"seed": [1]})
     out = tmp_path / "out"
     rc, _stdout, stderr = _finish(start_campaign(campaign, out, "--workers", "1"))

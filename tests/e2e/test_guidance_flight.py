@@ -26,14 +26,19 @@ CRUISE_MIN_Z_M = 90.0
 pytestmark = pytest.mark.timeout(1200)
 
 
-def _run(out: Path, *overrides: str) -> dict:
+def _start(out: Path, *overrides: str) -> subprocess.Popen:
     # its own MAVLink port, no UDP output: other tests' flights may run beside this one
     overrides = (*overrides, f"autopilot.mavlink_tcp_port={free_port()}",
                  "autopilot.mavlink_udp_out=none")
     sets = [a for o in overrides for a in ("--set", o)]
-    r = subprocess.run([sys.executable, "-m", "scenenav.app.cli", "run", str(SCENARIO), "--out", str(out),
-                        "--quiet", *sets], capture_output=True, text=True, timeout=900, cwd=ROOT)
-    assert r.returncode == 0, r.stderr[-3000:]
+    return subprocess.Popen([sys.executable, "-m", "scenenav.app.cli", "run", str(SCENARIO), "--out", str(out),
+                             "--quiet", *sets], stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
+                            cwd=ROOT, stdin=subprocess.DEVNULL)
+
+
+def _finish(proc: subprocess.Popen, out: Path) -> dict:
+    _, stderr = proc.communicate(timeout=900)
+    assert proc.returncode == 0, stderr[-3000:]
     return json.loads((out / "summary.json").read_text())
 
 
@@ -43,9 +48,18 @@ def flights(tmp_path_factory):
     scen = yaml.safe_load(SCENARIO.read_text())
     start = scen["flight"]["start_enu_m"]
     goal = scen["guidance"]["goals_enu_m"][-1]
-    guided = _run(base / "guided")
-    straight = _run(base / "straight", "guidance.enabled=false",
-                    f"flight.route_enu_m=[[{start[0]},{start[1]}],[{goal[0]},{goal[1]}]]")
+    # the two flights side by side (lockstep: each waits on its own nodes, so they share the
+    # cores without changing what they fly)
+    procs = [_start(base / "guided"),
+             _start(base / "straight", "guidance.enabled=false",
+                    f"flight.route_enu_m=[[{start[0]},{start[1]}],[{goal[0]},{goal[1]}]]")]
+    try:
+        guided = _finish(procs[0], base / "guided")
+        straight = _finish(procs[1], base / "straight")
+    finally:
+        for p in procs:
+            if p.poll() is None:
+                p.kill()
     return {"guided": (base / "guided", guided), "straight": (base / "straight", straight),
             "start": np.array(start, float), "goal": np.array(goal, float), "scenario": scen}
 

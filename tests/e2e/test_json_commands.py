@@ -20,7 +20,7 @@ COMMANDS = {
     ("bench", "autopilot"): (["--hold-s", "0.2", "--settle-s", "0", "--leg-m", "10"], "hold_rms_m"),
     ("bench", "e2e"): (["--duration-s", "3", "--quiet"], "real_time_factor"),
     ("bench", "campaign"): (["--flights", "1", "--duration-s", "2"], "runs"),
-    ("bench", "soak"): (["--duration-s", "30", "--baseline-s", "10", "--swap-every-s", "10",
+    ("bench", "soak"): (["--duration-s", "20", "--baseline-s", "5", "--swap-every-s", "10",
                          "--fuzz-per-min", "600"], "no_dropped_tick"),
     ("experiment", "relief"): (["--world", "generated:seed=3,width_px=700,height_px=700", "--positions", "3",
                                 "--quiet"], "comparisons"),
