@@ -40,16 +40,22 @@ lint: install
 # shared flights (module-scoped fixtures) are flown once. TEST_WORKERS=0 runs the suite in one process.
 TEST_WORKERS ?= 2
 
-# The real-time SITL flights (marker `realtime`: MAVProxy, MAVSDK, the failsafes, ...) run
-# afterwards, apart from the lockstep part: beside its full-speed flights MAVSDK's mission, the
-# failsafe RTL's landing and the swap flight fell behind the wall clock, which is a test of the
-# machine, not of the code. Two of them at a time fit the two cores (paced flights leave CPU idle;
-# the physics waits for the autopilot, so a busy moment slows a flight instead of spoiling it);
-# they share no module fixtures, so they are dealt out one test at a time (--dist load).
+# The real-time SITL flights (marker `realtime`: MAVProxy, MAVSDK, the failsafes, ...) fly on the
+# wall clock and leave most of a core idle; the lockstep part is bound by the CPU and by nothing
+# else (a lockstep flight is the same flight however slowly it runs). So both run at once: the
+# real-time flights two at a time at normal priority, the lockstep part at `nice` 10 beside them,
+# taking whatever CPU they leave (a real-time flight once fell behind the wall clock beside
+# full-speed flights of equal priority: MAVSDK's mission, the failsafe RTL's landing, the swap
+# flight). The real-time part's report is printed after the lockstep part's; the target fails if
+# either failed. The real-time tests share no module fixtures: dealt out one test at a time.
 # `make lint` is its own target (CI runs both): `make test` is the suite alone.
+RT_LOG := .pytest-realtime.log
 test: install
-	$(PY) -m pytest -q -ra -n $(TEST_WORKERS) --dist loadscope --durations=40 -m "not realtime"
-	$(PY) -m pytest -q -ra -n $(TEST_WORKERS) --dist load --durations=10 -m realtime
+	@$(PY) -m pytest -q -ra -n $(TEST_WORKERS) --dist load --durations=10 -m realtime > $(RT_LOG) 2>&1 & rt=$$!; \
+	nice -n 10 $(PY) -m pytest -q -ra -n $(TEST_WORKERS) --dist loadscope --durations=40 -m "not realtime"; lock=$$?; \
+	wait $$rt; rts=$$?; \
+	echo "== the real-time tests (marker realtime), run alongside at normal priority"; cat $(RT_LOG); \
+	test $$lock -eq 0 && test $$rts -eq 0
 
 bench: install
 	$(VENV)/bin/scenenav bench sim
