@@ -23,7 +23,7 @@ pytestmark = pytest.mark.slow
 #: The flights of the campaigns that run to the end: short, the campaign machinery is under test.
 FLIGHT_S = 10
 #: The flights of the Ctrl-C test: long enough that two are in the air when the signal comes.
-STOPPED_FLIGHT_S = 20
+STOPPED_FLIGHT_S = 12
 
 
 def _table(out):

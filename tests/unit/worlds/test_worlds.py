@@ -23,14 +23,8 @@ from worlds.world import World, load_world
 FOOTPRINT_PX = 217   # camera footprint at 100 m (60 deg FOV) at 0.53 m/px
 
 
-@pytest.fixture(scope="module")
-def default_world() -> World:
-    return generate_world(CityConfig())
-
-
-@pytest.fixture(scope="module")
-def small_world() -> World:
-    return generate_world(CityConfig(seed=3, width_px=600, height_px=600))
+# default_world (the cached default world) and small_world (seed 3, 600x600 px, generated once per
+# session): tests/conftest.py
 
 
 # ------------------------------------------------------------------------------------------------
