@@ -65,7 +65,7 @@ def test_one_line_error_exit_2(tmp_path, args, needle):
 def test_every_subcommand_has_help(capsys):
     r = scenenav("--help")                      # the installed entry point, once
     assert r.returncode == 0
-    from scenenav.app.cli import main          # each command's help through the same main()
+    from scenenav.app.cli import main  # each command's help through the same main()
     for cmd in ("run", "world", "node", "bench", "experiment", "assistant-map", "plan"):
         assert cmd in r.stdout
         with pytest.raises(SystemExit) as exc:
