@@ -97,20 +97,45 @@ class NodeFailure:
         return f"{self.node} {exit_description(self.exit_code)}{at}{why}"
 
 
-def last_sim_time_s(run_dir: Path) -> float | None:
-    """The newest simulated time of truth.csv (read from its end), None if it has no row."""
+def _last_row(path: Path) -> list[bytes] | None:
+    """The last complete row of a CSV the recorder is appending to (read from its end), None if
+    it has no row after its header."""
     try:
-        with (Path(run_dir) / "truth.csv").open("rb") as f:
+        with path.open("rb") as f:
             f.seek(max(0, f.seek(0, 2) - 2000))
             lines = [ln for ln in f.read().splitlines() if ln.strip()]
     except OSError:
         return None
     for line in reversed(lines):
+        fields = line.split(b",")
         try:
-            return float(line.split(b",")[0])
+            float(fields[0])
         except ValueError:
             continue
+        return fields
     return None
+
+
+def last_sim_time_s(run_dir: Path) -> float | None:
+    """The newest simulated time of truth.csv, None if it has no row."""
+    row = _last_row(Path(run_dir) / "truth.csv")
+    return None if row is None else float(row[0])
+
+
+@dataclass(frozen=True)
+class RecordedStatus:
+    """The autopilot's newest status row in status.csv (t_s, armed, mode, landed, ...)."""
+
+    armed: bool
+    landed: bool
+
+
+def last_status(run_dir: Path) -> RecordedStatus | None:
+    """status.csv's newest row, None while it has none."""
+    row = _last_row(Path(run_dir) / "status.csv")
+    if row is None or len(row) < 4:
+        return None
+    return RecordedStatus(armed=row[1].strip() == b"1", landed=row[3].strip() == b"1")
 
 
 def _interp_truth(truth: dict, t: np.ndarray) -> tuple[np.ndarray, np.ndarray]:

@@ -34,7 +34,7 @@ from pathlib import Path
 
 import yaml
 
-from scenenav.app.evaluation import NodeFailure, last_sim_time_s
+from scenenav.app.evaluation import NodeFailure, last_sim_time_s, last_status
 from scenenav.app.mavlink_claim import DEFAULT_SYSID, SysidClaim, claim_sysid
 from scenenav.app.nodes import EXIT_EXTERNAL_MISSING, HUB_FILE
 
@@ -719,6 +719,19 @@ def _fixes_from(run_dir: Path, node_id: str, since_offset: int = 0) -> bool:
     return f",{node_id},".encode() in _tail(path, min(20000, max(0, size - since_offset)))
 
 
+#: The nodes without which a mission cannot start: the autopilot flies it, the guidance node plans,
+#: uploads and starts it.
+MISSION_STARTERS = ("autopilot", "guidance")
+
+
+def grounded_death_text(failures: list[NodeFailure]) -> str:
+    """Why the launcher stopped an autopilot run whose node died with the vehicle never armed."""
+    names = ", ".join(f.node for f in failures)
+    return (f"stopped the run before take-off: {names} failed with the vehicle still disarmed on the "
+            "ground (see " + ", ".join(f"logs/{f.node}.log" for f in failures) + "); its mission could "
+            "not start, and the run would only have idled to its duration")
+
+
 def startup_death_text(failures: list[NodeFailure]) -> str:
     """Why the launcher stopped a run whose nodes died before the simulator's first tick."""
     names = ", ".join(f.node for f in failures)
@@ -731,21 +744,34 @@ def _wait_sim(sim: Child, launch: Launch, cfg: ScenarioConfig, progress: bool,
               swap: PerceptionSwap | None = None, watch: ChildWatch | None = None,
               disk: DiskWatch | None = None) -> str | None:
     """Wait for the simulator to end; show progress from its log of simulated time. Returns why the
-    run was ended early (a node the simulator waits for died before its first tick: flying without
-    it is not what the scenario asked for), else None."""
+    run was ended early, else None: a node the simulator waits for died before its first tick
+    (flying without it is not what the scenario asked for), or, in an autopilot flight, one of the
+    ``MISSION_STARTERS`` died while the vehicle had never armed (a guidance node without a route,
+    say: the mission cannot start, and the simulator would idle on the ground to the duration)."""
     bar = None
     if progress and sys.stderr.isatty():
         from tqdm import tqdm
         bar = tqdm(total=round(cfg.duration_s), unit="sim s", desc=cfg.name, leave=False)
     watch = watch or ChildWatch(launch, time.time())
+    autopilot_flight = cfg.flight.mode == FlightMode.AUTOPILOT
+    ever_armed = False
     while sim.proc.poll() is None:
         watch.poll()
-        if watch.failures and last_sim_time_s(launch.run_dir) is None:
+        status = last_status(launch.run_dir) if autopilot_flight else None
+        ever_armed = ever_armed or (status is not None and (status.armed or not status.landed))
+        grounded = status is not None and not ever_armed
+        if watch.failures:
             dead = [f for f in watch.failures if f.node not in ("sim", "live")]
-            if dead:
+            why = None
+            if dead and last_sim_time_s(launch.run_dir) is None:
+                why = startup_death_text(dead)
+            elif grounded and not watch.failed("recorder"):     # status.csv is the recorder's
+                blocking = [f for f in dead if f.node in MISSION_STARTERS]
+                why = grounded_death_text(blocking) if blocking else None
+            if why is not None:
                 if bar is not None:
                     bar.close()
-                return startup_death_text(dead)
+                return why
         if disk is not None:
             disk.check()
         time.sleep(0.25)
