@@ -132,10 +132,12 @@ class RecordedStatus:
 
 def last_status(run_dir: Path) -> RecordedStatus | None:
     """status.csv's newest row, None while it has none."""
+    from scenenav.app.recorder import STATUS_COLUMNS
     row = _last_row(Path(run_dir) / "status.csv")
-    if row is None or len(row) < 4:
+    if row is None or len(row) != len(STATUS_COLUMNS):
         return None
-    return RecordedStatus(armed=row[1].strip() == b"1", landed=row[3].strip() == b"1")
+    armed, landed = (row[STATUS_COLUMNS.index(c)].strip() == b"1" for c in ("armed", "landed"))
+    return RecordedStatus(armed=armed, landed=landed)
 
 
 def _interp_truth(truth: dict, t: np.ndarray) -> tuple[np.ndarray, np.ndarray]:

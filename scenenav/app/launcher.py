@@ -776,9 +776,9 @@ def _wait_sim(sim: Child, launch: Launch, cfg: ScenarioConfig, progress: bool,
             disk.check()
         time.sleep(0.25)
         if swap is not None:
-            swap.poll(_sim_progress(launch.run_dir))
+            swap.poll(last_sim_time_s(launch.run_dir))
         if bar is not None:
-            t = _sim_progress(launch.run_dir)
+            t = last_sim_time_s(launch.run_dir)
             if t is not None:
                 bar.n = min(round(t), bar.total)
                 bar.refresh()
@@ -786,10 +786,3 @@ def _wait_sim(sim: Child, launch: Launch, cfg: ScenarioConfig, progress: bool,
         bar.close()
     watch.poll()        # the simulator's own exit, if it failed
     return None
-
-
-def _sim_progress(run_dir: Path) -> float | None:
-    try:
-        return float(_tail(run_dir / "truth.csv", 400).splitlines()[-1].split(b",")[0])
-    except (IndexError, ValueError):
-        return None
