@@ -258,6 +258,8 @@ class PerceptionNodeConfig:
     swap_method: str = "statistical"   # method of that second node (perception-2)
     swap_every_s: float = 0.0          # > 0 (with swap_at_s > 0): swap again every this many simulated s,
                                        # back and forth between the two nodes and their methods
+    max_restarts: int = 2              # the launcher starts our perception node again when it fails in
+                                       # flight, at most this many times a run (docs/faults.md); 0 = never
     alignment: str = "rotation-scale"  # FIXED-mount frames: rotation-scale (as if nadir) or homography
                                        # (from the autopilot's estimated roll and pitch; docs/perception.md)
     # the footprint the area rating was made for is PerceptionConfig.rated_altitude_m's (100 m);
@@ -317,6 +319,8 @@ class PerceptionNodeConfig:
         check(not (self.decision_rule == "combined" and self.weights.endswith(".pt")), "weights",
               self.weights, "empty with decision_rule combined (the decision model names the CNN it "
               "was fitted with; choose another model with decision_model)")
+        check(type(self.max_restarts) is int and 0 <= self.max_restarts <= 100, "max_restarts",
+              self.max_restarts, "an integer number of restarts in [0, 100] (0 = never restart)")
         check(self.swap_at_s >= 0, "swap_at_s", self.swap_at_s, ">= 0 s (0 = no swap)")
         check(self.swap_method in methods, "swap_method", self.swap_method,
               "one of cnn, assistant-map, statistical, none")

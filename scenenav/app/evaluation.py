@@ -669,6 +669,8 @@ def format_summary(summary: dict) -> str:
                          f"{100.0 * b['share_over_threshold']:.1f} % over {split['threshold_m']:g} m")
     for f in summary.get("node_failures") or ():
         lines.append(f"  node failure               {f['what']}")
+    for r in summary.get("node_restarts") or ():
+        lines.append(f"  node restart               {r['what']}")
     for m in summary.get("missing") or ():
         lines.append(f"  missing                    {m}")
     for n in summary.get("notes") or ():

@@ -73,6 +73,7 @@ class Child:
     log_file: object
     log_path: Path | None = None
     stopping: bool = False        # the launcher is stopping it: its exit is not a failure
+    args: list[str] = field(default_factory=list)   # what ``Launch.spawn`` was given (a restart's)
 
 
 RUN_FILE = "run.json"
@@ -117,7 +118,7 @@ class Launch:
         with stop_signals_deferred():     # a Ctrl-C now would leave a started child unrecorded
             proc = subprocess.Popen(cmd, stdout=f, stderr=subprocess.STDOUT, stdin=subprocess.DEVNULL,
                                     start_new_session=True, preexec_fn=die_with_parent)
-            child = Child(name, proc, f, logs / f"{name}.log")
+            child = Child(name, proc, f, logs / f"{name}.log", args=list(args))
             self.children.append(child)
         pids = {c.name: c.proc.pid for c in self.children}
         # atomic: tests, benchmarks and campaign clean-up read it while the next child starts
@@ -518,6 +519,7 @@ def _fly(cfg: ScenarioConfig, world, scenario_path: str | None, out_dir: str, pr
     abort: str | None = None
     wall0 = time.time()
     watch = ChildWatch(launch, wall0)
+    restarter = NodeRestarter(launch, cfg.perception.max_restarts, wall0)
     disk = DiskWatch(run_dir)
     try:
         for attempt in range(HUB_ATTEMPTS):
@@ -545,7 +547,7 @@ def _fly(cfg: ScenarioConfig, world, scenario_path: str | None, out_dir: str, pr
             announce(external_wait_text(cfg, run_dir))
         swap = PerceptionSwap(launch, cfg) if cfg.perception.enabled and cfg.perception.swap_at_s > 0 \
             and not cfg.external.of_role("perception") else None
-        abort = _wait_sim(sim, launch, cfg, progress, swap, watch, disk)
+        abort = _wait_sim(sim, launch, cfg, progress, swap, watch, disk, restarter)
         if abort:
             log.error("%s", abort)
         elif sim.proc.returncode == EXIT_EXTERNAL_MISSING:
@@ -562,11 +564,12 @@ def _fly(cfg: ScenarioConfig, world, scenario_path: str | None, out_dir: str, pr
         watch.poll()     # a death seen only now is still a death, not a stop
         launch.stop_all(STOP_STAGES)
     wall = time.time() - wall0
-    return _finish(launch, cfg, world, wall, interrupted, watch, abort)
+    return _finish(launch, cfg, world, wall, interrupted, watch, abort, restarter.restarts)
 
 
 def _finish(launch: Launch, cfg: ScenarioConfig, world, wall: float, interrupted: bool,
-            watch: "ChildWatch", abort: str | None = None) -> dict:
+            watch: "ChildWatch", abort: str | None = None,
+            restarts: list[NodeRestart] | None = None) -> dict:
     """After every child stopped: recover bus.mcap if needed, write the summary and the plot."""
     from scenenav.app.evaluation import evaluate_run
     from scenenav.app.recorder import recover_mcap
@@ -581,9 +584,13 @@ def _finish(launch: Launch, cfg: ScenarioConfig, world, wall: float, interrupted
         summary = evaluate_run(run_dir, cfg, world, wall_time_s=wall, interrupted=interrupted,
                                failures=tuple(watch.failures), recorder_stopped_early=recorder_early,
                                abort_reason=abort)
-        failed = [f.node for f in watch.failures]
-        if failed:
-            summary["failed_nodes"] = failed
+        failed = list(dict.fromkeys(f.node for f in watch.failures))
+        if failed or restarts:
+            if failed:
+                summary["failed_nodes"] = failed
+            if restarts:
+                summary["node_restarts"] = [dataclasses.asdict(r) | {"what": r.describe()}
+                                            for r in restarts]
             write_atomic(run_dir / "summary.json", json.dumps(summary, indent=2))
     except OSError as exc:
         raise UserError(disk_error_line(run_dir, exc)) from None
@@ -624,6 +631,69 @@ class ChildWatch:
 
     def failed(self, name: str) -> bool:
         return any(f.node == name for f in self.failures)
+
+
+@dataclass(frozen=True)
+class NodeRestart:
+    """A perception node the launcher started again after it failed (``perception.max_restarts``)."""
+
+    node: str
+    wall_time_s: float            # since the launch
+    sim_time_s: float | None      # newest simulated time in truth.csv when it was restarted
+
+    def describe(self) -> str:
+        at = f" at t={self.sim_time_s:.1f} s" if self.sim_time_s is not None else ""
+        return f"{self.node} restarted{at}"
+
+
+#: The children the launcher starts again when they fail in flight: our perception nodes. What they
+#: hold (a track, a learnt heading offset) is rebuilt from the next frames and the autopilot's
+#: estimate; an autopilot, a guidance node or the recorder cannot be restarted without losing the
+#: mission, its plan or the recording.
+RESTARTABLE = ("perception", SWAP_NODE_ID)
+
+
+class NodeRestarter:
+    """Starts a perception node again (same node id, same arguments, its log appended to) when it
+    failed after the simulator's first tick and no other perception node of the run is running
+    (a swap's other node serves then), at most ``max_restarts`` times in a run. A companion
+    computer's supervisor does the same; without it a GPS-denied vehicle whose perception died would
+    never get another fix. A death before the first tick is not restarted: the launcher stops that
+    run (``startup_death_text``). Poll it after ``ChildWatch.poll``, which reports the failure."""
+
+    def __init__(self, launch: Launch, max_restarts: int, wall0: float) -> None:
+        self.launch = launch
+        self.left = max_restarts
+        self.max_restarts = max_restarts
+        self.wall0 = wall0
+        self.restarts: list[NodeRestart] = []
+        self._handled: set[int] = set()
+
+    def poll(self) -> None:
+        for c in list(self.launch.children):
+            if c.name not in RESTARTABLE or c.stopping or c.proc.pid in self._handled:
+                continue
+            code = c.proc.poll()
+            if code is None:
+                continue
+            self._handled.add(c.proc.pid)
+            sim_t = last_sim_time_s(self.launch.run_dir)
+            if code in _CLEAN_EXITS or sim_t is None:
+                continue
+            if any(o.name in RESTARTABLE and not o.stopping and o.proc.poll() is None
+                   for o in self.launch.children):
+                log.warning("%s not restarted: another perception node of the run is running", c.name)
+                continue
+            if self.left <= 0:
+                log.error("%s not restarted: perception.max_restarts (%d) used up; the run goes on "
+                          "without perception", c.name, self.max_restarts)
+                continue
+            self.left -= 1
+            self.launch.spawn(c.name, c.args)
+            r = NodeRestart(c.name, round(time.time() - self.wall0, 3), sim_t)
+            self.restarts.append(r)
+            log.warning("%s (restart %d of perception.max_restarts %d)", r.describe(),
+                        len(self.restarts), self.max_restarts)
 
 
 _ERROR_LINE = re.compile(r"\b(ERROR|CRITICAL|FATAL)\b|^error: |^\w+(Error|Exception): ")
@@ -678,6 +748,17 @@ class PerceptionSwap:
                 self.swaps += 1
                 log.info("perception swap %d at %.1f s: %s -> %s (%s)", self.swaps, sim_t_s,
                          self._active, self._incoming, method)
+            return
+        incoming = [c for c in self.launch.children if c.name == self._incoming]
+        if incoming and incoming[-1].proc.poll() is not None and not incoming[-1].stopping:
+            # it died before taking over: the node in charge stays (stopping it would leave none)
+            log.warning("swap %d abandoned: %s exited before its first fix; %s stays in charge",
+                        self.swaps, self._incoming, self._active)
+            self.started_wall = None
+            if p.swap_every_s > 0:
+                self._next_at_s += p.swap_every_s
+            else:
+                self.done = True
             return
         answered = _fixes_from(self.launch.run_dir, self._incoming, self._fixes_offset)
         late = time.monotonic() - self.started_wall > SWAP_HANDOVER_TIMEOUT_S
@@ -742,7 +823,7 @@ def startup_death_text(failures: list[NodeFailure]) -> str:
 
 def _wait_sim(sim: Child, launch: Launch, cfg: ScenarioConfig, progress: bool,
               swap: PerceptionSwap | None = None, watch: ChildWatch | None = None,
-              disk: DiskWatch | None = None) -> str | None:
+              disk: DiskWatch | None = None, restarter: NodeRestarter | None = None) -> str | None:
     """Wait for the simulator to end; show progress from its log of simulated time. Returns why the
     run was ended early, else None: a node the simulator waits for died before its first tick
     (flying without it is not what the scenario asked for), or, in an autopilot flight, one of the
@@ -757,6 +838,8 @@ def _wait_sim(sim: Child, launch: Launch, cfg: ScenarioConfig, progress: bool,
     ever_armed = False
     while sim.proc.poll() is None:
         watch.poll()
+        if restarter is not None:
+            restarter.poll()
         status = last_status(launch.run_dir) if autopilot_flight else None
         ever_armed = ever_armed or (status is not None and (status.armed or not status.landed))
         grounded = status is not None and not ever_armed

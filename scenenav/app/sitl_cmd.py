@@ -16,6 +16,7 @@ file first (sim_vehicle.py ``-w``).
 
 from __future__ import annotations
 
+import dataclasses
 import json
 import logging
 import socket
@@ -29,6 +30,7 @@ from scenenav.app.launcher import (
     HUB_ATTEMPTS,
     STOP_STAGES,
     Launch,
+    NodeRestarter,
     announce_live,
     await_hub,
     external_wait_text,
@@ -213,6 +215,7 @@ def _run_sitl(opts: SitlOptions, announce: Callable[[str], None]) -> dict:
 
     interrupted = False
     reason = "stopped"
+    restarter: NodeRestarter | None = None
     wall0 = time.time()
     try:
         for attempt in range(HUB_ATTEMPTS):
@@ -231,7 +234,8 @@ def _run_sitl(opts: SitlOptions, announce: Callable[[str], None]) -> dict:
             announce(external_wait_text(cfg, run_dir))
         if opts.live_port is not None:
             announce_live(launch, announce)
-        reason = _supervise(launch)
+        restarter = NodeRestarter(launch, cfg.perception.max_restarts, wall0)
+        reason = _supervise(launch, restarter)
         if reason:
             announce(f"scenenav sitl: {reason}; stopping")
     except KeyboardInterrupt:
@@ -242,9 +246,14 @@ def _run_sitl(opts: SitlOptions, announce: Callable[[str], None]) -> dict:
     from scenenav.app.evaluation import evaluate_run
     summary = evaluate_run(run_dir, cfg, world, wall_time_s=time.time() - wall0,
                            interrupted=interrupted)
-    failed = [c.name for c in launch.children if c.proc.returncode not in (0, None, -2, 130)]
-    if failed:
-        summary["failed_nodes"] = failed
+    failed = list(dict.fromkeys(c.name for c in launch.children
+                                if c.proc.returncode not in (0, None, -2, 130)))
+    if failed or (restarter is not None and restarter.restarts):
+        if failed:
+            summary["failed_nodes"] = failed
+        if restarter is not None and restarter.restarts:
+            summary["node_restarts"] = [dataclasses.asdict(r) | {"what": r.describe()}
+                                        for r in restarter.restarts]
         write_atomic(run_dir / "summary.json", json.dumps(summary, indent=2))
     return summary
 
@@ -267,11 +276,12 @@ def _wait_ready(run_dir: Path, autopilot) -> dict:
                     f"{READY_TIMEOUT_S:.0f} s (see {run_dir / 'logs' / 'autopilot.log'})")
 
 
-def _supervise(launch: Launch) -> str:
-    """Wait until the simulator or the autopilot ends; return why."""
-    reported: set[str] = set()
+def _supervise(launch: Launch, restarter: NodeRestarter) -> str:
+    """Wait until the simulator or the autopilot ends; return why. A perception node that fails in
+    flight is started again (``NodeRestarter``)."""
+    reported: set[int] = set()
     while True:
-        for c in launch.children:
+        for c in list(launch.children):
             code = c.proc.poll()
             if code is None:
                 continue
@@ -281,7 +291,8 @@ def _supervise(launch: Launch) -> str:
                 # before the first tick: the simulator would wait for it, then fly without it
                 return (f"{c.name} exited with code {code} while the run was starting "
                         f"(see logs/{c.name}.log)")
-            if code != 0 and c.name not in reported:
-                reported.add(c.name)
+            if code != 0 and c.proc.pid not in reported and not c.stopping:
+                reported.add(c.proc.pid)
                 log.error("%s exited with code %s (see logs/%s.log)", c.name, code, c.name)
+        restarter.poll()
         time.sleep(0.25)

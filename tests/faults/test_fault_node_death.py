@@ -2,7 +2,8 @@
 
 * SIGKILL of the simulator: no process of the run survives (the camera render worker included),
   the summary says the simulator died and when.
-* SIGKILL of perception: said once on the terminal, with the reason, and in the summary.
+* SIGKILL of perception in a GPS-denied flight: said once on the terminal, with the reason, and in
+  the summary; the node is started again and the vehicle, which cannot arm without its fixes, flies.
 * A node the simulator waits for dies while the run is starting: the run is stopped before take-off
   (not flown without it after the simulator's start-up timeout), said on one line and in the summary.
 * SIGKILL of the recorder: bus.mcap opens with the standard mcap reader (recovered from its whole
@@ -57,21 +58,38 @@ def test_sigkill_of_the_simulator_leaves_no_process(runs, tmp_path):
     assert "Traceback" not in r.stderr
 
 
-def test_a_dying_child_is_reported_once_with_its_reason(runs, tmp_path):
-    r = _start(runs, tmp_path, "perception")
-    r.wait_sim_time(3.0)
-    r.kill_node("perception", signal.SIGKILL)
+def test_a_dying_perception_node_is_reported_once_and_restarted(runs, tmp_path):
+    # GPS-denied: the autopilot cannot arm without vision fixes, so the restarted node is what lets
+    # the mission start (the vehicle learns its gyro bias on the ground for about 44 s first)
+    r = FaultRun(tmp_path / "perception", "--set", "duration_s=50", scenario="scenarios/gps_denied.yaml")
+    runs.append(r)
+    killed_at = r.wait_sim_time(2.0)
+    first = r.kill_node("perception", signal.SIGKILL)
+    deadline = time.monotonic() + 120.0
+    while r.pids().get("perception") in (None, first):
+        assert time.monotonic() < deadline and r.proc.poll() is None, "perception was not restarted"
+        time.sleep(0.1)
+    pids = r.group_pids()
     code = r.finish()
-    assert code == 1
+    assert code == 1                                     # a node failed, even if it came back
     lines = [ln for ln in r.stderr.splitlines() if "perception killed by SIGKILL" in ln]
     assert len(lines) == 1, r.stderr[-3000:]
     assert "logs/perception.log" in lines[0]
+    assert sum("perception restarted at t=" in ln for ln in r.stderr.splitlines()) == 1, r.stderr[-3000:]
+    assert wait_gone(pids) == set(), "processes of the run outlived it"
     s = r.summary()
-    assert s["end_reason"] == "duration reached"      # the flight itself went on
+    assert s["end_reason"] == "duration reached"         # the flight itself went on
     (failure,) = s["node_failures"]
     assert failure["node"] == "perception" and failure["exit_code"] == -signal.SIGKILL
-    assert failure["sim_time_s"] is not None and failure["sim_time_s"] >= 3.0
+    assert failure["sim_time_s"] is not None and failure["sim_time_s"] >= killed_at
     assert s["failed_nodes"] == ["perception"]
+    (restart,) = s["node_restarts"]
+    assert restart["node"] == "perception" and restart["sim_time_s"] >= failure["sim_time_s"]
+    with (r.run_dir / "fixes.csv").open(newline="") as f:
+        later = [row for row in csv.DictReader(f) if float(row["t_s"]) > restart["sim_time_s"] + 1.0]
+    assert later and {row["node_id"] for row in later} == {"perception"}, "no fix after the restart"
+    with (r.run_dir / "status.csv").open(newline="") as f:
+        assert any(row["armed"] == "1" for row in csv.DictReader(f)), "the mission never started"
 
 
 def test_a_node_dying_before_take_off_stops_the_run(runs, tmp_path):

@@ -7,47 +7,13 @@ the real swap on a live bus is flown by tests/e2e/test_perception_swap.py.
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field
-from pathlib import Path
+from support.fake_launch import FakeLaunch as _Launch
 
 from scenenav.app.launcher import SWAP_NODE_ID, PerceptionSwap
 from scenenav.app.scenario import load_scenario
 
 
-class _Proc:
-    def __init__(self) -> None:
-        self.code = None
-
-    def poll(self):
-        return self.code
-
-    def send_signal(self, _sig) -> None:
-        self.code = 0
-
-    def wait(self, _timeout=None):
-        return self.code
-
-
-@dataclass
-class _Child:
-    name: str
-    args: list[str]
-    proc: _Proc = field(default_factory=_Proc)
-    stopping: bool = False
-
-
-@dataclass
-class _Launch:
-    run_dir: Path
-    children: list[_Child] = field(default_factory=list)
-
-    def spawn(self, name: str, args: list[str]) -> _Child:
-        c = _Child(name, args)
-        self.children.append(c)
-        return c
-
-
-def _fix(run_dir: Path, node: str) -> None:
+def _fix(run_dir, node: str) -> None:
     with (run_dir / "fixes.csv").open("a") as f:
         f.write(f"1.0,1,{node},cnn,1,1,0,0\n")
 
@@ -93,3 +59,19 @@ def test_one_swap_without_swap_every_s(tmp_path):
     assert swap.done
     swap.poll(100.0)
     assert len(launch.children) == 2
+
+
+def test_a_swap_whose_new_node_dies_is_abandoned_and_the_old_node_kept(tmp_path):
+    cfg = load_scenario(None, ("perception.swap_at_s=10", "perception.swap_every_s=20"))
+    launch = _Launch(tmp_path)
+    first = launch.spawn("perception", ["perception"])
+    swap = PerceptionSwap(launch, cfg)
+    swap.poll(10.0)
+    second = launch.children[-1]
+    second.proc.die(1)                                   # crashed while loading
+    swap.poll(11.0)
+    assert first.proc.poll() is None                     # still in charge, not stopped for nothing
+    swap.poll(29.0)
+    assert len(launch.children) == 2                     # the next swap keeps its schedule
+    swap.poll(30.0)
+    assert launch.children[-1].name == SWAP_NODE_ID and swap.swaps == 2
