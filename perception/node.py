@@ -324,7 +324,7 @@ class PerceptionNode:
         self._answer_invalid(msg, Reason.CAMERA_MISMATCH, diag=True)
 
     def _work(self) -> None:
-        from perception.pipeline import BadInput
+        from perception.pipeline import BadInput, Reason
         while not self._stop.is_set():
             try:
                 item = self._queue.get(timeout=0.2)
@@ -351,6 +351,11 @@ class PerceptionNode:
                 elif not (math.isfinite(heading) and math.isfinite(altitude)):
                     self._drop("nan_sensor", msg)
                     self._answer_invalid(msg)
+                elif altitude <= 0.0:
+                    # a vehicle on the ground: its barometric height wanders around 0 (noise, drift,
+                    # the rotors' ground effect): nothing to match, and nothing wrong with the input
+                    self.stats["altitude_at_or_below_ground"] += 1
+                    self._answer_invalid(msg, Reason.TEMPLATE_TOO_SMALL)
                 else:
                     if self.homography and msg.mount == "fixed" and tilt is None:
                         self.stats["homography_without_estimate"] += 1

@@ -92,6 +92,22 @@ def test_garbage_dropped_good_frames_fixed(world):
         assert node.bus.dropped[keys.compass] == 1
 
 
+def test_a_frame_taken_on_the_ground_is_answered_invalid_without_a_warning(world):
+    """Barometric height at or below 0 (a vehicle on the ground: noise, drift, ground effect) is no
+    bad input: the frame gets an invalid fix and its ack, counted, with no warning event."""
+    with _live_node(world) as (hub, keys, node, fixes, acks):
+        hub.publish(keys.baro, BaroSample(500, -0.4, 101330.0))
+        hub.publish(keys.camera, _frame(world, 0, 1000))
+        hub.publish(keys.baro, BaroSample(1500, 100.0, 100129.0))
+        hub.publish(keys.camera, _frame(world, 1, 2000))
+        _wait_for(acks, 2)
+        assert [f.frame_seq for f in fixes] == [0, 1]
+        assert not fixes[0].valid and not fixes[0].accepted
+        assert fixes[1].valid
+        assert node.stats["altitude_at_or_below_ground"] == 1
+        assert node.stats["dropped_bad_input"] == 0
+
+
 def test_confirmation_holds_each_fix_for_its_successors_and_keeps_the_frame_order(world):
     """perception.confirm_successors 2: frame k's fix leaves with frame k + 2 (before that frame's
     ack, so lockstep stays repeatable), confirmed by the two matches after it; a refused frame keeps
