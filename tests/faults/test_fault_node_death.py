@@ -58,27 +58,40 @@ def test_sigkill_of_the_simulator_leaves_no_process(runs, tmp_path):
     assert "Traceback" not in r.stderr
 
 
+def _armed(run_dir) -> bool:
+    try:
+        with (run_dir / "status.csv").open(newline="") as f:
+            return any(row.get("armed") == "1" for row in csv.DictReader(f))
+    except OSError:
+        return False
+
+
 def test_a_dying_perception_node_is_reported_once_and_restarted(runs, tmp_path):
     # GPS-denied: the autopilot cannot arm without vision fixes, so the restarted node is what lets
-    # the mission start (the vehicle learns its gyro bias on the ground for about 44 s first)
-    r = FaultRun(tmp_path / "perception", "--set", "duration_s=50", scenario="scenarios/gps_denied.yaml")
+    # the mission start (the vehicle learns its gyro bias on the ground for about 44 s first). The
+    # clock runs on while the node reloads (longer on a loaded machine), hence the long duration;
+    # the run is stopped with Ctrl-C once the vehicle has armed.
+    r = FaultRun(tmp_path / "perception", "--set", "duration_s=300", scenario="scenarios/gps_denied.yaml")
     runs.append(r)
     killed_at = r.wait_sim_time(2.0)
     first = r.kill_node("perception", signal.SIGKILL)
-    deadline = time.monotonic() + 120.0
-    while r.pids().get("perception") in (None, first):
-        assert time.monotonic() < deadline and r.proc.poll() is None, "perception was not restarted"
-        time.sleep(0.1)
+    deadline = time.monotonic() + 240.0
+    while not _armed(r.run_dir):
+        assert time.monotonic() < deadline and r.proc.poll() is None, "the mission never started"
+        time.sleep(0.2)
+    assert r.pids()["perception"] != first
     pids = r.group_pids()
+    os.killpg(r.proc.pid, signal.SIGINT)
     code = r.finish()
-    assert code == 1                                     # a node failed, even if it came back
+    assert code == 130, r.stderr[-3000:]
     lines = [ln for ln in r.stderr.splitlines() if "perception killed by SIGKILL" in ln]
     assert len(lines) == 1, r.stderr[-3000:]
     assert "logs/perception.log" in lines[0]
     assert sum("perception restarted at t=" in ln for ln in r.stderr.splitlines()) == 1, r.stderr[-3000:]
+    assert "Traceback" not in r.stderr
     assert wait_gone(pids) == set(), "processes of the run outlived it"
     s = r.summary()
-    assert s["end_reason"] == "duration reached"         # the flight itself went on
+    assert s["end_reason"] == "interrupted"
     (failure,) = s["node_failures"]
     assert failure["node"] == "perception" and failure["exit_code"] == -signal.SIGKILL
     assert failure["sim_time_s"] is not None and failure["sim_time_s"] >= killed_at
@@ -88,8 +101,6 @@ def test_a_dying_perception_node_is_reported_once_and_restarted(runs, tmp_path):
     with (r.run_dir / "fixes.csv").open(newline="") as f:
         later = [row for row in csv.DictReader(f) if float(row["t_s"]) > restart["sim_time_s"] + 1.0]
     assert later and {row["node_id"] for row in later} == {"perception"}, "no fix after the restart"
-    with (r.run_dir / "status.csv").open(newline="") as f:
-        assert any(row["armed"] == "1" for row in csv.DictReader(f)), "the mission never started"
 
 
 def test_a_node_dying_before_take_off_stops_the_run(runs, tmp_path):
