@@ -85,6 +85,7 @@ class SimStats:
     camera_frames: int = 0
     #: frames not published because every camera member was suspended (frozen) at the time
     camera_frames_withheld: int = 0
+    camera_rejoin_waits: int = 0      # lockstep: times the clock waited for a camera member to join again
     ack_timeouts: int = 0
     time_physics_s: float = 0.0
     time_render_s: float = 0.0
@@ -147,6 +148,7 @@ class SimulatorNode:
         self._motor_lock = threading.Lock()
         self._motor: tuple[float, ...] = (0.0, 0.0, 0.0, 0.0)
         self._stop = threading.Event()
+        self._rejoin_given_up = False     # clock.rejoin_timeout_s ran out for this shortage
         self._mission_done = threading.Event()
         self._landed_early = threading.Event()
         # simulated time (us) of the AutopilotStatus that ended the mission; the run ends
@@ -215,6 +217,36 @@ class SimulatorNode:
         log.info("%s", text)
 
     # ------------------------------------------------------------------------------- loop
+    def _await_camera_rejoin(self, t_s: float, t_us: int) -> None:
+        """Lockstep, before a frame: with fewer camera members than the run expected (one died or
+        left), wait up to ``clock.rejoin_timeout_s`` wall seconds for one to join, once per
+        shortage: a restarted perception node takes seconds to load, and without the wait the clock
+        would fly those seconds (tens of simulated ones) without it."""
+        expected = self.cfg.expected_camera_members
+        timeout_s = self.cfg.clock.rejoin_timeout_s
+        present = self.barrier.members(LockstepRole.CAMERA)
+        if len(present) >= expected:
+            self._rejoin_given_up = False
+            return
+        if self._rejoin_given_up or timeout_s <= 0.0 or self._stop.is_set():
+            return
+        self.event(Severity.INFO, f"t={t_s:.2f}s: {len(present)} of the {expected} expected camera "
+                                  f"members present; the clock waits up to {timeout_s:.0f} s (clock.rejoin_timeout_s) "
+                                  f"for one to join", t_us)
+        t0 = time.perf_counter()
+        if self.barrier.wait_members({LockstepRole.CAMERA: expected}, timeout_s,
+                                     cancelled=self._stop.is_set):
+            self.stats.camera_rejoin_waits += 1
+            self.event(Severity.INFO, f"t={t_s:.2f}s: camera member back after "
+                                      f"{time.perf_counter() - t0:.1f} s "
+                                      f"({', '.join(self.barrier.members(LockstepRole.CAMERA))}); "
+                                      f"the clock goes on", t_us)
+        elif not self._stop.is_set():
+            self._rejoin_given_up = True
+            self.event(Severity.WARNING, f"t={t_s:.2f}s: no camera member joined within "
+                                         f"{timeout_s:.0f} s (clock.rejoin_timeout_s); going on "
+                                         f"without", t_us)
+
     def _expected_members(self) -> dict[LockstepRole, int]:
         expected = {LockstepRole.TICK: self.cfg.expected_tick_members,
                     LockstepRole.CAMERA: self.cfg.expected_camera_members}
@@ -291,6 +323,8 @@ class SimulatorNode:
             render_s = 0.0
             if out.camera_release is not None:
                 camera_seq = out.camera_release.seq
+                if lockstep:
+                    self._await_camera_rejoin(t_s, t_us)
                 tr = time.perf_counter()
                 frame = core.camera_frame(out.camera_release, self.camera.result(camera_seq))
                 render_s = time.perf_counter() - tr

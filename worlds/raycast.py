@@ -307,7 +307,8 @@ def cast_ray_from(u0, v0, z0, du, dv, dz, heights, mip, mip_off, mip_w, nlev, hm
                             um = u0 + du * st_v
                             col = min(max(int(math.floor(um)), cx * size), cx * size + size - 1)
                             axis = 1
-                        s_cur = st_exit
+                        if st_exit > s_cur:
+                            s_cur = st_exit
                         if col < 0 or col >= cols or row < 0 or row >= rows:
                             break
                         if lev < nlev:
@@ -346,7 +347,12 @@ def cast_ray_from(u0, v0, z0, du, dv, dz, heights, mip, mip_off, mip_w, nlev, hm
                     if s_h <= s_end:
                         return s_h, 2 if h > 0.0 else 1, 0, col, row
                     break    # leaves the map before coming down to this pixel's height
-                s_cur = s_next
+                # Never backwards: a point found by rounding onto a pixel edge (um = 587.0000001 going
+                # west) has that edge's crossing an ulp behind it; stepping back there put the ray
+                # under the coarser cell's maximum again, which sent it forward to the same point:
+                # an endless loop on DSMs with equal neighbouring heights (whole centimetres).
+                if s_next > s_cur:
+                    s_cur = s_next
                 if sp_u <= sp_v:
                     col += step_c
                     axis = 0

@@ -437,6 +437,8 @@ def run_check(opts: CheckOptions, say: Callable[[str], None] = lambda _t: None) 
     overrides = ("clock.mode=lockstep", f"duration_s={opts.duration_s}",
                  f"external.join_timeout_s={JOIN_TIMEOUT_S}",
                  f"clock.member_timeout_s={opts.ack_timeout_s}", "perception.lockstep=true",
+                 # the node under check is the only camera member: if it dies, nobody joins again
+                 "clock.rejoin_timeout_s=0",
                  # the autopilot waits for a fix less long than the simulator for the autopilot
                  f"autopilot.vision_wait_s={opts.ack_timeout_s / 2}",
                  "recorder.camera_every_n=0", "autopilot.mavlink_tcp_port=0",

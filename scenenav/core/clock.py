@@ -23,6 +23,10 @@ class ClockConfig:
     # fused at the next tick); N waits N ticks later, so their work overlaps N ticks of flight and
     # the fix is fused N ticks later (still deterministic). Fewer than the ticks between two frames.
     camera_answer_ticks: int = 0       # control ticks a camera member may take to answer a frame
+    # Lockstep: when fewer camera members than the run expected remain (one crashed or was stopped),
+    # the clock waits up to this many wall seconds for one to join (the launcher's restart of a
+    # perception node, your own node started again) before it goes on without; 0 = never wait.
+    rejoin_timeout_s: float = 30.0
 
     def __post_init__(self) -> None:
         check(self.speed_factor > 0, "speed_factor", self.speed_factor, "a positive number")
@@ -30,6 +34,8 @@ class ClockConfig:
               "10 to 1000 Hz")
         check(self.member_timeout_s > 0, "member_timeout_s", self.member_timeout_s, "> 0 s")
         check(self.startup_timeout_s > 0, "startup_timeout_s", self.startup_timeout_s, "> 0 s")
+        check(0.0 <= self.rejoin_timeout_s <= 3600.0, "rejoin_timeout_s", self.rejoin_timeout_s,
+              "wall seconds in [0, 3600] (0 = never wait for a camera member to join again)")
         check(isinstance(self.camera_answer_ticks, int) and not isinstance(self.camera_answer_ticks, bool)
               and self.camera_answer_ticks >= 0, "camera_answer_ticks", self.camera_answer_ticks,
               "an integer >= 0 (and fewer than the control ticks between two camera frames)")

@@ -101,6 +101,27 @@ def test_a_dying_perception_node_is_reported_once_and_restarted(runs, tmp_path):
     with (r.run_dir / "fixes.csv").open(newline="") as f:
         later = [row for row in csv.DictReader(f) if float(row["t_s"]) > restart["sim_time_s"] + 1.0]
     assert later and {row["node_id"] for row in later} == {"perception"}, "no fix after the restart"
+    # the clock waited for the restarted node instead of flying on without it (clock.rejoin_timeout_s)
+    with (r.run_dir / "events.csv").open(newline="") as f:
+        texts = [row["text"] for row in csv.DictReader(f) if row["node_id"] == "sim"]
+    assert any("the clock waits up to 30 s" in t for t in texts), texts
+    assert any("camera member back after" in t for t in texts), texts
+
+
+def test_without_a_restart_the_clock_waits_for_a_rejoin_then_goes_on(runs, tmp_path):
+    r = _start(runs, tmp_path, "norestart", "--set", "perception.max_restarts=0",
+               "--set", "clock.rejoin_timeout_s=2")
+    r.wait_sim_time(3.0)
+    r.kill_node("perception", signal.SIGKILL)
+    code = r.finish()
+    assert code == 1
+    assert "perception restarted at" not in r.stderr and "max_restarts (0) used up" in r.stderr
+    s = r.summary()
+    assert s["end_reason"] in ("duration reached", "scripted route complete")
+    assert "node_restarts" not in s and s["failed_nodes"] == ["perception"]
+    with (r.run_dir / "events.csv").open(newline="") as f:
+        texts = [row["text"] for row in csv.DictReader(f) if row["node_id"] == "sim"]
+    assert sum("no camera member joined within 2 s (clock.rejoin_timeout_s)" in t for t in texts) == 1, texts
 
 
 def test_a_node_dying_before_take_off_stops_the_run(runs, tmp_path):

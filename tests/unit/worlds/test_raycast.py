@@ -1,5 +1,8 @@
 """worlds.raycast: first hits of rays on a height field, checked against hand geometry and brute force."""
 
+import subprocess
+import sys
+
 import numpy as np
 import pytest
 
@@ -91,6 +94,29 @@ def test_matches_brute_force_marching_on_a_random_city():
         hh[inside] = h[r[inside], c[inside]]
         k = int(np.argmax(p[:, 2] <= hh))
         assert abs(s[k] - hits.range_s[i]) <= 2 * s[1], i
+
+
+# A ray that came down to a coarse cell's maximum exactly on a pixel edge (u = 764 - 187.5 * 0.944 =
+# 587, rounded just above, going west) stepped back to that edge's crossing, an ulp earlier, and
+# looped forever between the two levels: `scenenav world import` hung on an imported DSM in whole
+# centimetres (found by a black-box test, 2026-12-06). Run in a child: a numba loop cannot be
+# interrupted, and a regression must fail the test, not hang the suite.
+_EDGE_RAY = """
+import numpy as np
+from worlds.raycast import HeightField, first_hits
+dsm = np.zeros((1528, 1528), np.float32)
+dsm[1137, 586] = 28.0
+dsm[0, 0] = 50.25            # sets the height the walk starts at
+field = HeightField(dsm, 0.3)
+x, y = (576.5 - 764) * 0.3, (764 - 1158.5) * 0.3
+print(first_hits(field, np.array([[0.0, 0.0, 500.0]]), np.array([[x, y, -500.0]])).height_m[0])
+"""
+
+
+def test_a_ray_meeting_a_cell_maximum_on_a_pixel_edge_ends():
+    out = subprocess.run([sys.executable, "-c", _EDGE_RAY], capture_output=True, text=True, timeout=120)
+    assert out.returncode == 0, out.stderr[-2000:]
+    assert 27.0 < float(out.stdout) < 28.0     # the 28 m pixel's wall, 0.75 m below its top
 
 
 def test_shade_walls_windows_and_ground():
