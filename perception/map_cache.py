@@ -20,10 +20,12 @@ runs are safe.
 from __future__ import annotations
 
 import hashlib
+import json
 import logging
 import os
 import tempfile
 import time
+from collections.abc import Callable
 from pathlib import Path
 
 import cv2
@@ -134,11 +136,25 @@ def build_world_map(world_dir: str, out: str, stride_px: int = 5, altitude_m: fl
     return amap, elapsed
 
 
+def build_notice(world_dir: Path, stride_px: int) -> str:
+    """The line said before a first build: what is built, how big, that it is kept."""
+    try:
+        manifest = json.loads((world_dir / "manifest.json").read_text())
+        w, h = int(manifest["width_px"]), int(manifest["height_px"])
+        size = f"{w}x{h} px, about {-(-w // stride_px) * -(-h // stride_px):,} CNN ratings at {stride_px} px; "
+    except (OSError, ValueError, KeyError, TypeError):
+        size = ""
+    return (f"building the assistant map of {world_dir.name} ({size}first use on this machine: it is "
+            "cached for later runs); this can take minutes on a large world, Ctrl-C stops it")
+
+
 def cached_assistant_map(world_dir: str | Path, stride_px: int = 10, altitude_m: float = 100.0,
                          fov_deg: float = 60.0, weights: str | Path | None = None,
-                         progress: bool = False, relief: bool = True, reference: str = "default") -> Path:
+                         progress: bool = False, relief: bool = True, reference: str = "default",
+                         announce: Callable[[str], None] | None = None) -> Path:
     """Path of the world's assistant map built with the CNN ``weights`` (default: the shipped ones);
-    built (with a progress bar if asked) and cached on first use."""
+    built (with a progress bar if asked) and cached on first use. ``announce`` is told one line
+    before a build starts (a large world takes minutes)."""
     from perception.shipped import DEFAULT_WEIGHTS_PATH
     from worlds.default import cache_root
     world_dir = Path(world_dir)
@@ -156,6 +172,8 @@ def cached_assistant_map(world_dir: str | Path, stride_px: int = 10, altitude_m:
                         "set SCENENAV_CACHE_DIR to a writable folder") from None
     log.info("building the assistant map of %s (stride %d px, first use) -> %s", world_dir.name,
              stride_px, final)
+    if announce is not None:
+        announce(build_notice(world_dir, stride_px))
     fd, tmp_name = tempfile.mkstemp(prefix=f".{final.stem}-", suffix=".npz", dir=folder)
     os.close(fd)
     tmp = Path(tmp_name)

@@ -279,7 +279,9 @@ def resolve_guidance_map(cfg: ScenarioConfig, progress: bool) -> ScenarioConfig:
                                 cfg.perception.weights if cfg.perception.weights.endswith(".pt") else None,
                                 progress=progress and sys.stderr.isatty(),
                                 relief=cfg.sim.camera.relief and g.assistant_map_source == "captures",
-                                reference=cfg.perception.reference)
+                                reference=cfg.perception.reference,
+                                announce=(lambda text: print(text, file=sys.stderr, flush=True))
+                                if progress else None)
     return dataclasses.replace(cfg, guidance=dataclasses.replace(g, assistant_map=str(path)))
 
 

@@ -18,7 +18,7 @@ from perception.config import PerceptionNodeConfig
 from scenenav.app.realism import Realism, apply_realism
 from scenenav.core.camera_geometry import ground_footprint_m
 from scenenav.core.clock import ClockConfig
-from scenenav.core.config import apply_overrides, check, load_config, load_yaml, to_dict
+from scenenav.core.config import apply_overrides, check, is_finite_number, load_config, load_yaml, to_dict
 from scenenav.core.contracts import ClockMode
 from scenenav.core.errors import UserError
 from sitl.config import SimConfig, check_camera_answer_ticks
@@ -170,7 +170,8 @@ class ScenarioConfig:
     external: ExternalConfig = field(default_factory=ExternalConfig)
 
     def __post_init__(self) -> None:
-        check(self.duration_s > 0, "duration_s", self.duration_s, "a positive number of seconds")
+        check(is_finite_number(self.duration_s) and self.duration_s > 0, "duration_s", self.duration_s,
+              "a positive, finite number of seconds")
         check(not self.guidance.enabled or self.flight.mode == FlightMode.AUTOPILOT,
               "guidance.enabled", self.guidance.enabled,
               "false unless flight.mode is autopilot (the guidance node flies through the autopilot)")

@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import dataclasses
 import math
+import re
 import types
 import typing
 from pathlib import Path
@@ -129,7 +130,7 @@ def load_yaml(path: str | Path) -> dict:
     if not p.is_file():
         raise UserError(f"{p}: no such file (expected a YAML file)")
     try:
-        data = yaml.safe_load(p.read_text(encoding="utf-8"))
+        data = parse_yaml(p.read_text(encoding="utf-8"))
     except (OSError, UnicodeDecodeError) as exc:
         raise UserError(f"{p}: cannot read: {exc}") from None
     except yaml.YAMLError as exc:
@@ -143,8 +144,45 @@ def load_yaml(path: str | Path) -> dict:
     return data
 
 
-def _parse_scalar(text: str) -> Any:
-    return yaml.safe_load(text)
+class YamlLoader(yaml.SafeLoader):
+    """PyYAML's safe loader with two of YAML 1.2's rules: ``1e-4`` and ``2E5`` are numbers (YAML 1.1,
+    which PyYAML follows, reads a mantissa without a point as a string; ArduPilot parameters are
+    often written so), and a key given twice in one mapping is an error instead of the last one
+    silently winning."""
+
+    def construct_mapping(self, node, deep=False):
+        seen: dict[Any, int] = {}
+        if isinstance(node, yaml.MappingNode):
+            for key_node, _value in node.value:
+                key = self.construct_object(key_node, deep=True)
+                try:
+                    first = seen.setdefault(key, key_node.start_mark.line + 1)
+                except TypeError:       # an unhashable key: the base class says so
+                    continue
+                if first != key_node.start_mark.line + 1:
+                    raise yaml.constructor.ConstructorError(
+                        None, None, f"key {key!r} appears twice (lines {first} and "
+                        f"{key_node.start_mark.line + 1}): keep one", key_node.start_mark)
+        return super().construct_mapping(node, deep=deep)
+
+
+YamlLoader.add_implicit_resolver(
+    "tag:yaml.org,2002:float",
+    re.compile(r"^[-+]?(?:[0-9][0-9_]*(?:\.[0-9_]*)?|\.[0-9_]+)[eE][-+]?[0-9]+$"),
+    list("-+0123456789."))
+
+
+def parse_yaml(text: str) -> Any:
+    """YAML text -> Python values with ``YamlLoader`` (raises ``yaml.YAMLError``)."""
+    return yaml.load(text, Loader=YamlLoader)   # noqa: S506 (a SafeLoader subclass)
+
+
+def _parse_scalar(item: str, text: str) -> Any:
+    try:
+        return parse_yaml(text)
+    except yaml.YAMLError as exc:
+        raise ConfigError(f"--set {item!r}: the value is not valid YAML ({getattr(exc, 'problem', None) or exc}); "
+                          "quote it, e.g. --set \"name='@x'\"") from None
 
 
 def apply_overrides(mapping: Mapping[str, Any], overrides: list[str] | tuple[str, ...]) -> dict:
@@ -154,7 +192,7 @@ def apply_overrides(mapping: Mapping[str, Any], overrides: list[str] | tuple[str
         if "=" not in item:
             raise ConfigError(f"--set {item!r}: expected KEY=VALUE, e.g. camera.rate_hz=5")
         key, text = item.split("=", 1)
-        set_dotted(out, key.strip(), _parse_scalar(text))
+        set_dotted(out, key.strip(), _parse_scalar(item, text))
     return out
 
 

@@ -101,11 +101,12 @@ def test_a_dying_perception_node_is_reported_once_and_restarted(runs, tmp_path):
     with (r.run_dir / "fixes.csv").open(newline="") as f:
         later = [row for row in csv.DictReader(f) if float(row["t_s"]) > restart["sim_time_s"] + 1.0]
     assert later and {row["node_id"] for row in later} == {"perception"}, "no fix after the restart"
-    # the clock waited for the restarted node instead of flying on without it (clock.rejoin_timeout_s)
+    # the clock never went on without a camera member: it waited for the restarted node when it
+    # found none (clock.rejoin_timeout_s; whether it found none depends on the timing: the
+    # autopilot's own wait for its fix may hold the clock until the new node has joined)
     with (r.run_dir / "events.csv").open(newline="") as f:
         texts = [row["text"] for row in csv.DictReader(f) if row["node_id"] == "sim"]
-    assert any("the clock waits up to 30 s" in t for t in texts), texts
-    assert any("camera member back after" in t for t in texts), texts
+    assert not any("no camera member joined" in t for t in texts), texts
 
 
 def test_without_a_restart_the_clock_waits_for_a_rejoin_then_goes_on(runs, tmp_path):

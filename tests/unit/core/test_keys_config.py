@@ -47,6 +47,8 @@ def test_yaml_and_overrides(tmp_path):
     ("flight:\n  nope: 1\n", "unknown key 'flight.nope'"),
     ("- a\n- b\n", "mapping"),
     ("a: [\n", "not valid YAML"),
+    ("duration_s: .inf\n", "positive, finite"),
+    ("duration_s: 10\nduration_s: 20\n", "key 'duration_s' appears twice (lines 1 and 2)"),
 ])
 def test_bad_scenarios_give_one_line_errors(tmp_path, text, needle):
     p = tmp_path / "bad.yaml"
@@ -67,6 +69,20 @@ def test_override_syntax():
     with pytest.raises(ConfigError):
         apply_overrides({}, ["novalue"])
     assert apply_overrides({"a": {"b": 1}}, ["a.b=2", "c=x"]) == {"a": {"b": 2}, "c": "x"}
+    for bad in ("name=@x", "duration_s=[1,2", "a={b", 'a="open'):
+        with pytest.raises(ConfigError, match="not valid YAML") as exc:
+            apply_overrides({}, [bad])
+        assert "\n" not in str(exc.value)
+
+
+def test_numbers_with_an_exponent_are_numbers(tmp_path):
+    # YAML 1.1 (PyYAML) reads 1e-4 as a string; ArduPilot parameters are often written so
+    assert apply_overrides({}, ["a=1e-4", "b=2E5", "c=-3e+2", "d=1e", "e=x1e5"]) == \
+        {"a": 1e-4, "b": 2e5, "c": -300.0, "d": "1e", "e": "x1e5"}
+    p = tmp_path / "s.yaml"
+    p.write_text("name: t\nduration_s: 1e2\nautopilot:\n  params: {EK3_GBIAS_P_NSE: 1e-4}\n")
+    cfg = load_scenario(p)
+    assert cfg.duration_s == 100.0
 
 
 def test_every_shipped_scenario_loads():
