@@ -44,6 +44,18 @@ def parse_origin(text: str) -> tuple[float, float]:
     return lat, lon
 
 
+def check_world_out(out: str, force: bool) -> None:
+    """``--out`` of generate / import: a new or empty folder, or (with ``--force``) one to replace.
+    Checked before any work: an import may take minutes, and a typo must not overwrite a world."""
+    p = Path(out)
+    if p.exists() and not p.is_dir():
+        raise UserError(f"--out {out}: exists and is not a folder (expected a new folder for the world)")
+    if p.is_dir() and any(p.iterdir()) and not force:
+        what = "a world" if (p / "manifest.json").is_file() else "other files"
+        raise UserError(f"--out {out}: folder exists and holds {what} (choose a new --out, or pass "
+                        "--force to write the world into it, replacing the world files there)")
+
+
 def _generate(args: argparse.Namespace) -> int:
     from worlds.generator import CityConfig, generate_world
     kwargs = {"seed": args.seed}
@@ -56,6 +68,7 @@ def _generate(args: argparse.Namespace) -> int:
         if getattr(args, key) is not None:
             kwargs[key] = getattr(args, key)
     cfg = CityConfig(**kwargs)
+    check_world_out(args.out, args.force)
     world = generate_world(cfg, name=args.name)
     world.save(args.out)
     ref = world.manifest.reference
@@ -69,6 +82,7 @@ def _generate(args: argparse.Namespace) -> int:
 def _import(args: argparse.Namespace) -> int:
     from worlds.importer import import_world
     origin = parse_origin(args.origin) if args.origin is not None else None
+    check_world_out(args.out, args.force)
     world = import_world(Path(args.image), args.m_per_px, Path(args.out),
                          reference=Path(args.reference) if args.reference else None,
                          origin_lat_lon=origin, name=args.name,
@@ -208,6 +222,8 @@ def register(subparsers) -> None:
                                    "always give the same world. See docs/worlds.md.")
     g.add_argument("--seed", type=int, default=0, help="random seed (default 0)")
     g.add_argument("--out", required=True, metavar="DIR", help="world folder to write")
+    g.add_argument("--force", action="store_true",
+                    help="write into an --out folder that is not empty (its world files are replaced)")
     g.add_argument("--width-px", type=int, default=None, metavar="PX",
                    help="map width in pixels (default 900; 256..16384)")
     g.add_argument("--height-px", type=int, default=None, metavar="PX",
@@ -251,6 +267,8 @@ def register(subparsers) -> None:
                    help="ground resolution of the world in metres per pixel (required for plain images; "
                         "GeoTIFF default: the source's ground resolution at its centre)")
     i.add_argument("--out", required=True, metavar="DIR", help="world folder to write")
+    i.add_argument("--force", action="store_true",
+                    help="write into an --out folder that is not empty (its world files are replaced)")
     i.add_argument("--reference", default=None, metavar="IMAGE2",
                    help="reference map of the same area (another day/sensor): georeferenced, or "
                         "pixel-aligned with IMAGE at the same size")

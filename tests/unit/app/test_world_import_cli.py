@@ -72,3 +72,23 @@ def test_bad_import_in_process(rasters, capfd, args, needle):
     lines = [ln for ln in err.splitlines() if ln.strip()]
     assert len(lines) == 1 and lines[0].startswith("error: ") and needle in lines[0], err
     assert not (rasters / "bad").exists()
+
+
+def test_an_out_folder_that_is_not_empty_is_refused_unless_forced(rasters, capfd):
+    from scenenav.app.cli import main
+    out = rasters / "kept"
+    out.mkdir()
+    (out / "thesis.txt").write_text("years of work")
+    assert main(["world", "import", str(rasters / "ortho.tif"), "--out", str(out)]) == 2
+    err = capfd.readouterr().err
+    assert "holds other files" in err and "--force" in err and len(err.strip().splitlines()) == 1
+    assert sorted(p.name for p in out.iterdir()) == ["thesis.txt"]
+    world = rasters / "w2"
+    assert main(["world", "import", str(rasters / "ortho.tif"), "--dsm", str(rasters / "ndsm.tif"),
+                 "--out", str(world)]) == 0
+    assert main(["world", "generate", "--seed", "1", "--width-px", "256", "--height-px", "256",
+                 "--out", str(world)]) == 2
+    assert "holds a world" in capfd.readouterr().err
+    assert (world / "dsm.png").is_file()                   # untouched
+    assert main(["world", "import", str(rasters / "ortho.tif"), "--out", str(world), "--force"]) == 0
+    assert not (world / "dsm.png").exists()                # replaced: the new world has no DSM
