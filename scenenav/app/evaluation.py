@@ -355,6 +355,43 @@ def _end_reason(sim_stats: dict, interrupted: bool, failures: tuple[NodeFailure,
     return "unknown: the simulator left no sim_stats.json (it died or was killed)"
 
 
+#: An external node's "node down" event later than this before the run's last simulated time is
+#: the run's own end (every node leaves then), not the node leaving early.
+EXTERNAL_END_MARGIN_S = 1.0
+
+
+def external_nodes_left(run_dir: Path, cfg, end_s: float | None) -> list[dict]:
+    """The external nodes (``external.nodes``; not started by the launcher, so no exit code is
+    seen) whose liveliness token went away before the run's end and did not come back, from the
+    recorder's ``node down: ROLE/ID`` / ``node up: ROLE/ID`` events: ``{"node": "perception:ID", "sim_time_s": t, "what": ...}``."""
+    members = {f"{m.role}/{m.node_id}": m.spec for m in cfg.external.members()}
+    if not members or end_s is None:
+        return []
+    try:
+        with (run_dir / "events.csv").open(newline="") as f:
+            rows = list(csv.DictReader(f))
+    except OSError:
+        return []
+    left: dict[str, float] = {}
+    for row in rows:
+        text = row.get("text") or ""
+        state, _, key = text.partition(": ")
+        if state not in ("node down", "node up") or key.strip() not in members:
+            continue
+        spec = members[key.strip()]
+        try:
+            t = float(row.get("t_s") or "nan")
+        except ValueError:
+            continue
+        if state == "node up":
+            left.pop(spec, None)          # back (a restart of its own): only a last departure counts
+        elif t < end_s - EXTERNAL_END_MARGIN_S:
+            left[spec] = t
+    return [{"node": spec, "sim_time_s": t,
+             "what": f"external node {spec} left the run at t={t:.1f} s, before its end"}
+            for spec, t in left.items()]
+
+
 def evaluate_run(run_dir: Path, cfg, world, wall_time_s: float | None, interrupted: bool = False,
                  failures: tuple[NodeFailure, ...] = (), recorder_stopped_early: bool | None = None,
                  abort_reason: str | None = None) -> dict:
@@ -411,6 +448,7 @@ def evaluate_run(run_dir: Path, cfg, world, wall_time_s: float | None, interrupt
         summary["recording_error"] = rec["write_failed"]
     summary["recording_end_s"] = last_sim_time_s(run_dir)
     summary["node_failures"] = [dataclasses.asdict(f) | {"what": f.describe()} for f in failures]
+    summary["external_nodes_left"] = external_nodes_left(run_dir, cfg, summary.get("sim_time_s"))
     write_atomic(run_dir / "summary.json", json.dumps(summary, indent=2))
     try:
         plot_run(run_dir, world, fx, split=splits[0] if splits else None,
@@ -671,6 +709,8 @@ def format_summary(summary: dict) -> str:
         lines.append(f"  node failure               {f['what']}")
     for r in summary.get("node_restarts") or ():
         lines.append(f"  node restart               {r['what']}")
+    for e in summary.get("external_nodes_left") or ():
+        lines.append(f"  external node left         {e['what']}")
     for m in summary.get("missing") or ():
         lines.append(f"  missing                    {m}")
     for n in summary.get("notes") or ():
