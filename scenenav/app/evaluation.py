@@ -628,7 +628,8 @@ def plot_run(run_dir: Path, world, fx: dict, split: HeightSplit | None = None,
     ax.set_xlabel("x east (m)")
     ax.set_ylabel("y north (m)")
     ax.set_title(f"{m.name}: trajectory")
-    ax.legend(loc="upper right", fontsize=7)
+    if ax.get_legend_handles_labels()[0]:     # a run stopped at once has nothing to label
+        ax.legend(loc="upper right", fontsize=7)
     ax2 = axes[1]
     if fx:
         ax2.plot(fx["t_s"], fx["error_m"], ".", ms=3, c="gray", label="fix error (all valid)")

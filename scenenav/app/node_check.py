@@ -251,6 +251,8 @@ def judge(seen: Observed, keys: Keys, role: str, node_id: str, ack_timeout_s: fl
         problems.append(f"role not 'camera' in the acks of seq {_first(wrong_role)}")
     if unknown:
         problems.append(f"acks of frames never published (seq {_first(unknown)})")
+    if not frames:
+        problems.append("no camera frame was published: nothing was acknowledged")
     out.append(RuleResult("acks", bool(frames) and not problems, "; ".join(problems) or
                           f"all {len(frames)} frames acknowledged within {ack_timeout_s:g} s"))
 
@@ -275,12 +277,16 @@ def judge(seen: Observed, keys: Keys, role: str, node_id: str, ack_timeout_s: fl
         problems.append(f"the fix came after the ack for seq {_first(after_ack)} (publish the fix first, "
                         f"from the same session; a held fix before the ack of a frame at most "
                         f"{HELD_FIX_MAX_AGE_S:g} s younger)")
+    if not frames:
+        problems.append("no camera frame was published: no fix was due")
     out.append(RuleResult("fixes", bool(frames) and not problems, "; ".join(problems) or
                           f"a VisionFix for every frame ({n_valid} valid, {len(fixes) - n_valid} invalid)"))
 
-    out.append(RuleResult("encoding", not seen.bad,
+    # the rules below judge what the node sent: with nothing sent they cannot pass
+    nothing = "" if (seen.fixes or seen.acks) else "no fix or ack came from the node: nothing to judge"
+    out.append(RuleResult("encoding", not seen.bad and not nothing,
                           f"{len(seen.bad)} undecodable messages, first on {seen.bad[0][0]}: {seen.bad[0][1]}"
-                          if seen.bad else f"{len(seen.fixes)} fixes and {len(seen.acks)} acks decode"))
+                          if seen.bad else nothing or f"{len(seen.fixes)} fixes and {len(seen.acks)} acks decode"))
 
     problems = []
     bad_t = [f.frame_seq for _, f in fixes.values()
@@ -296,10 +302,12 @@ def judge(seen: Observed, keys: Keys, role: str, node_id: str, ack_timeout_s: fl
                     | {a.seq for _, a in seen.acks if a.node_id != node_id})
     if bad_id:
         problems.append(f"node_id is not {node_id!r} in the messages of seq {_first(bad_id)}")
+    problems += [nothing] if nothing else []
     out.append(RuleResult("timestamps", not problems, "; ".join(problems) or
                           "fixes and acks carry the capture time, their frame_seq and node id"))
 
     problems = _field_problems([f for _, f in fixes.values()], map_half_extent_m)
+    problems += [nothing] if nothing else []
     out.append(RuleResult("fields", not problems, "; ".join(problems) or
                           "every field within its range and unit"))
 
@@ -315,9 +323,9 @@ def judge(seen: Observed, keys: Keys, role: str, node_id: str, ack_timeout_s: fl
             bad_cov.append((f.frame_seq, f"not symmetric ({c[0, 1]:g} vs {c[1, 0]:g})"))
         elif float(np.linalg.eigvalsh(0.5 * (c + c.T)).min()) < -COV_REL_TOL * scale:
             bad_cov.append((f.frame_seq, "not positive semi-definite"))
-    out.append(RuleResult("covariance", not bad_cov,
+    out.append(RuleResult("covariance", not bad_cov and not nothing,
                           f"{len(bad_cov)} valid fixes with a bad covariance, first seq {bad_cov[0][0]}: "
-                          f"{bad_cov[0][1]}" if bad_cov else "every valid fix: finite, symmetric, PSD"))
+                          f"{bad_cov[0][1]}" if bad_cov else nothing or "every valid fix: finite, symmetric, PSD"))
 
     if seen.injected_at is None:
         out.append(RuleResult("malformed", False, f"the node gave fewer than {INJECT_AFTER_ACKS} answers: "

@@ -239,3 +239,25 @@ def test_a_node_that_leaves_at_the_runs_end_while_the_launcher_closes_it_survive
         seen.finished_at = now + finished_offset_s
         alive, exited_at = _watch(_Proc(exits_after=3), _Proc(exits_after=0), _Observer(seen))
         assert exited_at is not None and alive is expected, finished_offset_s
+
+
+def test_a_token_removed_on_the_finished_tick_is_leaving_not_dying():
+    # the node withdraws its token on the finished tick, as it should; that removal may arrive here
+    # before the tick does (two links): after the last frame, it is the node leaving
+    seen = _good()
+    last_frame = max(t for t, _ in seen.frames.values())
+    seen.tokens.append((last_frame + 0.5, KEYS.node_alive("perception", NODE), False))
+    assert seen.finished_at > last_frame + 0.5
+    assert _judge(seen)["malformed"] is None
+
+
+def test_a_node_that_sent_nothing_passes_no_rule_on_what_it_sent():
+    silent = _good()
+    silent.fixes, silent.acks = [], []
+    verdict = _judge(silent)
+    for rule in ("encoding", "timestamps", "fields", "covariance"):
+        assert "nothing to judge" in verdict[rule], (rule, verdict[rule])
+    empty = Observed()
+    verdict = _judge(empty)
+    assert "no camera frame was published" in verdict["acks"]
+    assert "no camera frame was published" in verdict["fixes"]
