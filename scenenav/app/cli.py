@@ -6,6 +6,7 @@ Errors in what the user gave (files, keys, values) print one line ``error: ...``
 from __future__ import annotations
 
 import argparse
+import json
 import logging
 import re
 import sys
@@ -27,12 +28,23 @@ log = logging.getLogger("scenenav")
 
 
 def _run(args: argparse.Namespace) -> int:
-    from scenenav.app.launcher import run
-    summary = run(args.scenario, args.out, tuple(args.set or ()), progress=not args.quiet,
-                  live_port=args.live_port if args.live else None,
-                  external=tuple(args.external or ()),
-                  announce=lambda text: print(text, file=sys.stderr, flush=True))
     from scenenav.app.evaluation import format_summary, plain_summary
+    from scenenav.app.launcher import run
+    try:
+        summary = run(args.scenario, args.out, tuple(args.set or ()), progress=not args.quiet,
+                      live_port=args.live_port if args.live else None,
+                      external=tuple(args.external or ()),
+                      announce=lambda text: print(text, file=sys.stderr, flush=True))
+    except KeyboardInterrupt:
+        # the launcher wrote the summary of what was flown before it re-raised: say it
+        try:
+            stopped = json.loads((Path(args.out) / "summary.json").read_text())
+        except (OSError, ValueError):
+            stopped = None
+        if stopped is not None:
+            print(plain_summary(stopped, Path(args.out)))
+            print(f"run folder: {args.out}")
+        raise
     print(format_summary(summary))
     print()
     print(plain_summary(summary, Path(args.out)))
