@@ -303,6 +303,12 @@ def read_heights(path: Path, label: str) -> np.ndarray:
     """(h, w) float32 heights/elevations in metres (band 1), NaN at invalid pixels (nodata, mask,
     non-finite, outside PLAUSIBLE_ELEVATION_M). UserError if the band's unit is not metres."""
     with _open(Path(path), label) as src:
+        colour = [ColorInterp.red, ColorInterp.green, ColorInterp.blue]
+        if (src.count >= 3 and (list(src.colorinterp[:3]) == colour or src.dtypes[0] == "uint8")) \
+                or src.colorinterp[0] == ColorInterp.palette:
+            raise UserError(f"{path}: the {label} is a colour image ({src.count} bands, "
+                            f"{src.colorinterp[0].name}); expected one band of heights in metres "
+                            "(a DSM or nDSM raster, e.g. a float32 GeoTIFF)")
         unit = (src.units[0] or "").strip().lower()
         if unit not in METRE_UNITS:
             raise UserError(f"{path}: the {label}'s values are in {src.units[0]!r}; expected metres "

@@ -232,6 +232,7 @@ def test_bad_inputs_are_one_line_and_write_nothing(tmp_path):
         (lambda: import_world(img, None, out, dsm=tmp_path / "junk.tif"), "not a raster"),
         (lambda: import_world(img, None, out, dsm=tmp_path / "dsm_small.tif"), "pixel-aligned"),
         (lambda: import_world(img, None, out, dsm=tmp_path / "elev.tif"), "--dsm-kind dsm"),
+        (lambda: import_world(img, None, out, dsm=img), "colour image"),          # RGB is no DSM
         (lambda: import_world(img, None, out, dtm=tmp_path / "elev.tif"), "without --dsm"),
         (lambda: import_world(img, None, out, reference=tmp_path / "far.tif"), "does not overlap"),
     ]
