@@ -25,8 +25,9 @@ class ClockConfig:
     camera_answer_ticks: int = 0       # control ticks a camera member may take to answer a frame
     # Lockstep: when fewer camera members than the run expected remain (one crashed or was stopped),
     # the clock waits up to this many wall seconds for one to join (the launcher's restart of a
-    # perception node, your own node started again) before it goes on without; 0 = never wait.
-    rejoin_timeout_s: float = 30.0
+    # perception node loads in 2.5-4 s on a quiet machine; your own node started again) before it
+    # goes on without; 0 = never wait. Kept short: a node stopped on purpose costs this much.
+    rejoin_timeout_s: float = 10.0
 
     def __post_init__(self) -> None:
         check(self.speed_factor > 0, "speed_factor", self.speed_factor, "a positive number")

@@ -1,8 +1,8 @@
 """Lockstep runs give byte-identical truth twice, also when the guidance node replans.
 
-Two flights of ``scenarios/guided_route.yaml`` cut to 50 simulated seconds, side by side, with
+Two flights of ``scenarios/guided_route.yaml`` cut to 35 simulated seconds, side by side, with
 ``guidance.replan_drift_m`` 3 m so that the GPS-denied estimate drifts off the route a few times and
-the node replans (2 replans by 50 s: at 30 and 32 s, 2026-12-06). Until session 23 the node left lockstep
+the node replans (2 replans by 35 s: at 30 and 32 s, 2026-12-06). Until session 23 the node left lockstep
 once its mission ran, so a replan's upload landed at a wall-clock-dependent simulated time and two
 such flights diverged after the first replan; now it stays a member, holds the tick a replan is
 decided at until the new mission is uploaded, and reads the estimate of that tick."""
@@ -26,7 +26,7 @@ def test_a_replanning_flight_is_reproducible(tmp_path):
     procs, outs = [], []
     for name in ("a", "b"):
         out = tmp_path / name
-        sets = ["duration_s=50", "guidance.replan_drift_m=3", f"autopilot.mavlink_tcp_port={free_port()}",
+        sets = ["duration_s=35", "guidance.replan_drift_m=3", f"autopilot.mavlink_tcp_port={free_port()}",
                 "autopilot.mavlink_udp_out=none"]
         procs.append(subprocess.Popen(
             [sys.executable, "-m", "scenenav.app.cli", "run", str(SCENARIO), "--out", str(out), "--quiet",

@@ -72,7 +72,7 @@ def test_a_dying_perception_node_is_reported_once_and_restarted(runs, tmp_path):
     # on the ground for about 44 s to learn the bias; 1e-3 about 7 s) keeps the test short. The
     # clock may run on while the node reloads (longer on a loaded machine), hence the long
     # duration; the run is stopped with Ctrl-C once the vehicle has armed.
-    r = FaultRun(tmp_path / "perception", "--set", "duration_s=300",
+    r = FaultRun(tmp_path / "perception", "--set", "duration_s=300", "--set", "clock.rejoin_timeout_s=60",
                  "--set", "autopilot.params.EK3_GBIAS_P_NSE=1e-3", scenario="scenarios/gps_denied.yaml")
     runs.append(r)
     killed_at = r.wait_sim_time(2.0)
