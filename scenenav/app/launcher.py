@@ -586,13 +586,7 @@ def _finish(launch: Launch, cfg: ScenarioConfig, world, wall: float, interrupted
         summary = evaluate_run(run_dir, cfg, world, wall_time_s=wall, interrupted=interrupted,
                                failures=tuple(watch.failures), recorder_stopped_early=recorder_early,
                                abort_reason=abort)
-        failed = list(dict.fromkeys(f.node for f in watch.failures))
-        if failed or restarts:
-            if failed:
-                summary["failed_nodes"] = failed
-            if restarts:
-                summary["node_restarts"] = [dataclasses.asdict(r) | {"what": r.describe()}
-                                            for r in restarts]
+        if add_node_outcomes(summary, [f.node for f in watch.failures], restarts or []):
             write_atomic(run_dir / "summary.json", json.dumps(summary, indent=2))
     except OSError as exc:
         raise UserError(disk_error_line(run_dir, exc)) from None
@@ -633,6 +627,17 @@ class ChildWatch:
 
     def failed(self, name: str) -> bool:
         return any(f.node == name for f in self.failures)
+
+
+def add_node_outcomes(summary: dict, failed: list[str], restarts: list["NodeRestart"]) -> bool:
+    """Add ``failed_nodes`` (each name once) and ``node_restarts`` to a run's summary when there
+    are any; True when the summary changed (the caller writes it again)."""
+    names = list(dict.fromkeys(failed))
+    if names:
+        summary["failed_nodes"] = names
+    if restarts:
+        summary["node_restarts"] = [dataclasses.asdict(r) | {"what": r.describe()} for r in restarts]
+    return bool(names or restarts)
 
 
 @dataclass(frozen=True)
@@ -756,11 +761,7 @@ class PerceptionSwap:
             # it died before taking over: the node in charge stays (stopping it would leave none)
             log.warning("swap %d abandoned: %s exited before its first fix; %s stays in charge",
                         self.swaps, self._incoming, self._active)
-            self.started_wall = None
-            if p.swap_every_s > 0:
-                self._next_at_s += p.swap_every_s
-            else:
-                self.done = True
+            self._schedule_next()
             return
         answered = _fixes_from(self.launch.run_dir, self._incoming, self._fixes_offset)
         late = time.monotonic() - self.started_wall > SWAP_HANDOVER_TIMEOUT_S
@@ -771,11 +772,15 @@ class PerceptionSwap:
             _stop_together([c for c in self.launch.children
                             if c.name == self._active and c.proc.poll() is None])
             self._active, self._incoming = self._incoming, self._active
-            self.started_wall = None
-            if p.swap_every_s > 0:
-                self._next_at_s += p.swap_every_s
-            else:
-                self.done = True
+            self._schedule_next()
+
+    def _schedule_next(self) -> None:
+        """This swap is over (done or abandoned): the next one after ``swap_every_s``, or none."""
+        self.started_wall = None
+        if self.cfg.perception.swap_every_s > 0:
+            self._next_at_s += self.cfg.perception.swap_every_s
+        else:
+            self.done = True
 
 
 def _size(path: Path) -> int:

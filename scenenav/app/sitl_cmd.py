@@ -16,7 +16,6 @@ file first (sim_vehicle.py ``-w``).
 
 from __future__ import annotations
 
-import dataclasses
 import json
 import logging
 import socket
@@ -31,6 +30,7 @@ from scenenav.app.launcher import (
     STOP_STAGES,
     Launch,
     NodeRestarter,
+    add_node_outcomes,
     announce_live,
     await_hub,
     external_wait_text,
@@ -246,14 +246,8 @@ def _run_sitl(opts: SitlOptions, announce: Callable[[str], None]) -> dict:
     from scenenav.app.evaluation import evaluate_run
     summary = evaluate_run(run_dir, cfg, world, wall_time_s=time.time() - wall0,
                            interrupted=interrupted)
-    failed = list(dict.fromkeys(c.name for c in launch.children
-                                if c.proc.returncode not in (0, None, -2, 130)))
-    if failed or (restarter is not None and restarter.restarts):
-        if failed:
-            summary["failed_nodes"] = failed
-        if restarter is not None and restarter.restarts:
-            summary["node_restarts"] = [dataclasses.asdict(r) | {"what": r.describe()}
-                                        for r in restarter.restarts]
+    failed = [c.name for c in launch.children if c.proc.returncode not in (0, None, -2, 130)]
+    if add_node_outcomes(summary, failed, restarter.restarts if restarter is not None else []):
         write_atomic(run_dir / "summary.json", json.dumps(summary, indent=2))
     return summary
 
