@@ -13,8 +13,8 @@ A scenario whose guidance plans over "the world's assistant map" without naming 
 here: ``$SCENENAV_CACHE_DIR/assistant-maps/<world>-<hash>.npz`` (``~/.cache/scenenav`` by default),
 where the hash covers the reference image bytes, the weights file bytes, the stride, the altitude and
 the camera field of view. Building the default world at stride 10 takes about 10 s on one core; the
-second run reads the file. Writing goes through a temporary file renamed into place, so concurrent
-runs are safe.
+second run reads the file. Writing goes through a temporary file renamed into place, under a build
+lock (``scenenav.core.build_lock``): runs asking at once get one build, the others wait for it.
 """
 
 from __future__ import annotations
@@ -30,6 +30,7 @@ from pathlib import Path
 
 import cv2
 
+from scenenav.core.build_lock import exclusive_build
 from scenenav.core.errors import UserError
 
 log = logging.getLogger(__name__)
@@ -170,6 +171,21 @@ def cached_assistant_map(world_dir: str | Path, stride_px: int = 10, altitude_m:
     except OSError as exc:
         raise UserError(f"{folder}: cannot create the assistant-map cache ({exc.strerror}); "
                         "set SCENENAV_CACHE_DIR to a writable folder") from None
+    with exclusive_build(cache_root(), final.name,
+                         lambda: log.info("the assistant map of %s is being built by another process: "
+                                          "waiting", world_dir.name)):
+        if final.is_file():
+            return final
+        _build_into(final, world_dir, weights_path, stride_px, altitude_m, fov_deg, progress, relief,
+                    reference, announce)
+    return final
+
+
+def _build_into(final: Path, world_dir: Path, weights_path: Path, stride_px: int, altitude_m: float,
+                fov_deg: float, progress: bool, relief: bool, reference: str,
+                announce: Callable[[str], None] | None) -> None:
+    """Build the map into a temporary file of ``final``'s folder and rename it into place."""
+    folder = final.parent
     log.info("building the assistant map of %s (stride %d px, first use) -> %s", world_dir.name,
              stride_px, final)
     if announce is not None:
@@ -185,4 +201,3 @@ def cached_assistant_map(world_dir: str | Path, stride_px: int = 10, altitude_m:
     finally:
         tmp.unlink(missing_ok=True)
     log.info("assistant map built in %.1f s", elapsed)
-    return final

@@ -158,15 +158,15 @@ def _run_method(world, frames, method: str, classifier, amap, rounds: int = 3,
 def run_perception_bench(n_frames: int = 60, sizes_px: tuple[int, ...] = (1000, 4000, 8000),
                          stride_px: int = 5, gradient_refine_px: int = 0) -> dict:
     """``gradient_refine_px``: ``MatcherConfig.gradient_refine_radius_px`` of every pipeline (0: off)."""
+    from perception.config import MatcherConfig
+    if n_frames < 5:
+        raise UserError(f"--frames {n_frames}: expected at least 5")
+    MatcherConfig(gradient_refine_radius_px=gradient_refine_px)   # a bad radius: one line, before any work
     import torch
 
     from perception.assistant_map import AssistantMap, build_assistant_map
     from perception.cnn import MatchClassifier
     from worlds.default import load_default_world
-    if n_frames < 5:
-        raise UserError(f"--frames {n_frames}: expected at least 5")
-    from perception.config import MatcherConfig
-    MatcherConfig(gradient_refine_radius_px=gradient_refine_px)   # a bad radius: one line, before any work
     cv2.setNumThreads(1)
     torch.set_num_threads(1)
     world = load_default_world()

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import argparse
 import ast
+import dataclasses
 import json
 import math
 from pathlib import Path
@@ -169,14 +170,16 @@ def test_landcover_agrees_with_the_image(default_world):
 # ------------------------------------------------------------------------------------------------
 # determinism
 
-def test_generation_is_deterministic(small_world):
-    again = generate_world(CityConfig(seed=3, width_px=600, height_px=600))
-    for name in ("orthophoto", "reference", "landcover"):
-        assert np.array_equal(getattr(small_world, name), getattr(again, name)), name
-    assert again.junctions == small_world.junctions
-    other = generate_world(CityConfig(seed=4, width_px=600, height_px=600))
-    assert not np.array_equal(other.landcover, small_world.landcover)
-    assert not np.array_equal(other.orthophoto, small_world.orthophoto)
+def test_generation_is_deterministic():
+    # 400 px square: the session's small_world (600 px) costs 2.5x the CPU per generation
+    cfg = CityConfig(seed=3, width_px=400, height_px=400)
+    first, again = generate_world(cfg), generate_world(cfg)
+    for name in ("orthophoto", "reference", "landcover", "heights_m"):
+        assert np.array_equal(getattr(first, name), getattr(again, name)), name
+    assert again.junctions == first.junctions and len(first.junctions) > 0
+    other = generate_world(dataclasses.replace(cfg, seed=4))
+    assert not np.array_equal(other.landcover, first.landcover)
+    assert not np.array_equal(other.orthophoto, first.orthophoto)
 
 
 def test_config_ranges_are_checked():
@@ -381,16 +384,28 @@ def test_junction_json_round_trip():
 # default world and CLI
 
 def test_default_world_is_cached(tmp_path, monkeypatch, default_world):
+    """The default world's cache folder is named for the generator's version and source, and a
+    cached world is loaded, not generated again. (Generating into the cache, atomically, is
+    test_generated_world_spec_is_cached_by_config's, with a small world: the default one costs
+    20 s of CPU, and the session's default_world fixture generates it on a fresh machine anyway.)"""
+    import shutil
+
     from worlds import default
+    cached = default.default_world_dir()
     monkeypatch.setenv("SCENENAV_CACHE_DIR", str(tmp_path / "cache"))
     d = default.default_world_dir()
-    assert d.parent == tmp_path / "cache" / "worlds" and d.name.startswith("default-v")
+    assert d.parent == tmp_path / "cache" / "worlds" and d.name == cached.name
+    assert d.name.startswith(f"default-v{default.GENERATOR_VERSION}-")
+    shutil.copytree(cached, d)
+
+    def no_generation(*_a, **_k):
+        raise AssertionError("a cached world was generated again")
+
+    monkeypatch.setattr(default, "generate_world", no_generation)
     first = default.load_default_world()
-    assert (d / "manifest.json").is_file()
     assert np.array_equal(first.orthophoto, default_world.orthophoto)
-    second = default.load_default_world()
-    assert np.array_equal(second.reference, first.reference)
-    assert [p.name for p in d.parent.iterdir()] == [d.name]   # no temporary folders left
+    assert np.array_equal(first.reference, default_world.reference)
+    assert [p.name for p in d.parent.iterdir()] == [d.name]
 
 
 def _worlds_imports(path: Path) -> set[str]:
@@ -441,6 +456,7 @@ def test_generated_world_spec_is_cached_by_config(tmp_path, monkeypatch):
     assert cfg == CityConfig(seed=4, width_px=300, height_px=260, water_share=0.2)
     folder = default.world_folder(spec)
     assert (folder / "manifest.json").is_file() and folder.name.startswith("generated-s4-300x260-")
+    assert [p.name for p in folder.parent.iterdir()] == [folder.name]   # no temporary folders left
     world = default.load_world_spec(spec)
     assert world.width_px == 300 and world.manifest.name == "generated-s4"
     other = default.world_folder("generated:seed=4,width_px=300,height_px=260")
