@@ -12,6 +12,7 @@ import json
 import logging
 import threading
 import time
+from enum import Enum
 from pathlib import Path
 from types import SimpleNamespace
 
@@ -68,46 +69,97 @@ EXTERNAL_FILE = "external.json"
 EXIT_EXTERNAL_MISSING = 69
 
 
+class ExternalWaitEnd(str, Enum):
+    """How the wait for the external nodes ended (``EXTERNAL_FILE``'s ``ended``)."""
+
+    JOINED = "joined"        # every external node's token was up
+    TIMEOUT = "timeout"      # external.join_timeout_s ran out: the run gives up
+    STOPPED = "stopped"      # the run was stopped (Ctrl-C, SIGTERM) while it waited
+
+
+#: How often the wait for the external nodes looks at the run's stop request (wall seconds); a
+#: token's arrival wakes it at once.
+EXTERNAL_STOP_POLL_S = 0.05
+
+
+def external_wait_facts(specs: list[str], joined_at_s: dict[str, float], began_s: float,
+                        ended_s: float, ended: ExternalWaitEnd, began_unix_s: float,
+                        join_timeout_s: float) -> dict:
+    """``EXTERNAL_FILE``'s contents after the wait for the external nodes ``specs`` (``ROLE:ID``).
+
+    ``began_s``: ``time.monotonic()`` when the wait began (the hub listens and ``HUB_FILE`` is
+    written; the launcher then writes run.json and says "start them now"); ``joined_at_s``: when
+    the token of each node still up at the end arrived; ``ended_s``: when the run stopped waiting.
+    ``waited_s`` is the wall time from the start to the arrival of the last token, or, when one is
+    missing, to the moment the run gave up (``ended``: timeout or stopped); ``joined_after_s`` the
+    same per node that joined."""
+    joined = [s for s in specs if s in joined_at_s]
+    missing = [s for s in specs if s not in joined_at_s]
+    after_s = {s: round(max(0.0, joined_at_s[s] - began_s), 3) for s in joined}
+    last_s = max(after_s.values(), default=0.0)
+    return {"joined": joined, "missing": missing,
+            "waited_s": last_s if not missing else round(max(0.0, ended_s - began_s), 3),
+            "joined_after_s": after_s, "ended": ended.value,
+            "began_unix_s": round(began_unix_s, 3), "join_timeout_s": join_timeout_s}
+
+
 def wait_external_nodes(node, cfg: ScenarioConfig, run_dir: Path,
                         stop: threading.Event | None = None) -> bool:
-    """Before the clock starts: wait until every external node (``external.nodes``) has declared
-    its liveliness token ``nodes/<role>/<id>``, at most ``external.join_timeout_s`` wall seconds.
-    Writes ``EXTERNAL_FILE`` (joined and missing ``ROLE:ID``); False if one is missing (or
-    ``stop`` was set meanwhile)."""
+    """Before the clock starts, once the hub listens: wait until every external node
+    (``external.nodes``) has declared its liveliness token ``nodes/<role>/<id>``, at most
+    ``external.join_timeout_s`` wall seconds. Writes ``EXTERNAL_FILE`` (``external_wait_facts``);
+    False if one is missing (or ``stop`` was set meanwhile)."""
     members = cfg.external.members()
     if not members:
         return True
-    live: set[str] = set()
+    # the wait begins now, before the watches: a token they deliver at once arrives after it
+    began_s, began_unix_s = time.monotonic(), time.time()
+    live: dict[str, float] = {}            # ROLE:ID -> time.monotonic() its token arrived
     changed = threading.Condition()
 
     def on_change(spec: str, alive: bool) -> None:
+        now_s = time.monotonic()
         with changed:
-            (live.add if alive else live.discard)(spec)
+            if alive:
+                live.setdefault(spec, now_s)      # a repeated sample of a live token is no new arrival
+            else:
+                live.pop(spec, None)
             changed.notify_all()
 
     for m in members:
         node.bus.watch_liveliness(node.keys.node_alive(m.role, m.node_id),
                                   lambda _k, alive, spec=m.spec: on_change(spec, alive))
     specs = [m.spec for m in members]
-    log.info("waiting up to %.0f s for external node(s) %s", cfg.external.join_timeout_s,
-             ", ".join(specs))
-    t0 = time.monotonic()
-    deadline = t0 + cfg.external.join_timeout_s
+    timeout_s = cfg.external.join_timeout_s
+    log.info("waiting up to %.0f s for external node(s) %s", timeout_s, ", ".join(specs))
+    deadline_s = began_s + timeout_s
+    ended = ExternalWaitEnd.TIMEOUT
     with changed:
-        while not live.issuperset(specs) and time.monotonic() < deadline:
-            if stop is not None and stop.is_set():
+        while True:
+            if all(s in live for s in specs):
+                ended = ExternalWaitEnd.JOINED
                 break
-            changed.wait(min(0.2, max(0.0, deadline - time.monotonic())))
-        joined = [s for s in specs if s in live]
-    missing = [s for s in specs if s not in joined]
-    write_stats(run_dir / EXTERNAL_FILE, {"joined": joined, "missing": missing,
-                                          "waited_s": round(time.monotonic() - t0, 3),
-                                          "join_timeout_s": cfg.external.join_timeout_s})
-    if missing:
-        log.error("external node(s) %s did not join within %.0f s (external.join_timeout_s)",
-                  ", ".join(missing), cfg.external.join_timeout_s)
+            if stop is not None and stop.is_set():
+                ended = ExternalWaitEnd.STOPPED
+                break
+            left_s = deadline_s - time.monotonic()
+            if left_s <= 0.0:
+                break
+            changed.wait(min(EXTERNAL_STOP_POLL_S, left_s))
+        joined_at_s = dict(live)
+    facts = external_wait_facts(specs, joined_at_s, began_s, time.monotonic(), ended, began_unix_s,
+                                timeout_s)
+    write_stats(run_dir / EXTERNAL_FILE, facts)
+    if ended is ExternalWaitEnd.STOPPED:
+        log.info("stopped after %.1f s of waiting for external node(s) %s", facts["waited_s"],
+                 ", ".join(facts["missing"]))
         return False
-    log.info("external node(s) joined: %s", ", ".join(joined))
+    if facts["missing"]:
+        log.error("external node(s) %s did not join within %.0f s (external.join_timeout_s)",
+                  ", ".join(facts["missing"]), timeout_s)
+        return False
+    log.info("external node(s) joined after %.3f s: %s", facts["waited_s"],
+             ", ".join(f"{s} ({t:.3f} s)" for s, t in facts["joined_after_s"].items()))
     return True
 
 

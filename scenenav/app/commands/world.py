@@ -160,29 +160,83 @@ def _info(args: argparse.Namespace) -> int:
     return 0
 
 
+#: Colour map of the heights panel of a world without land cover (OpenCV's; low dark, high yellow).
+HEIGHTS_COLOUR_MAP = cv2.COLORMAP_VIRIDIS
+
+
+def has_landcover_info(world: World) -> bool:
+    """Whether the world classifies its ground: a land-cover raster (manifest ``has_landcover``;
+    imported worlds have none) with at least one pixel not ``UNKNOWN``."""
+    return world.landcover is not None and bool(np.any(world.landcover != LandCover.UNKNOWN))
+
+
+def heights_image(dsm_m: np.ndarray) -> tuple[np.ndarray, float]:
+    """A DSM's heights above the ground as an RGB uint8 image (``HEIGHTS_COLOUR_MAP``, 0 m darkest,
+    the highest point brightest) and that highest height in metres."""
+    top_m = float(dsm_m.max()) if dsm_m.size else 0.0
+    scaled = np.clip(np.asarray(dsm_m, dtype=np.float32) / max(top_m, 1e-6), 0.0, 1.0)
+    bgr = cv2.applyColorMap(np.rint(scaled * 255.0).astype(np.uint8), HEIGHTS_COLOUR_MAP)
+    return cv2.cvtColor(bgr, cv2.COLOR_BGR2RGB), top_m
+
+
+def preview_third_panel(world: World) -> tuple[np.ndarray, tuple[str, ...]] | None:
+    """The preview's third panel and its title lines: the land-cover map (untitled: its colours are
+    documented), else the DSM heights (titled with what they are and their range), else None (a
+    flat world without land cover: an empty panel would say nothing)."""
+    if has_landcover_info(world):
+        assert world.landcover is not None
+        return colourise(world.landcover), ()
+    if world.dsm_m is not None:
+        img, top_m = heights_image(world.dsm_m)
+        return img, ("no land cover: DSM heights above ground",
+                     f"0 m (dark) to {top_m:.1f} m (yellow)")
+    return None
+
+
+def draw_title(panel: np.ndarray, lines: tuple[str, ...]) -> None:
+    """Write ``lines`` in black on a white band across the top of ``panel`` (RGB, in place), sized
+    to fit its width."""
+    if not lines:
+        return
+    width_px = panel.shape[1]
+    font, thickness = cv2.FONT_HERSHEY_SIMPLEX, 1
+    widest_px = max(cv2.getTextSize(text, font, 1.0, thickness)[0][0] for text in lines)
+    font_scale = max(0.3, min(1.0, 0.94 * width_px / max(widest_px, 1)))   # tiny panels: clipped
+    line_px = int(round(34 * font_scale)) + 2
+    band_px = min(panel.shape[0], line_px * len(lines) + 6)
+    panel[:band_px] = 255
+    for k, text in enumerate(lines):
+        cv2.putText(panel, text, (max(2, int(0.03 * width_px)), line_px * (k + 1)), font, font_scale,
+                    (0, 0, 0), thickness, cv2.LINE_AA)
+
+
 def render_preview(world: World, max_width_px: int) -> np.ndarray:
-    """Orthophoto | reference | land cover with junction markers, side by side (RGB uint8)."""
-    if world.landcover is not None:
-        cover = colourise(world.landcover)
-    else:
-        cover = np.full_like(world.orthophoto, 255)
-        cv2.putText(cover, "no land cover", (20, 60), cv2.FONT_HERSHEY_SIMPLEX, 1.5, (0, 0, 0), 3)
-    panels = [world.orthophoto, world.reference, cover]
-    scale = min(1.0, max_width_px / float(3 * world.width_px))
+    """Orthophoto | reference | land cover with junction markers, side by side (RGB uint8). A world
+    without land cover (an imported one) shows its DSM heights in the third place, titled; a flat
+    one without land cover has no third panel (``preview_third_panel``)."""
+    third = preview_third_panel(world)
+    panels = [world.orthophoto, world.reference] + ([third[0]] if third is not None else [])
+    scale = min(1.0, max_width_px / float(len(panels) * world.width_px))
     if scale < 1.0:
         size = (max(1, int(world.width_px * scale)), max(1, int(world.height_px * scale)))
         panels = [cv2.resize(p, size, interpolation=cv2.INTER_AREA) for p in panels]
     panels = [np.ascontiguousarray(p) for p in panels]
     radius = max(3, int(round(8 * max(scale, 0.5))))
+    marked = [panels[0]] + panels[2:]          # the reference is another day's: not marked
     for j in world.junctions or ():
         centre = (int(j.u_px * scale), int(j.v_px * scale))
         colour = JUNCTION_COLOURS_RGB[j.kind]
-        for p in panels[::2]:
+        for p in marked:
             cv2.circle(p, centre, radius, colour, 2)
-        cv2.putText(panels[2], str(j.arms), (centre[0] + radius, centre[1] - radius),
+        cv2.putText(marked[-1], str(j.arms), (centre[0] + radius, centre[1] - radius),
                     cv2.FONT_HERSHEY_SIMPLEX, 0.4, (0, 0, 0), 1)
+    if third is not None:
+        draw_title(panels[2], third[1])        # after scaling: legible at any preview width
     sep = np.full((panels[0].shape[0], 4, 3), 255, dtype=np.uint8)
-    return np.hstack([panels[0], sep, panels[1], sep, panels[2]])
+    row: list[np.ndarray] = []
+    for p in panels:
+        row += [sep, p] if row else [p]
+    return np.hstack(row)
 
 
 def _preview(args: argparse.Namespace) -> int:
@@ -306,7 +360,10 @@ def register(subparsers) -> None:
                        description="Write a PNG with the orthophoto, the reference map and the land-cover "
                                    "map (colours in docs/worlds.md) side by side; junctions are circled "
                                    "(red cross, orange tee, magenta wye, cyan corner, yellow bend) and "
-                                   "labelled with their arm count.")
+                                   "labelled with their arm count. A world without land cover (an "
+                                   "imported one) shows its DSM heights above the ground in the third "
+                                   "place instead (titled, with their range), or, when it is flat too, "
+                                   "only the orthophoto and the reference.")
     v.add_argument("dir", metavar="WORLD", help=WORLD_ARG_HELP)
     v.add_argument("--out", required=True, metavar="PNG", help="preview image to write (.png)")
     v.add_argument("--max-width-px", type=int, default=3000, metavar="PX",
@@ -314,5 +371,6 @@ def register(subparsers) -> None:
     v.set_defaults(func=_preview)
 
 
-__all__ = ["register", "describe", "render_preview", "parse_origin", "JUNCTION_COLOURS_RGB",
+__all__ = ["register", "describe", "render_preview", "preview_third_panel", "has_landcover_info",
+           "heights_image", "draw_title", "parse_origin", "JUNCTION_COLOURS_RGB", "HEIGHTS_COLOUR_MAP",
            "LANDCOVER_COLOURS_RGB"]
