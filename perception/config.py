@@ -18,6 +18,16 @@ from perception.heading_offset import HeadingOffsetConfig
 from scenenav.core.config import check
 
 
+def check_near_estimate(radius_m: float, min_run: int, min_altitude_m: float, prefix: str) -> None:
+    """The below-rated search near the estimate: a radius in [0, 200] m (0 = off), a run >= 1 and a
+    lowest height >= 0 m."""
+    check(0.0 <= radius_m <= 200.0, f"{prefix}below_rated_near_estimate_m", radius_m,
+          "a number of metres in [0, 200] (0 = off)")
+    check(type(min_run) is int and 1 <= min_run <= 100, f"{prefix}below_rated_min_run", min_run,
+          "an integer number of matches in [1, 100]")
+    check(0.0 <= min_altitude_m <= 1000.0, f"{prefix}below_rated_min_altitude_m", min_altitude_m,
+          "a height in [0, 1000] m")
+
 class NccMethod(str, Enum):
     """Correlation score passed to cv2.matchTemplate.
 
@@ -157,6 +167,16 @@ class PerceptionConfig:
     # within continuation_max_innovation_m of the tracker's constant-velocity prediction. Off: rejected.
     track_below_rated: bool = False
     continuation_max_innovation_m: float = 2.0
+    # Below that height but from below_rated_min_altitude_m up, with no trusted track (the climb),
+    # the search goes to a window of this radius around the estimate the caller gives
+    # (``process(estimate=...)``, the autopilot's), and a window match there is accepted (reason
+    # near-estimate) when it lies within the radius of the estimate and is the below_rated_min_run-th
+    # in a row to continue its predecessors at a constant velocity (MatchConsistency, within
+    # consistent_match_tol_m): a false one is at most that far off (docs/perception.md "Fixes near
+    # the estimate below the rated height"). 0 = off: rejected (below-rated-height).
+    below_rated_near_estimate_m: float = 0.0
+    below_rated_min_run: int = 5
+    below_rated_min_altitude_m: float = 45.0
     matcher: MatcherConfig = field(default_factory=MatcherConfig)
     # learn the compass heading error from the matches (perception.heading_offset); off: raw compass
     heading_offset: HeadingOffsetConfig = field(default_factory=HeadingOffsetConfig)
@@ -221,6 +241,8 @@ class PerceptionConfig:
               self.continuation_max_innovation_m, "a positive number of metres below 100")
         check(0.0 < self.covariance_scale <= 100.0, "perception.covariance_scale", self.covariance_scale,
               "a number in (0, 100]")
+        check_near_estimate(self.below_rated_near_estimate_m, self.below_rated_min_run,
+                            self.below_rated_min_altitude_m, "perception.")
         check(0.0 <= self.drop_rejected_track_s <= 600.0 and math.isfinite(self.drop_rejected_track_s),
               "perception.drop_rejected_track_s", self.drop_rejected_track_s,
               "a number of seconds in [0, 600] (0 = off)")
@@ -276,6 +298,12 @@ class PerceptionNodeConfig:
     pointing_heading_std_deg: float = 0.0    # the heading the capture is turned with
     track_below_rated: bool = False    # below the rated height, accept matches that continue a track
                                        # whose last rated fix was accepted (docs/perception.md)
+    below_rated_near_estimate_m: float = 0.0  # below the rated height with no trusted track (the climb),
+                                       # search this far around the autopilot's estimate and accept a
+                                       # match there that is the below_rated_min_run-th in a row on one
+                                       # constant-velocity line (PerceptionConfig's; docs/perception.md); 0 = off
+    below_rated_min_run: int = 5
+    below_rated_min_altitude_m: float = 45.0  # ... from this height up (below: the relief's parallax)
     covariance_scale: float = 1.0      # every published fix covariance times this (a calibration;
                                        # docs/perception.md "Covariance"); 1 = as modelled
     gradient_refine_radius_px: int = 0  # refine each match's position on gradient magnitude within this
@@ -336,6 +364,8 @@ class PerceptionNodeConfig:
               "0 (one swap at most) or >= 10 simulated s, with swap_at_s > 0 (the first swap)")
         check(0.0 < self.covariance_scale <= 100.0, "covariance_scale", self.covariance_scale,
               "a number in (0, 100] (1 = the covariance as modelled)")
+        check_near_estimate(self.below_rated_near_estimate_m, self.below_rated_min_run,
+                            self.below_rated_min_altitude_m, "")
         check(0 <= self.gradient_refine_radius_px <= 200, "gradient_refine_radius_px",
               self.gradient_refine_radius_px, "an integer of map px in [0, 200] (0 = off)")
         check(0.0 <= self.drop_rejected_track_s <= 600.0, "drop_rejected_track_s", self.drop_rejected_track_s,
@@ -364,6 +394,9 @@ class PerceptionNodeConfig:
             pointing_attitude_std_deg=self.pointing_attitude_std_deg,
             pointing_heading_std_deg=self.pointing_heading_std_deg,
             track_below_rated=self.track_below_rated, covariance_scale=self.covariance_scale,
+            below_rated_near_estimate_m=self.below_rated_near_estimate_m,
+            below_rated_min_run=self.below_rated_min_run,
+            below_rated_min_altitude_m=self.below_rated_min_altitude_m,
             drop_rejected_track_s=self.drop_rejected_track_s, reacquire_window_s=self.reacquire_window_s,
             resolve_ambiguity_min_posterior=self.resolve_ambiguity_min_posterior,
             reject_ambiguity_below_posterior=self.reject_ambiguity_below_posterior,
@@ -376,7 +409,7 @@ class PerceptionNodeConfig:
         """The node reads the autopilot estimate's position (and 1-sigma): a search prior, a
         re-acquisition, the ambiguity resolution or rejection."""
         return (self.prior_from_estimate or self.reacquires or self.resolve_ambiguity_min_posterior > 0.0
-                or self.reject_ambiguity_below_posterior > 0.0)
+                or self.reject_ambiguity_below_posterior > 0.0 or self.below_rated_near_estimate_m > 0.0)
 
     @property
     def reacquires(self) -> bool:

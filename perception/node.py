@@ -13,7 +13,8 @@ Inputs
                                          search without a track with drop_rejected_track_s and
                                          reacquire_window_s, its position and 1-sigma with
                                          resolve_ambiguity_min_posterior or
-                                         reject_ambiguity_below_posterior, and
+                                         reject_ambiguity_below_posterior, its position below
+                                         the rated height with below_rated_near_estimate_m, and
                                          its velocity with dr_from_estimate)
 Outputs
   ``perception/fix/<node_id>``   VisionFix  (one per frame; ``valid`` false when no match; with
@@ -434,6 +435,8 @@ class PerceptionNode:
             self.stats["ambiguities_resolved"] = self.pipeline.ambiguities_resolved
         if self.pipeline.ambiguities_rejected:
             self.stats["ambiguities_rejected"] = self.pipeline.ambiguities_rejected
+        if self.pipeline.near_estimate_accepted:
+            self.stats["near_estimate_accepted"] = self.pipeline.near_estimate_accepted
         if self.pipeline.ambiguities_resolved_by_consistency:
             self.stats["ambiguities_resolved_by_consistency"] = self.pipeline.ambiguities_resolved_by_consistency
         log.info("perception node %s stats: %s", self.node_id, dict(self.stats))

@@ -93,6 +93,7 @@ class Reason(str, Enum):
     BAD_INPUT = "bad-input"                  # the frame or its heading / height cannot be used
     BELOW_RATED_HEIGHT = "below-rated-height"  # cnn / assistant-map: captured too low for the area rating
     TRACK_CONTINUATION = "track-continuation"  # below the rated height, continuing an accepted track
+    NEAR_ESTIMATE = "near-estimate"          # below the rated height, a window track near the estimate
     AMBIGUOUS_FAR = "ambiguous-far"          # an ambiguous match whose own peak the estimate all but rules out
     UNCONFIRMED = "unconfirmed"              # accepted, but its successors did not confirm it (the node's
                                              # perception.confirm_successors, perception/match_confirmation.py)
@@ -170,6 +171,7 @@ class PerceptionPipeline:
         self.dropped_tracks = 0
         self.ambiguities_resolved = 0     # accepted ambiguous matches published with the local covariance
         self.ambiguities_rejected = 0     # ambiguous matches rejected as far from the estimate
+        self.near_estimate_accepted = 0   # fixes below the rated height accepted near the estimate
         #: the motion consistency of the latest valid matches (``cfg.resolve_consistent_matches``)
         self.consistency = MatchConsistency(self.cfg.consistent_match_tol_m)
         self.ambiguities_resolved_by_consistency = 0
@@ -302,6 +304,10 @@ class PerceptionPipeline:
         if (reacquire_prior is not None and reacquire_prior[2] is not None
                 and self.tracker.state is not TrackState.TRACKING and self._reacquires(t_s)):
             prior_enu_m, prior_radius_m = (reacquire_prior[0], reacquire_prior[1]), reacquire_prior[2]
+        rated = self._rated_at(altitude_m)
+        near_estimate = None if rated else self._near_estimate_prior(estimate, altitude_m)
+        if near_estimate is not None and self.tracker.state is not TrackState.TRACKING:
+            prior_enu_m, prior_radius_m = near_estimate, cfg.below_rated_near_estimate_m
         prior_uv = None
         if prior_enu_m is not None and all(math.isfinite(c) for c in prior_enu_m):
             prior_uv = self.matcher.world_to_pixel(prior_enu_m[0], prior_enu_m[1])
@@ -341,9 +347,11 @@ class PerceptionPipeline:
             self._learn_heading(deviation, compass_rad, aligned, match,
                                 cfg.fov_deg if fov_deg is None else fov_deg, tilt_rad, intrinsics_px)
         innovation_m = innovation_px * self.m_per_px
+        consistent = (self.consistency.observe(t_s, match.position_enu_m)
+                      if cfg.resolve_consistent_matches > 0 or near_estimate is not None else 0)
         if new_track:
             self._trusted_track = False         # a global search or re-acquisition: a new track
-        if self._rated_at(altitude_m):
+        if rated:
             decision, reason, p_true, p_classes, variance, p_false, drone = self._decide(
                 aligned, match, t_s, timings, innovation_m, run,
                 dr_innovation_px * self.m_per_px, dr_age_s, reach_excess_px * self.m_per_px)
@@ -351,6 +359,10 @@ class PerceptionPipeline:
         elif self._continues_track(match, predicted, innovation_m):
             decision, reason, p_true, p_classes, variance, p_false, drone = (
                 Decision.ACCEPT, Reason.TRACK_CONTINUATION, _NAN, _NAN_CLASSES, _NAN, _NAN, (_NAN, _NAN))
+        elif near_estimate is not None and self._near_estimate_fix(match, near_estimate, consistent):
+            decision, reason, p_true, p_classes, variance, p_false, drone = (
+                Decision.ACCEPT, Reason.NEAR_ESTIMATE, _NAN, _NAN_CLASSES, _NAN, _NAN, (_NAN, _NAN))
+            self.near_estimate_accepted += 1
         else:   # no classification either: a low capture's rating would be written into the map
             if match.quality_ok:
                 # a sharp match away from the prediction: not the track that was trusted (a
@@ -367,7 +379,8 @@ class PerceptionPipeline:
                 Decision.REJECT, Reason.BELOW_RATED_HEIGHT, _NAN, _NAN_CLASSES, _NAN, _NAN, (_NAN, _NAN))
         if cfg.quality_gate and not match.quality_ok and decision is Decision.ACCEPT:
             decision, reason = Decision.REJECT, Reason.LOW_QUALITY
-        elif new_track and match.search is SearchMode.WINDOW and not match.quality_ok:
+        elif (new_track and match.search is SearchMode.WINDOW and not match.quality_ok
+              and reason is not Reason.NEAR_ESTIMATE):
             # a window around a prior (the estimate), not the track's own prediction: the match lies
             # near the estimate by construction, so the rule's position features vouch for anything;
             # only a sharp match may start a track there (docs/perception.md "Dropping a rejected track")
@@ -393,10 +406,10 @@ class PerceptionPipeline:
             covariance_m2 = local_mode[1]
             resolved = True
             self.ambiguities_resolved += 1
-        consistent = (self.consistency.observe(t_s, match.position_enu_m)
-                      if cfg.resolve_consistent_matches > 0 else 0)
-        if (decision is Decision.ACCEPT and not resolved and cfg.resolve_consistent_matches > 0
-                and consistent >= cfg.resolve_consistent_matches and match.ambiguity_weight > 0.0
+        # a near-estimate fix is accepted on its consistent predecessors: the same evidence
+        by_consistency = reason is Reason.NEAR_ESTIMATE or (
+            cfg.resolve_consistent_matches > 0 and consistent >= cfg.resolve_consistent_matches)
+        if (decision is Decision.ACCEPT and not resolved and by_consistency and match.ambiguity_weight > 0.0
                 and match.local_covariance_m2 is not None):
             covariance_m2 = (match.local_covariance_m2 if pointing is None
                              else match.local_covariance_m2 + pointing)
@@ -529,6 +542,37 @@ class PerceptionPipeline:
         return (self.cfg.track_below_rated and self._trusted_track and match.quality_ok and predicted
                 and match.search is SearchMode.WINDOW
                 and innovation_m <= self.cfg.continuation_max_innovation_m)
+
+    def _near_estimate_prior(self, estimate: tuple[float, float, float, float] | None,
+                             altitude_m: float) -> tuple[float, float] | None:
+        """The estimate's position when a capture below the rated height is searched for and judged
+        near it (``cfg.below_rated_near_estimate_m``, a finite estimate given, the capture from at
+        least ``cfg.below_rated_min_altitude_m``); None otherwise."""
+        cfg = self.cfg
+        if cfg.below_rated_near_estimate_m <= 0.0 or estimate is None or altitude_m < cfg.below_rated_min_altitude_m:
+            return None
+        east, north = float(estimate[0]), float(estimate[1])
+        return (east, north) if math.isfinite(east) and math.isfinite(north) else None
+
+    def _near_estimate_fix(self, match: MatchResult, estimate_enu_m: tuple[float, float],
+                           consistent: int) -> bool:
+        """A capture below the rated height with no trusted track: accept a window match within
+        ``cfg.below_rated_near_estimate_m`` of the estimate that is the ``cfg.below_rated_min_run``-th
+        (or later) in a row to continue the matches before it at a constant velocity
+        (``MatchConsistency``; the matcher's quality flag is not asked: at these heights it calls
+        most true matches low-quality). A window track that wandered farther from the estimate is
+        dropped: the next capture is searched for around the estimate."""
+        cfg = self.cfg
+        if match.search is not SearchMode.WINDOW:
+            return False
+        off_m = math.hypot(match.position_enu_m[0] - estimate_enu_m[0],
+                           match.position_enu_m[1] - estimate_enu_m[1])
+        if off_m > cfg.below_rated_near_estimate_m:
+            if self.tracker.state is TrackState.TRACKING:
+                self.tracker.reset()
+                self.track_evidence.drop_run()
+            return False
+        return consistent >= cfg.below_rated_min_run
 
     def _rated_at(self, altitude_m: float) -> bool:
         """Whether the area rating applies to a capture from ``altitude_m``: always for the methods

@@ -398,3 +398,42 @@ def test_a_trusted_track_continues_below_the_rated_height(world, continue_track)
         assert not again.accepted and again.reason is Reason.BELOW_RATED_HEIGHT   # trust is gone
     else:
         assert all(not r.accepted and r.reason is Reason.BELOW_RATED_HEIGHT for r in low)
+
+
+def test_a_climb_below_the_rated_height_is_fixed_near_the_estimate(world):
+    """Climbing below the rated height with no track (below_rated_near_estimate_m): the search goes
+    around the estimate, and a window match that is the below_rated_min_run-th in a row on one
+    constant-velocity line is accepted (near-estimate). Without an estimate, below
+    below_rated_min_altitude_m, or with the option off, they are below-rated; a track that wanders
+    farther from the estimate than the radius is rejected and dropped."""
+    ref, day = world
+    cfg = dataclasses.replace(PerceptionConfig(), rated_altitude_m=ALT, min_rated_footprint_share=0.5,
+                              below_rated_near_estimate_m=20.0, below_rated_min_run=3,
+                              below_rated_min_altitude_m=ALT * 0.5)
+    pipe = PerceptionPipeline(ref, MPP, FalseMatchMethod.CNN, cfg, classify=cnn_fake)
+    u, v, heading, alt = 300.0, 200.0, 0.4, ALT * 0.6
+    east, north = pipe.matcher.pixel_to_world(u, v)
+    estimate = (east + 6.0, north - 4.0, 2.0, 2.0)          # 7 m off: within the 20 m window
+    out = [pipe.process(render(day, u, v, heading, alt), heading, alt, 0.1 * k, estimate=estimate)
+           for k in range(7)]
+    assert all(r.valid and r.quality_ok and err_m(r, (u, v)) < 0.5 for r in out)
+    # the 3rd match is the first on the line through two before it: the 5th is the 3rd in a row
+    assert [r.accepted for r in out] == [False] * 4 + [True] * 3
+    assert all(r.reason is Reason.BELOW_RATED_HEIGHT for r in out[:4])
+    assert all(r.reason is Reason.NEAR_ESTIMATE for r in out[4:]) and pipe.near_estimate_accepted == 3
+    # the estimate moves 40 m away: the track's next match is beyond the radius, rejected, dropped
+    far = (east + 40.0, north, 2.0, 2.0)
+    r = pipe.process(render(day, u, v, heading, alt), heading, alt, 0.8, estimate=far)
+    assert r.valid and not r.accepted and r.reason is Reason.BELOW_RATED_HEIGHT
+    assert pipe.tracker.state is not TrackState.TRACKING
+    # off, no estimate, or too low: below-rated as before
+    for radius, est, lowest in ((0.0, estimate, 0.0), (20.0, None, 0.0), (20.0, estimate, alt + 1.0)):
+        other = PerceptionPipeline(ref, MPP, FalseMatchMethod.CNN,
+                                   dataclasses.replace(cfg, below_rated_near_estimate_m=radius,
+                                                       below_rated_min_altitude_m=lowest),
+                                   classify=cnn_fake)
+        rs = [other.process(render(day, u, v, heading, alt), heading, alt, 0.1 * k, estimate=est)
+              for k in range(7)]
+        assert all(not r.accepted and r.reason is Reason.BELOW_RATED_HEIGHT for r in rs)
+    with pytest.raises(UserError, match="below_rated_near_estimate_m"):
+        PerceptionConfig(below_rated_near_estimate_m=-1.0)
