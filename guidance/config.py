@@ -17,6 +17,7 @@ from dataclasses import dataclass
 
 from scenenav.core.camera_geometry import ground_footprint_m
 from scenenav.core.config import check
+from scenenav.core.formats.assistant_map_file import WORLD_MAP_STRIDE_M, check_stride_m
 
 # Seed paper, section 6.1: the camera has a 60 degree field of view (square 200x200 image);
 # section 6.3: the drone flew at 100 m. Ground footprint width: scenenav.core.camera_geometry.
@@ -184,7 +185,12 @@ class GuidanceNodeConfig:
     # mission ends with autopilot.mission_end.
     goals_enu_m: tuple[tuple[float, float], ...] = ()   # via-points and goal, [x east, y north] m
     assistant_map: str = ""            # .npz; empty: the world's map built with the CNN (cached)
-    assistant_map_stride_px: int = 10  # stride of that built map
+    # 5.3 m: rounded to whole pixels of the world, 10 px on the default 0.53 m/px world (the pixel
+    # stride it had before; scenenav.core.formats.assistant_map_file.stride_px_for).
+    assistant_map_stride_m: float = WORLD_MAP_STRIDE_M   # cell spacing of that built map, metres of ground
+    # The same in whole pixels of the world, as scenarios gave it until 2026-12-06 (run folders from
+    # before keep loading and rebuild the same map); 0 = unset: assistant_map_stride_m decides.
+    assistant_map_stride_px: int = 0
     # What that built map classifies: "reference" (the paper's way, 5.3, and all a real user has:
     # the CNN over footprint crops of the reference map) or "captures" (nadir captures rendered with
     # the world's DSM over each cell: simulator knowledge a real flight does not have).
@@ -205,8 +211,13 @@ class GuidanceNodeConfig:
         check(self.snap_goals_m >= 0, "snap_goals_m", self.snap_goals_m, ">= 0 m")
         check(not self.enabled or len(self.goals_enu_m) >= 1, "goals_enu_m", self.goals_enu_m,
               "at least one [x, y] goal in metres when guidance is enabled")
-        check(self.assistant_map_stride_px >= 1, "assistant_map_stride_px",
-              self.assistant_map_stride_px, "a positive number of pixels")
+        check_stride_m(self.assistant_map_stride_m, "assistant_map_stride_m")
+        check(type(self.assistant_map_stride_px) is int and self.assistant_map_stride_px >= 0,
+              "assistant_map_stride_px", self.assistant_map_stride_px,
+              "a whole number of pixels >= 0 (0 = unset: assistant_map_stride_m decides)")
+        check(self.assistant_map_stride_px == 0 or self.assistant_map_stride_m == WORLD_MAP_STRIDE_M,
+              "assistant_map_stride_px", self.assistant_map_stride_px,
+              "0 when assistant_map_stride_m is set (give the stride once, preferably in metres)")
         check(self.assistant_map_source in ("reference", "captures"), "assistant_map_source",
               self.assistant_map_source, "reference or captures")
         check(self.start_after_s >= 0, "start_after_s", self.start_after_s, ">= 0 s")

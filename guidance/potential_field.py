@@ -49,6 +49,7 @@ import numpy as np
 from scipy import ndimage
 
 from guidance.config import PlannerConfig
+from scenenav.core.frames import metres_to_whole_px
 
 log = logging.getLogger(__name__)
 
@@ -135,7 +136,7 @@ class PlanningGrid:
 
 def choose_factor(height_px: int, width_px: int, m_per_px: float, cfg: PlannerConfig) -> int:
     """Pixels per cell: the cell is at least ``grid_cell_m`` and the grid at most ``max_grid_cells``."""
-    factor = max(1, int(round(cfg.grid_cell_m / m_per_px)))
+    factor = metres_to_whole_px(cfg.grid_cell_m, m_per_px)
     while math.ceil(height_px / factor) * math.ceil(width_px / factor) > cfg.max_grid_cells:
         factor += 1
     return factor

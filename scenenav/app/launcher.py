@@ -274,7 +274,12 @@ def resolve_guidance_map(cfg: ScenarioConfig, progress: bool) -> ScenarioConfig:
         return cfg
     from perception.map_cache import cached_assistant_map
     from worlds.default import world_folder
-    path = cached_assistant_map(world_folder(cfg.world), g.assistant_map_stride_px,
+    folder = world_folder(cfg.world)
+    stride_m = g.assistant_map_stride_m
+    if g.assistant_map_stride_px > 0:     # the stride in pixels of this world (older scenarios)
+        from scenenav.core.formats.world_manifest import read_manifest
+        stride_m = g.assistant_map_stride_px * read_manifest(folder).m_per_px
+    path = cached_assistant_map(folder, stride_m,
                                 cfg.flight.altitude_m, cfg.sim.camera.fov_deg,
                                 cfg.perception.weights if cfg.perception.weights.endswith(".pt") else None,
                                 progress=progress and sys.stderr.isatty(),

@@ -48,6 +48,12 @@ def pixel_to_world(u, v, width_px: int, height_px: int, m_per_px: float):
     return x, y
 
 
+def metres_to_whole_px(length_m: float, m_per_px: float) -> int:
+    """A ground length in whole map pixels: the nearest whole number (Python ``round``), at least 1
+    (a cell or a grid step of a world at ``m_per_px``)."""
+    return max(1, int(round(length_m / m_per_px)))
+
+
 def _radii_m(lat_deg: float) -> tuple[float, float]:
     """Meridian (north) and prime-vertical (east) radii of curvature at a latitude."""
     s = math.sin(math.radians(lat_deg))

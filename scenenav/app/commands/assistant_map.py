@@ -1,7 +1,8 @@
 """``scenenav assistant-map``: build, render and inspect assistant maps.
 
-``build`` precomputes a whole map for a world with the CNN at a stride (batched inference, progress
-bar; on a world with a DSM the cells' nadir captures rendered with relief, unless --no-relief);
+``build`` precomputes a whole map for a world with the CNN at a stride in metres of ground (whole
+pixels of that world; batched inference, progress bar; on a world with a DSM the cells' nadir
+captures rendered with relief, unless --no-relief);
 ``render`` draws it like the paper's Figure 6; ``info`` prints its metadata and coverage.
 """
 
@@ -11,15 +12,17 @@ import argparse
 import logging
 
 from perception.map_cache import build_world_map
+from scenenav.core.formats.assistant_map_file import BUILD_STRIDE_M
 
 log = logging.getLogger(__name__)
 
 
 def _build(args: argparse.Namespace) -> int:
-    amap, elapsed = build_world_map(args.world, args.out, args.stride_px, args.altitude_m, args.fov_deg,
+    amap, elapsed = build_world_map(args.world, args.out, args.stride_m, args.altitude_m, args.fov_deg,
                           args.weights, args.batch_size, progress=not args.quiet, png=not args.no_png,
                           relief=not args.no_relief, reference=args.reference)
-    print(f"assistant map {amap.width_px}x{amap.height_px} px, stride {args.stride_px} px, "
+    print(f"assistant map {amap.width_px}x{amap.height_px} px at {amap.m_per_px:g} m/px, "
+          f"stride {args.stride_m:g} m = {amap.stride_px} px, "
           f"coverage {amap.coverage():.1%}, built in {elapsed:.1f} s -> {args.out}")
     return 0
 
@@ -40,7 +43,8 @@ def _info(args: argparse.Namespace) -> int:
     p = amap.probability
     known = ~np.isnan(p)
     print(f"file: {args.map}\nworld: {amap.world_name}\nsize: {amap.width_px}x{amap.height_px} px "
-          f"at {amap.m_per_px} m/px\nmethod: {amap.method}  stride: {amap.stride_px} px  "
+          f"at {amap.m_per_px} m/px\nmethod: {amap.method}  "
+          f"stride: {amap.stride_px} px ({amap.stride_px * amap.m_per_px:.3g} m)  "
           f"model: {amap.model_id}\ncoverage: {known.mean():.1%}\n"
           f"true-match expected (p >= 0.5): {(p[known] >= 0.5).mean() if known.any() else 0:.1%} of known pixels")
     return 0
@@ -56,12 +60,14 @@ def register(subparsers) -> None:
     sub.required = True
     b = sub.add_parser("build", help="precompute a whole map for a world with the CNN",
                        description="Slide a camera-footprint crop over the world's reference map with "
-                                   "a stride, classify the crops in batches with the CNN and write "
-                                   "FILE.npz (probability float32 HxW, NaN = unvisited, + metadata) "
-                                   "and a Figure-6 style PNG beside it.")
+                                   "a stride (metres of ground), classify the crops in batches with the "
+                                   "CNN and write FILE.npz (probability float32 HxW, NaN = unvisited, + "
+                                   "metadata) and a Figure-6 style PNG beside it.")
     b.add_argument("--world", required=True, help="world folder (scenenav world generate/import)")
     b.add_argument("--out", required=True, metavar="FILE.npz")
-    b.add_argument("--stride-px", type=int, default=5, help="cell side in map pixels (default 5)")
+    b.add_argument("--stride-m", type=float, default=BUILD_STRIDE_M, metavar="M",
+                   help="spacing of the rated cells on the ground, rounded to whole pixels of the "
+                        f"world (default {BUILD_STRIDE_M:g}: 5 px on the default 0.53 m/px world)")
     b.add_argument("--altitude-m", type=float, default=100.0, help="flight altitude the footprint is cut for (default 100)")
     b.add_argument("--fov-deg", type=float, default=60.0, help="camera field of view (default 60)")
     b.add_argument("--weights", help="CNN weights .pt (default: the shipped perception/weights/default.pt)")

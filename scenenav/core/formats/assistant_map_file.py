@@ -8,6 +8,10 @@ guidance (the planner). Keys (docs/perception.md):
 * ``format_version`` (int, 1), ``width_px``, ``height_px``, ``stride_px`` (int), ``m_per_px``
   (float), ``world_name``, ``created_utc``, ``method``, ``model_id`` (str).
 
+A whole-world map is built with a stride (the spacing of the cells the CNN rates) chosen in metres
+of ground, ``stride_m``, and converted per world to whole map pixels (:func:`stride_px_for`): every
+world gets the same ground spacing whatever its m/px; the file keeps the pixel stride used.
+
 Two readers: :func:`read_assistant_map_file` for files written by :func:`write_assistant_map_file`
 (every key required, sizes checked), and :func:`read_probability_map` for any ``.npz`` holding a
 ``probability`` grid (metadata optional: the planner accepts grids made by other tools). Errors are
@@ -24,8 +28,10 @@ from pathlib import Path
 
 import numpy as np
 
+from scenenav.core.config import check, is_finite_number
 from scenenav.core.errors import UserError
 from scenenav.core.formats.world_manifest import WorldManifest
+from scenenav.core.frames import metres_to_whole_px
 
 log = logging.getLogger(__name__)
 
@@ -36,6 +42,28 @@ _META_INT = ("width_px", "height_px", "stride_px", "format_version")
 _META_FLOAT = ("m_per_px",)
 # Relative tolerance when comparing m_per_px of the map metadata and of the world manifest.
 _SCALE_RTOL = 1e-6
+
+# Stride of a whole-world map, metres of ground. The defaults are the pixel strides used before the
+# stride was a ground distance, times the default world's 0.53 m/px (worlds.city_config.CityConfig),
+# so the default world keeps its pixel strides, its cached maps and their cache keys:
+WORLD_MAP_STRIDE_M = 5.3    # 10 px: the cached map guidance plans over (perception.map_cache)
+BUILD_STRIDE_M = 2.65       # 5 px: `scenenav assistant-map build`
+# A sanity bound: the camera footprint is ~115 m at 100 m height, 1155 m at the builder's 1000 m
+# limit; cells farther apart than that rate little of the world.
+MAX_STRIDE_M = 1000.0
+
+
+def check_stride_m(stride_m: float, key: str = "stride_m") -> None:
+    """One-line error (``ConfigError``, a ``UserError``) unless ``stride_m`` is a usable stride."""
+    check(is_finite_number(stride_m) and 0.0 < stride_m <= MAX_STRIDE_M, key, stride_m,
+          f"a ground distance in metres, > 0 and at most {MAX_STRIDE_M:g}")
+
+
+def stride_px_for(stride_m: float, m_per_px: float, key: str = "stride_m") -> int:
+    """The stride in whole pixels of a world at ``m_per_px``: the nearest, at least 1 px (5.3 m at
+    0.53 m/px -> 10 px; at 0.25 m/px -> 21 px). ``key`` names the value in the error."""
+    check_stride_m(stride_m, key)
+    return metres_to_whole_px(stride_m, m_per_px)
 
 
 @dataclass(frozen=True)
