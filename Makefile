@@ -43,6 +43,10 @@ lint: install
 # leaves a core idle much of the time. --dist loadscope keeps each module on one worker, so a module's
 # shared flights (module-scoped fixtures) are flown once. TEST_WORKERS=0 runs the suite in one process.
 TEST_WORKERS ?= 2
+# The lockstep part runs one worker more: a lockstep flight's processes take turns (each tick waits
+# for the others over the bus), so two such flights leave part of the two cores idle. TEST_WORKERS=0
+# runs it in one process too.
+LOCK_WORKERS ?= $(if $(filter 0,$(TEST_WORKERS)),0,$(shell echo $$(( $(TEST_WORKERS) + 1 ))))
 
 # The real-time SITL flights (marker `realtime`: MAVProxy, MAVSDK, the failsafes, ...) fly on the
 # wall clock and leave most of a core idle; the lockstep part is bound by the CPU and by nothing
@@ -56,7 +60,7 @@ TEST_WORKERS ?= 2
 RT_LOG := .pytest-realtime.log
 test: install
 	@$(PY) -m pytest -q -ra -n $(TEST_WORKERS) --dist load --durations=10 -m realtime > $(RT_LOG) 2>&1 & rt=$$!; \
-	nice -n 10 $(PY) -m pytest -q -ra -n $(TEST_WORKERS) --dist loadscope --durations=40 -m "not realtime"; lock=$$?; \
+	nice -n 10 $(PY) -m pytest -q -ra -n $(LOCK_WORKERS) --dist loadscope --durations=40 -m "not realtime"; lock=$$?; \
 	wait $$rt; rts=$$?; \
 	echo "== the real-time tests (marker realtime), run alongside at normal priority"; cat $(RT_LOG); \
 	test $$lock -eq 0 && test $$rts -eq 0
