@@ -81,6 +81,8 @@ class VisionReading:
     xy_enu_m: tuple[float, float]
     cov_m2: np.ndarray                            # (2, 2)
     source: str
+    heading_rad: float = math.nan                 # the heading the fix measured (NaN: none)
+    heading_std_rad: float = math.nan
 
 
 @dataclass(frozen=True)
@@ -127,6 +129,7 @@ class SensorFusionMixin:
         self._ext_yaw: list[tuple[float, float, float]] = []      # heading rad, rad: EK3_SRCn_YAW 6
         self._last_ext_height_s: float | None = None
         self._last_ext_yaw_s: float | None = None
+        self._last_vision_yaw_s: float | None = None    # a VisionFix heading fused (SN_VIS_YAW_HOLD)
         self._rest_gyro_sum = np.zeros(3)      # body rates summed at rest (disarmed on the ground)
         self._drag_accel_sum = np.zeros(3)     # specific force summed in flight (drag fusion)
         self._drag_s = 0.0
@@ -183,9 +186,12 @@ class SensorFusionMixin:
         self.battery.on_sample(t_s, voltage_v, current_a)
 
     def on_vision_fix(self, capture_t_s: float, xy_enu_m, cov_2x2_m2, valid: bool, accepted: bool,
-                      source: str = "") -> None:
+                      source: str = "", heading_rad: float = math.nan,
+                      heading_std_rad: float = math.nan) -> None:
         """A scene-matching fix from the followed perception node; fused at the next step when
-        usable (valid, accepted, finite, recent, taken above SN_VIS_MIN_ALT)."""
+        usable (valid, accepted, finite, recent, taken above SN_VIS_MIN_ALT). Its heading (when
+        finite, with a positive 1-sigma) is fused as external-navigation yaw when EK3_SRCn_YAW is 6
+        and the EKF accepted the fix's position (``_fuse_vision``)."""
         self.stats["vision_fixes"] += 1
         if not (valid and accepted):
             self.stats["vision_not_accepted"] += 1
@@ -197,11 +203,19 @@ class SensorFusionMixin:
         cov = np.asarray(cov_2x2_m2, dtype=float).reshape(2, 2)
         if not np.all(np.isfinite(cov)) or cov[0, 0] <= 0.0 or cov[1, 1] <= 0.0:
             cov = np.eye(2) * self.cfg.ext_nav_std_m ** 2
-        self._vision.append(VisionReading(float(capture_t_s), (xy[0], xy[1]), cov, source))
+        hdg, hdg_std = float(heading_rad), float(heading_std_rad)
+        if not (all_finite(hdg, hdg_std) and hdg_std > 0.0):
+            hdg = hdg_std = math.nan
+        self._vision.append(VisionReading(float(capture_t_s), (xy[0], xy[1]), cov, source, hdg, hdg_std))
 
     def _ext_nav_source(self, kind: str) -> bool:
         """EK3_SRC<active set>_<kind> is 6 (ExternalNav)."""
         return self.params.get_int(f"EK3_SRC{self._source_set}_{kind}") == EXTNAV_SOURCE
+
+    def _vision_yaw_held(self) -> bool:
+        """A vision fix's heading was fused within SN_VIS_YAW_HOLD seconds."""
+        t_s = self._last_vision_yaw_s
+        return t_s is not None and self._now_s - t_s <= self.params.get("SN_VIS_YAW_HOLD")
 
     def _fresh(self, t_s: float | None) -> bool:
         return t_s is not None and self._now_s - t_s <= self.cfg.ext_nav_fresh_s
@@ -224,7 +238,7 @@ class SensorFusionMixin:
             if baro:
                 nav.fuse_baro(alt)
         self._baro.clear()
-        compass = not (ext_yaw and self._fresh(self._last_ext_yaw_s))
+        compass = not (ext_yaw and (self._fresh(self._last_ext_yaw_s) or self._vision_yaw_held()))
         if compass and self._compass:
             self._inflight_yaw_alignment(self._compass[-1])
         for hdg in self._compass:
@@ -294,6 +308,10 @@ class SensorFusionMixin:
             self.stats["vision_monitored"] += 1
         elif r.accepted:
             self.stats["vision_fused"] += 1
+            if math.isfinite(v.heading_rad) and self._ext_nav_source("YAW"):
+                self.nav.fuse_ext_nav_yaw(v.heading_rad, v.heading_std_rad, age_s=max(age, 0.0))
+                self._last_vision_yaw_s = self._now_s
+                self.stats["vision_yaw_fused"] += 1
         else:
             self.stats["vision_rejected"] += 1
 

@@ -553,7 +553,8 @@ class AutopilotNode:
                                            f"fix of {old} and the first of {node}")
             self._last_fix_t_s[node] = t_s
             cov = np.asarray(fix.covariance_xy_m2, dtype=float).reshape(2, 2)
-            self.core.on_vision_fix(t_s, fix.position_xy_enu_m, cov, fix.valid, fix.accepted, node)
+            self.core.on_vision_fix(t_s, fix.position_xy_enu_m, cov, fix.valid, fix.accepted, node,
+                                    fix.heading_rad, fix.heading_std_rad)
             self.stats["fixes_delivered"] += 1
 
     # ------------------------------------------------------------------ the run's own mission

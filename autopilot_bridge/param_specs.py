@@ -33,6 +33,10 @@ SN_PARAM_SPECS: tuple[ParamSpec, ...] = (
               "vision failsafe): an ambiguous match is published as wide as its search area, and "
               "fused at the frame rate its repeated error walks the estimate away; 0 = fuse every "
               "fix", safe_min=0.0),
+    ParamSpec("SN_VIS_YAW_HOLD", ParamType.REAL32, 1.0, 0.0, 600.0, "s",
+              "With EK3_SRCn_YAW 6 (ExternalNav): after a vision fix's heading was fused the "
+              "compass stays unfused this long, so that the gyro carries the heading between the "
+              "fixes' headings and the compass's bias does not pull it back in the gaps", safe_min=0.0),
 )
 # EKF source sets 2 and 3 (SET_EKF_SOURCE_SET, system_commands.py): ArduPilot's defaults are 0 (None).
 _SRC_VALUES = {

@@ -55,6 +55,9 @@ class HeadingOffsetConfig:
     learn_every_n: int = 3          # measure on every n-th frame that qualifies (a measurement costs
                                     # about 2 ms CPU: two re-alignments and three small correlations) ...
     warmup_measurements: int = 10   # ... once the heading's sector has this many; on every one before
+    # The 1-sigma published with each measured heading (VisionFix.heading_std_rad): the scatter of
+    # the measurements against the true heading on `realistic` flights (docs/realism.md).
+    measurement_std_deg: float = 1.0
 
     def __post_init__(self) -> None:
         check(0.5 <= self.probe_deg <= 15.0, "heading_offset.probe_deg", self.probe_deg, "0.5 .. 15 degrees")
@@ -72,6 +75,8 @@ class HeadingOffsetConfig:
               self.warmup_measurements, "an integer >= 0")
         check(self.learn_every_n >= 1, "heading_offset.learn_every_n", self.learn_every_n,
               "an integer >= 1")
+        check(0.1 <= self.measurement_std_deg <= 30.0, "heading_offset.measurement_std_deg",
+              self.measurement_std_deg, "0.1 .. 30 degrees")
         check(self.min_template_px >= 16, "heading_offset.min_template_px", self.min_template_px,
               "an integer >= 16")
 

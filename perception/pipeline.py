@@ -65,6 +65,7 @@ from perception.statistical import StatisticalDetector
 from perception.tracker import MatchTracker, TrackState
 from scenenav.core.camera_geometry import NO_DISTORTION, Distortion
 from scenenav.core.errors import UserError
+from scenenav.core.frames import wrap_2pi
 
 __all__ = ["BadInput", "FixResult", "PerceptionPipeline", "Reason"]
 
@@ -137,6 +138,9 @@ class FixResult:
     p_false: float = _NAN
     decision_rule: DecisionRule = DecisionRule.PAPER
     ambiguity_resolved: bool = False    # published with the local covariance (resolve_ambiguity_min_posterior)
+    #: the heading the map measured for this capture (clockwise from north, rad): the rotation that
+    #: fits the reference best at the matched position (``_learn_heading``); NaN when not measured
+    heading_rad: float = _NAN
 
     @property
     def covariance_row_major(self) -> tuple[float, float, float, float]:
@@ -341,11 +345,13 @@ class PerceptionPipeline:
         new_track = match.search is not SearchMode.WINDOW or not continuing
         run, dr_innovation_px, dr_age_s, reach_excess_px = self.track_evidence.observe(
             t_s, match.position_px, match.quality_ok, new_track, velocity_px_s)
+        measured_heading_rad = _NAN
         if (deviation is not None and match.quality_ok and run >= deviation.cfg.min_run
                 and side >= deviation.cfg.min_template_px and match.search is SearchMode.WINDOW
                 and deviation.due(compass_rad)):
-            self._learn_heading(deviation, compass_rad, aligned, match,
-                                cfg.fov_deg if fov_deg is None else fov_deg, tilt_rad, intrinsics_px)
+            measured_heading_rad = self._learn_heading(deviation, compass_rad, aligned, match,
+                                                       cfg.fov_deg if fov_deg is None else fov_deg,
+                                                       tilt_rad, intrinsics_px)
         innovation_m = innovation_px * self.m_per_px
         consistent = (self.consistency.observe(t_s, match.position_enu_m)
                       if cfg.resolve_consistent_matches > 0 or near_estimate is not None else 0)
@@ -429,7 +435,7 @@ class PerceptionPipeline:
             innovation_px=innovation_px, track_fixes=track_fixes, run=run,
             dr_innovation_px=dr_innovation_px, dr_age_s=dr_age_s,
             reach_excess_px=reach_excess_px, drone_px=drone, p_false=p_false,
-            decision_rule=self.rule, ambiguity_resolved=resolved)
+            decision_rule=self.rule, ambiguity_resolved=resolved, heading_rad=measured_heading_rad)
 
     def _local_mode(self, match: MatchResult, pointing: np.ndarray | None,
                     estimate: tuple[float, float, float, float]) -> tuple[float, np.ndarray] | None:
@@ -510,10 +516,12 @@ class PerceptionPipeline:
         return best
 
     def _learn_heading(self, deviation: HeadingDeviation, compass_rad: float, aligned: AlignedCapture,
-                       match: MatchResult, fov_deg: float, tilt_rad, intrinsics_px) -> None:
+                       match: MatchResult, fov_deg: float, tilt_rad, intrinsics_px) -> float:
         """One measurement of the compass heading error (perception.heading_offset): the capture
         (already undistorted) re-aligned at -probe and +probe around the heading used, each rotated
-        template's NCC peak near the locked-on position, the parabola's vertex."""
+        template's NCC peak near the locked-on position, the parabola's vertex. Returns the heading
+        measured (the one used turned by the vertex, in [0, 2 pi)); NaN when the peaks have no
+        maximum or it lies at the edge of the probe span (the true heading may lie beyond it)."""
         step = math.radians(deviation.cfg.probe_deg)
         u, v = match.position_px
         templates, centres = [], []
@@ -526,8 +534,12 @@ class PerceptionPipeline:
         peaks = rotation_peaks(self.matcher.reference, templates, centres,
                                deviation.cfg.window_radius_px)
         vertex = parabola_vertex(peaks[0], peaks[1], peaks[2], step)
-        if vertex is not None:
-            deviation.update(compass_rad, aligned.heading_rad - compass_rad + vertex)
+        if vertex is None:
+            return _NAN
+        deviation.update(compass_rad, aligned.heading_rad - compass_rad + vertex)
+        if abs(vertex) >= step:
+            return _NAN
+        return wrap_2pi(aligned.heading_rad + vertex)
 
     @property
     def rule(self) -> DecisionRule:

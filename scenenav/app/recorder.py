@@ -75,7 +75,7 @@ TRUTH_COLUMNS = ["t_s", "x_m", "y_m", "z_m", "vx_m_s", "vy_m_s", "vz_m_s", "head
 FIX_COLUMNS = ["t_s", "frame_seq", "node_id", "method", "valid", "accepted", "x_m", "y_m",
                "cov_xx_m2", "cov_xy_m2", "cov_yy_m2", "p_true", "p_bad", "ncc_peak", "ncc_psr",
                "ncc_second_peak_ratio", "time_align_ms", "time_ncc_ms", "time_cnn_ms",
-               "time_lookup_ms", "time_total_ms"]
+               "time_lookup_ms", "time_total_ms", "heading_deg", "heading_std_deg"]
 ESTIMATE_COLUMNS = ["t_s", "x_m", "y_m", "z_m", "vx_m_s", "vy_m_s", "vz_m_s", "heading_deg",
                     "std_x_m", "std_y_m", "std_z_m", "position_source", "vision_node_id"]
 STATUS_COLUMNS = ["t_s", "armed", "mode", "landed", "mission_seq", "mission_count",
@@ -357,7 +357,8 @@ class RecorderNode:
                             int(msg.accepted), *msg.position_xy_enu_m, c[0], c[1], c[3],
                             msg.p_true, msg.p_classes[0], msg.ncc_peak, msg.ncc_psr,
                             msg.ncc_second_peak_ratio, msg.time_align_ms, msg.time_ncc_ms,
-                            msg.time_cnn_ms, msg.time_lookup_ms, msg.time_total_ms])
+                            msg.time_cnn_ms, msg.time_lookup_ms, msg.time_total_ms,
+                            math.degrees(msg.heading_rad), math.degrees(msg.heading_std_rad)])
         elif isinstance(msg, NavEstimate):
             self.estimates.row([t, *msg.position_enu_m, *msg.velocity_enu_m_s,
                                 math.degrees(msg.heading_rad), *msg.position_std_m,

@@ -4,7 +4,9 @@ Encoding (documented for other languages in docs/interfaces.md):
 
 * Small messages are UTF-8 JSON objects: ``{"type": <class name>, "version": <int>, <fields>...}``.
   Vectors are JSON arrays of fixed length; non-finite floats (NaN, inf) travel as ``null`` and decode
-  to NaN. Unknown extra keys are ignored (forward compatibility); missing keys are errors.
+  to NaN. Unknown extra keys are ignored (forward compatibility); missing keys are errors, except
+  that a message of an older version a class still reads (``READABLE_VERSIONS``) may lack the fields
+  a later version added (those with a default), which then take their default.
 * ``CameraFrame`` is binary: ``uint32 little-endian header length N`` + ``N bytes JSON header`` (the
   same JSON form as above, without the pixels) + raw pixel bytes, row-major, top row first, with the
   shape and encoding stated in the header.
@@ -264,7 +266,9 @@ class VisionFix:
     computed (the position is then NaN); ``accepted`` is the false-match detector's verdict.
     """
 
-    VERSION: ClassVar[int] = 1
+    VERSION: ClassVar[int] = 2
+    #: older versions this node still reads: version 1 had no heading (it decodes to NaN)
+    READABLE_VERSIONS: ClassVar[tuple[int, ...]] = (1,)
     timestamp_us: int
     frame_seq: int
     node_id: str
@@ -283,6 +287,11 @@ class VisionFix:
     time_cnn_ms: float
     time_lookup_ms: float
     time_total_ms: float
+    # Version 2: the heading the map measured for this frame (clockwise from true north, rad, the
+    # body's heading at the capture time) and its 1-sigma (rad); both NaN when not measured. The
+    # autopilot fuses it as external-navigation yaw (EK3_SRC1_YAW = 6) with an accepted fix.
+    heading_rad: float = math.nan
+    heading_std_rad: float = math.nan
 
 
 @dataclass(frozen=True)
@@ -451,19 +460,37 @@ def _to_json_obj(msg: Any) -> dict:
     return obj
 
 
+def _added_fields(cls: type) -> frozenset[str]:
+    """The fields with a default: those a later version added (an older message may lack them)."""
+    added = _ADDED.get(cls)
+    if added is None:
+        added = frozenset(f.name for f in dataclasses.fields(cls)
+                          if f.default is not dataclasses.MISSING
+                          or f.default_factory is not dataclasses.MISSING)
+        _ADDED[cls] = added
+    return added
+
+
+_ADDED: dict[type, frozenset[str]] = {}
+
+
 def _from_json_obj(cls: type[Any], obj: Any) -> Any:
     if not isinstance(obj, dict):
         raise DecodeError(f"{cls.__name__}: expected a JSON object")
     if obj.get("type") != cls.__name__:
         raise DecodeError(f"expected type {cls.__name__}, got {obj.get('type')!r}")
-    if obj.get("version") != cls.VERSION:
-        raise DecodeError(f"{cls.__name__}: unsupported version {obj.get('version')!r} "
+    version = obj.get("version")
+    older = version != cls.VERSION
+    if older and (type(version) is not int or version not in getattr(cls, "READABLE_VERSIONS", ())):
+        raise DecodeError(f"{cls.__name__}: unsupported version {version!r} "
                           f"(this node speaks version {cls.VERSION})")
     kwargs: dict[str, Any] = {}
     for (name, tp), (_, kind) in zip(_schema(cls), _enc_spec(cls), strict=False):
         try:
             value = obj[name]
         except KeyError:
+            if older and name in _added_fields(cls):
+                continue                    # a field a later version added: its default
             raise DecodeError(f"{cls.__name__}: missing field {name!r}") from None
         if kind == _KIND_FLOAT and type(value) is float:              # fast path
             kwargs[name] = value

@@ -22,6 +22,7 @@ from autopilot_bridge.fusion import GpsReading, ImuReading, flow_reading
 from autopilot_bridge.modes import CopterMode
 from autopilot_bridge.param_specs import PARAM_SPECS
 from autopilot_bridge.params import ParameterStore
+from scenenav.core.rotations import heading_from_quat
 from sitl.config import SimConfig, WindConfig
 from sitl.core import SimulatorCore, TickOutput
 
@@ -113,6 +114,8 @@ class CoreFlight:
         self.gps = gps
         self.vision = False
         self.vision_std_m = 0.7
+        #: the fixes carry the true heading plus noise of this 1-sigma (rad; None: no heading)
+        self.vision_heading_std_rad: float | None = None
         #: added to every fix (a false lock) and the covariance published with it
         self.vision_offset_m = np.zeros(2)
         self.vision_cov_m2 = np.eye(2) * 0.5
@@ -151,7 +154,11 @@ class CoreFlight:
             c.on_flow(flow_reading(out.flow))
         if self.vision and self.k % 10 == 0:
             xy = self.plant.p[:2] + self.rng.normal(0.0, self.vision_std_m, 2) + self.vision_offset_m
-            c.on_vision_fix(t - 0.05, xy, self.vision_cov_m2, True, True, "test")
+            hdg = hdg_std = math.nan
+            if self.vision_heading_std_rad is not None:
+                hdg_std = self.vision_heading_std_rad
+                hdg = heading_from_quat(self.plant.q) + float(self.rng.normal(0.0, hdg_std))
+            c.on_vision_fix(t - 0.05, xy, self.vision_cov_m2, True, True, "test", hdg, hdg_std)
         self.k += 1
         imu = out.imu
         self.cmd = c.step(imu.dt_s, ImuReading(imu.accel_flu_m_s2, imu.gyro_flu_rad_s), t)
@@ -179,15 +186,21 @@ class CoreFlight:
         self.plant.close()
 
 
-def vision_cruise(seed: int = 6, **params) -> CoreFlight:
+def vision_cruise(seed: int = 6, *, compass_bias_rad: float = 0.0,
+                  vision_heading_std_rad: float | None = None, **params) -> CoreFlight:
     """A GPS-denied flight on vision fixes (EK3_SRC1_POSXY 6, fixes used from 10 m, SN_VIS_TIMEOUT
     3 s, SN_VIS_FS_LAND 5 s, WPNAV_SPEED 10 m/s; ``params`` over these): take off to 20 m and
-    cruise north in GUIDED towards a point 600 m away for 15 s; the fixes still on."""
+    cruise north in GUIDED towards a point 600 m away for 15 s; the fixes still on. The compass
+    reads ``compass_bias_rad`` too much; the fixes carry a heading when ``vision_heading_std_rad``
+    is given (``CoreFlight.vision_heading_std_rad``)."""
     from autopilot_bridge.vehicle_interface import AltFrame
     f = CoreFlight(seed, gps=False, **{"EK3_SRC1_POSXY": 6, "EK3_SRC1_VELXY": 0, "SN_VIS_MIN_ALT": 10,
                                        "SN_VIS_TIMEOUT": 3, "SN_VIS_FS_LAND": 5, "WPNAV_SPEED": 1000,
                                        **params})
     f.vision = True
+    f.vision_heading_std_rad = vision_heading_std_rad
+    if compass_bias_rad:
+        f.compass_error = lambda _height_m: compass_bias_rad
     c = f.core
     c.set_vision_available(True)
     f.arm_in_guided()

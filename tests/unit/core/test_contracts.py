@@ -100,3 +100,23 @@ def test_camera_header_states_shape_and_encoding():
     header = json.loads(raw[4:4 + n])
     assert header["width_px"] == 5 and header["height_px"] == 4 and header["encoding"] == "rgb8"
     assert len(raw) - 4 - n == 4 * 5 * 3
+
+
+def test_vision_fix_version_1_is_still_read():
+    """VisionFix version 2 added the measured heading; a version-1 message (an outside node written
+    against the earlier interface) decodes with NaN there. Other versions and a v2 message missing
+    the new fields are refused."""
+    fix = sample(c.VisionFix)
+    obj = json.loads(c.encode(fix))
+    assert obj["version"] == 2 and obj["heading_rad"] == fix.heading_rad
+    v1 = {k: v for k, v in obj.items() if k not in ("heading_rad", "heading_std_rad")}
+    v1["version"] = 1
+    old = c.decode(c.VisionFix, json.dumps(v1).encode())
+    assert math.isnan(old.heading_rad) and math.isnan(old.heading_std_rad)
+    assert old.position_xy_enu_m == fix.position_xy_enu_m and old.frame_seq == fix.frame_seq
+    for bad in (dict(v1, version=2), dict(v1, version=3), dict(v1, version=True), dict(v1, version="1")):
+        with pytest.raises(c.DecodeError):
+            c.decode(c.VisionFix, json.dumps(bad).encode())
+    # a version-1 message still has to carry every version-1 field
+    with pytest.raises(c.DecodeError, match="missing field 'ncc_peak'"):
+        c.decode(c.VisionFix, json.dumps({k: v for k, v in v1.items() if k != "ncc_peak"}).encode())
