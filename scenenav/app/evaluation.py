@@ -224,7 +224,8 @@ def fix_metrics(fx: dict[str, np.ndarray]) -> dict[str, Any]:
     if not fx:
         return {"fixes_total": 0, "fixes_valid": 0, "fixes_accepted": 0, "false_fixes": 0,
                 "false_fixes_accepted": 0, "false_fixes_rejected": 0, "true_fixes_rejected": 0, "fix_time_ms_median": None,
-                "fix_rms_error_accepted_m": None, "fix_rms_error_all_m": None}
+                "fix_rms_error_accepted_m": None, "fix_rms_error_all_m": None,
+                "fixes_with_heading": 0, "fix_heading_rms_error_deg": None}
     valid = fx["valid"] > 0.5
     acc = (fx["accepted"] > 0.5) & valid
     false = fx["is_false"].astype(bool)
@@ -245,7 +246,23 @@ def fix_metrics(fx: dict[str, np.ndarray]) -> dict[str, Any]:
         "fix_time_ms_median": float(np.nanmedian(fx["time_total_ms"])) if len(valid) else None,
         "fix_rms_error_accepted_m": rms(acc),
         "fix_rms_error_all_m": rms(valid),
+        **heading_metrics(fx),
     }
+
+
+def heading_metrics(fx: dict[str, np.ndarray]) -> dict[str, Any]:
+    """The headings the fixes carried (VisionFix version 2, fixes.csv ``heading_deg``): how many,
+    and their RMS error against the true heading at the capture (degrees; None without any, e.g.
+    a run folder recorded before the column existed)."""
+    if "heading_deg" not in fx or "truth_heading_rad" not in fx:
+        return {"fixes_with_heading": 0, "fix_heading_rms_error_deg": None}
+    hdg = np.asarray(fx["heading_deg"], dtype=float)
+    has = np.isfinite(hdg) & np.isfinite(fx["truth_heading_rad"])
+    if not has.any():
+        return {"fixes_with_heading": 0, "fix_heading_rms_error_deg": None}
+    err = (hdg[has] - np.degrees(fx["truth_heading_rad"][has]) + 180.0) % 360.0 - 180.0
+    return {"fixes_with_heading": int(has.sum()),
+            "fix_heading_rms_error_deg": float(np.sqrt(np.mean(err ** 2)))}
 
 
 def _node_method(node_id: str, recorded: dict, methods: np.ndarray) -> str | None:
@@ -740,6 +757,9 @@ def plain_summary(summary: dict, run_dir: Path | None = None) -> str:
                      f"{summary.get('false_fix_threshold_m', 5.0):g} m from the truth), "
                      f"{summary.get('false_fixes_rejected', 0)} of them rejected; the accepted fixes' "
                      f"error RMS is {_m(summary.get('fix_rms_error_accepted_m'))}.")
+        if summary.get("fixes_with_heading"):
+            lines.append(f"{summary['fixes_with_heading']} fixes carried the heading the map measured, "
+                         f"{summary['fix_heading_rms_error_deg']:.2f} deg RMS off the truth.")
     if summary.get("rms_error_m") is not None:
         air = summary.get("rms_error_airborne_m")
         lines.append(f"The autopilot's position estimate was off by {_m(summary['rms_error_m'])} RMS "

@@ -164,3 +164,25 @@ def test_a_broken_run_scenario_is_one_clear_error(tmp_path, text, what):
     (run / "scenario.yaml").write_text(text)
     with pytest.raises(UserError, match=re.escape(what)):
         fix_table(run, 5.0)
+
+
+def test_the_fixes_headings_are_scored_against_the_true_heading(tmp_path):
+    """fixes.csv ``heading_deg`` (VisionFix v2) against the true heading at the capture, across
+    north (359 against 1 degree is 2 degrees off); a file without the column scores nothing."""
+    from scenenav.app.evaluation import fix_metrics
+    n = 6
+    truth = np.zeros((n, 2))
+    _write_run(tmp_path / "old", truth, truth)
+    assert fix_metrics(fix_table(tmp_path / "old", 5.0))["fixes_with_heading"] == 0
+    run = tmp_path / "run"
+    _write_run(run, truth, truth)
+    rows = ["t_s,x_m,y_m,z_m,vx_m_s,vy_m_s,vz_m_s,heading_deg,qw,qx,qy,qz"]
+    rows += [f"{0.1 * i:.3f},0,0,100,0,0,0,1.0,1,0,0,0" for i in range(n)]
+    (run / "truth.csv").write_text("\n".join(rows) + "\n")
+    lines = (run / "fixes.csv").read_text().splitlines()
+    heads = ["359.0", "", "3.0", "1.0", "", "5.0"]         # errors -2, 2, 0, 4 degrees
+    (run / "fixes.csv").write_text("\n".join([lines[0] + ",heading_deg"]
+                                             + [f"{r},{h}" for r, h in zip(lines[1:], heads, strict=True)]) + "\n")
+    m = fix_metrics(fix_table(run, 5.0))
+    assert m["fixes_with_heading"] == 4
+    assert m["fix_heading_rms_error_deg"] == pytest.approx(math.sqrt((4 + 4 + 0 + 16) / 4))
