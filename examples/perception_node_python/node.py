@@ -318,10 +318,11 @@ class PerceptionNode:
                 "p_true": math.nan, "p_classes": [math.nan] * 4,   # no classifier here
                 "ncc_peak": peak, "ncc_psr": psr, "ncc_second_peak_ratio": second,
                 "time_align_ms": align_ms, "time_ncc_ms": ncc_ms, "time_cnn_ms": 0.0,
-                "time_lookup_ms": 0.0, "time_total_ms": total_ms}
+                "time_lookup_ms": 0.0, "time_total_ms": total_ms,
+                "heading_rad": math.nan, "heading_std_rad": math.nan}   # no heading measured here
 
     def publish_fix(self, fix: dict) -> None:
-        self.fix_pub.put(encode("VisionFix", 1, fix))
+        self.fix_pub.put(encode("VisionFix", 2, fix))
 
     def publish_ack(self, header: dict) -> None:
         self.ack_pub.put(encode("LockstepAck", 1, {
