@@ -408,6 +408,11 @@ def _field_problems(fixes: list[VisionFix], half_extent_m: tuple[float, float]) 
             v = getattr(f, name)
             if not math.isnan(v) and v < 0:
                 bad(f"{name} < 0", s)
+        if math.isfinite(f.heading_rad):
+            if not 0.0 <= f.heading_rad < 2.0 * math.pi + 1e-9:
+                bad("heading_rad outside [0, 2 pi) (radians clockwise from north, not degrees)", s)
+            if not (math.isfinite(f.heading_std_rad) and f.heading_std_rad > 0.0):
+                bad("a heading_rad without a positive heading_std_rad", s)
     return [f"{what} (seq {_first(seqs)})" for what, seqs in problems.items()]
 
 

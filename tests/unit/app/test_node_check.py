@@ -67,6 +67,18 @@ def test_each_defect_fails_its_own_rule():
     assert "seq 7: not positive semi-definite" in _judge(seen)["covariance"]
 
 
+def test_a_heading_in_degrees_or_without_its_sigma_fails_fields():
+    seen = _good()
+    seen.fixes[4] = (seen.fixes[4][0], _fix(4, 400_000, heading_rad=1.2, heading_std_rad=0.02))   # fine
+    assert _judge(seen)["fields"] is None
+    seen.fixes[5] = (seen.fixes[5][0], _fix(5, 500_000, heading_rad=90.0, heading_std_rad=0.02))
+    seen.fixes[6] = (seen.fixes[6][0], _fix(6, 600_000, heading_rad=1.0))
+    fields = _judge(seen)["fields"]
+    assert fields is not None
+    assert "heading_rad outside [0, 2 pi) (radians clockwise from north, not degrees) (seq 5)" in fields
+    assert "a heading_rad without a positive heading_std_rad (seq 6)" in fields
+
+
 def test_missing_fix_late_ack_and_late_token():
     seen = _good()
     del seen.fixes[4]
