@@ -510,7 +510,7 @@ def external_missing_text(cfg: ScenarioConfig, run_dir: Path) -> str:
     except (OSError, ValueError, AttributeError):
         missing = list(cfg.external.nodes)
     return (f"external node {', '.join(missing)} did not join within "
-            f"{cfg.external.join_timeout_s:.0f} s (external.join_timeout_s): start it with the bus "
+            f"{cfg.external.join_timeout_s:g} s (external.join_timeout_s): start it with the bus "
             f"endpoint and namespace of {run_dir / RUN_FILE} and declare its liveliness token "
             f"nodes/<role>/<id> (docs/interfaces.md), or raise external.join_timeout_s")
 

@@ -155,7 +155,7 @@ def wait_external_nodes(node, cfg: ScenarioConfig, run_dir: Path,
                  ", ".join(facts["missing"]))
         return False
     if facts["missing"]:
-        log.error("external node(s) %s did not join within %.0f s (external.join_timeout_s)",
+        log.error("external node(s) %s did not join within %g s (external.join_timeout_s)",
                   ", ".join(facts["missing"]), timeout_s)
         return False
     log.info("external node(s) joined after %.3f s: %s", facts["waited_s"],
