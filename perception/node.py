@@ -403,9 +403,7 @@ class PerceptionNode:
             time_align_ms=float(t.align_ms), time_ncc_ms=float(t.ncc_ms),
             time_cnn_ms=float(t.cnn_ms), time_lookup_ms=float(t.lookup_ms),
             time_total_ms=float(t.total_ms),
-            heading_rad=float(r.heading_rad),
-            heading_std_rad=(math.radians(self.pipeline.cfg.heading_offset.measurement_std_deg)
-                             if math.isfinite(r.heading_rad) else math.nan))
+            heading_rad=float(r.heading_rad), heading_std_rad=float(r.heading_std_rad))
 
     def _write_diag(self, msg: CameraFrame, r: FixResult) -> None:
         if self._diag is None:

@@ -141,6 +141,7 @@ class FixResult:
     #: the heading the map measured for this capture (clockwise from north, rad): the rotation that
     #: fits the reference best at the matched position (``_learn_heading``); NaN when not measured
     heading_rad: float = _NAN
+    heading_std_rad: float = _NAN       # its 1-sigma (``HeadingOffsetConfig.measurement_std_deg``); NaN with it
 
     @property
     def covariance_row_major(self) -> tuple[float, float, float, float]:
@@ -435,7 +436,9 @@ class PerceptionPipeline:
             innovation_px=innovation_px, track_fixes=track_fixes, run=run,
             dr_innovation_px=dr_innovation_px, dr_age_s=dr_age_s,
             reach_excess_px=reach_excess_px, drone_px=drone, p_false=p_false,
-            decision_rule=self.rule, ambiguity_resolved=resolved, heading_rad=measured_heading_rad)
+            decision_rule=self.rule, ambiguity_resolved=resolved, heading_rad=measured_heading_rad,
+            heading_std_rad=(math.radians(cfg.heading_offset.measurement_std_deg)
+                             if math.isfinite(measured_heading_rad) else _NAN))
 
     def _local_mode(self, match: MatchResult, pointing: np.ndarray | None,
                     estimate: tuple[float, float, float, float]) -> tuple[float, np.ndarray] | None:

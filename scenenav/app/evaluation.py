@@ -48,6 +48,7 @@ from scenenav.core.errors import UserError
 from scenenav.core.formats.atomic_file import write_atomic
 from scenenav.core.formats.route_file import RouteFile, read_route_file
 from scenenav.core.formats.world_manifest import ReferenceInfo
+from scenenav.core.frames import wrap_pi
 
 log = logging.getLogger(__name__)
 
@@ -260,7 +261,7 @@ def heading_metrics(fx: dict[str, np.ndarray]) -> dict[str, Any]:
     has = np.isfinite(hdg) & np.isfinite(fx["truth_heading_rad"])
     if not has.any():
         return {"fixes_with_heading": 0, "fix_heading_rms_error_deg": None}
-    err = (hdg[has] - np.degrees(fx["truth_heading_rad"][has]) + 180.0) % 360.0 - 180.0
+    err = np.degrees(wrap_pi(np.radians(hdg[has]) - fx["truth_heading_rad"][has]))
     return {"fixes_with_heading": int(has.sum()),
             "fix_heading_rms_error_deg": float(np.sqrt(np.mean(err ** 2)))}
 
