@@ -321,6 +321,10 @@ class FlightCoreConfig:
     # (scene-matching fix errors stay correlated 0.2-0.35 over 10 s, docs/realism.md), so ten a second
     # carry hardly more than one; 5 s, the order of that correlation time
     wide_vision_fix_interval_s: float = 5.0
+    # SN_VIS_WIDE_SD: a wide fix is fused with that 1-sigma when it lies within this many of the
+    # combined sigmas (estimate and SN_VIS_WIDE_SD) of the estimate: 3, tighter than the EKF's own
+    # 5-sigma position gate (EK3_POS_I_GATE 500), because the fix's own width is set aside
+    wide_vision_narrow_gate_sd: float = 3.0
     # ArduPilot EKF3's final in-flight yaw alignment: the heading is reset to the compass once per
     # flight at this height above home (EKF3_MAG_FINAL_RESET_ALT 2.5 m, AP_NavEKF3_core.h); 0 = off
     inflight_yaw_reset_height_m: float = 2.5
@@ -331,7 +335,7 @@ class FlightCoreConfig:
                              f"{self.inflight_yaw_reset_height_m!r}: expected >= 0 (0 = off)")
         for name in ("align_time_s", "gps_wait_s", "gps_velocity_std_m_s", "ground_position_std_m",
                      "ground_fusion_period_s", "drag_fusion_period_s", "ext_nav_std_m", "ext_nav_fresh_s",
-                     "vision_max_age_s", "wide_vision_fix_interval_s"):
+                     "vision_max_age_s", "wide_vision_fix_interval_s", "wide_vision_narrow_gate_sd"):
             value = getattr(self, name)
             if not (math.isfinite(value) and value > 0):
                 raise ValueError(f"FlightCoreConfig.{name} = {value!r}: expected > 0")

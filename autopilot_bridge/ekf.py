@@ -79,7 +79,13 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from autopilot_bridge.config import EkfConfig, PositionSource
-from autopilot_bridge.ekf_kernels import predict_covariance, update_direct, update_scalar, warm_up
+from autopilot_bridge.ekf_kernels import (
+    VARIANCE_FLOOR,
+    predict_covariance,
+    update_direct,
+    update_scalar,
+    warm_up,
+)
 from scenenav.core.frames import wrap_pi
 from scenenav.core.rotations import (
     heading_from_quat,
@@ -130,6 +136,9 @@ _VEL_STATES = np.array([3, 4, 5], dtype=np.int64)    # GPS velocity
 _GYRO_XY_BIAS_STATES = np.array([9, 10], dtype=np.int64)   # zero-rate fusion at rest: body x, y
 _H_HEIGHT = np.zeros(NUM_ERROR_STATES)     # height measurements: z
 _H_HEIGHT[2] = 1.0
+#: tilt_rows: a camera ray closer to the horizon than this (its down component, ~78 deg off nadir)
+#: gives no tilt rows (the ground offset's derivative grows without bound there)
+_MIN_DOWN_COMPONENT = 0.2
 
 
 
@@ -476,6 +485,32 @@ class NavFilter:
             return FusionResult(True, innovation, ratio)
         return FusionResult(False, innovation, ratio)
 
+    def _update_rows(self, innovation: np.ndarray, H: np.ndarray, R: np.ndarray, gate_sd: float,
+                     apply: bool) -> FusionResult:
+        """A gated update with measurement rows ``H`` (m x N) and noise covariance ``R``, every state
+        corrected (``P <- P - K H P``), in numpy (a vision fix with its tilt rows: a few a second)."""
+        P = self._P
+        pht = P @ H.T
+        S = H @ pht + R
+        try:
+            s_inv = np.linalg.inv(S)
+        except np.linalg.LinAlgError:
+            s_inv = None
+        ratio = float(innovation @ s_inv @ innovation) / (gate_sd * gate_sd) if s_inv is not None else math.inf
+        if not math.isfinite(ratio):
+            logger.warning("NavFilter: singular innovation covariance; measurement skipped")
+            return FusionResult(False, innovation, math.inf)
+        if not (apply and ratio <= 1.0):
+            return FusionResult(False, innovation, ratio)
+        K = pht @ s_inv
+        self._dx[:] = K @ innovation
+        P -= K @ pht.T
+        P[:] = 0.5 * (P + P.T)
+        idx = np.arange(NUM_ERROR_STATES)
+        P[idx, idx] = np.maximum(P[idx, idx], VARIANCE_FLOOR)
+        self._inject(self._dx)
+        return FusionResult(True, innovation, ratio)
+
     def _inject(self, dx: np.ndarray) -> None:
         self._rev += 1
         d = dx.tolist()
@@ -771,9 +806,14 @@ class NavFilter:
             return FusionResult(True, innov, result.test_ratio, reset=True)
         return result
 
-    def fuse_vision_position(self, xy_enu_m, cov_2x2_m2, age_s: float = 0.0) -> FusionResult:
+    def fuse_vision_position(self, xy_enu_m, cov_2x2_m2, age_s: float = 0.0,
+                             camera_height_m: float = 0.0) -> FusionResult:
         """Vision (scene-matching) fix: x, y (ENU m) with its 2x2 covariance (m^2).
 
+        ``camera_height_m`` > 0: the fix came from a camera fixed to the body (looking along body
+        down) whose image was aligned with this filter's roll and pitch from that height above the
+        ground; its error then holds the filter's tilt error projected to the ground
+        (``tilt_rows``), and the update corrects the tilt along with the position.
         Fused only when EXTNAV is the position source; otherwise the result reports the innovation only.
         """
         self._require_aligned("fuse_vision_position")
@@ -782,11 +822,40 @@ class NavFilter:
         floor2 = self._cfg.vision_position_noise_min_m ** 2
         R[0, 0] = max(R[0, 0], floor2)
         R[1, 1] = max(R[1, 1], floor2)
+        h = float(camera_height_m)
+        tilt = self.tilt_rows(h) if math.isfinite(h) and h > 0.0 else None
         return self._fuse_horizontal_position(np.asarray(xy_enu_m, dtype=float)[:2], R, float(age_s),
-                                              PositionSource.EXTNAV)
+                                              PositionSource.EXTNAV, tilt)
+
+    def vision_test_ratio(self, xy_enu_m, cov_2x2_m2, gate_sd: float, age_s: float = 0.0) -> float:
+        """The innovation test ratio (squared Mahalanobis distance over ``gate_sd`` squared) a vision
+        fix with this covariance would have now; nothing changes."""
+        self._require_aligned("vision_test_ratio")
+        xy = np.asarray(xy_enu_m, dtype=float)[:2] + np.array(self._v[:2]) * age_s
+        R = np.asarray(cov_2x2_m2, dtype=float).reshape(2, 2) + self._P[3:5, 3:5] * (age_s * age_s)
+        innov = xy - np.array(self._p[:2])
+        if not np.all(np.isfinite(innov)):
+            return math.inf
+        return self._update_direct(innov, _XY_STATES, R, float(gate_sd), False).test_ratio
+
+    def tilt_rows(self, height_m: float) -> np.ndarray:
+        """2 x 3: how a fix from a body-fixed downward camera, aligned with this filter's roll and
+        pitch ``height_m`` above flat ground, moves with the attitude error (world frame, the error
+        state: truth = exp(dtheta) * estimate). The image's centre ray d (body down) meets the ground
+        at p + h f(d), f(d) = d_xy / -d_z; the node puts it at p + h f(d_est), so the fix is
+        p + h J (d - d_est) = p - h J [d_est]x dtheta. The yaw column is zero: the node takes the
+        heading from the compass and its own alignment (docs/perception.md), not from this filter."""
+        d = -quat_to_rotation_matrix(self._q)[:, 2]
+        if d[2] > -_MIN_DOWN_COMPONENT:
+            return np.zeros((2, 3))
+        inv = -1.0 / d[2]
+        jac = np.array([[inv, 0.0, d[0] * inv * inv], [0.0, inv, d[1] * inv * inv]])
+        rows = -float(height_m) * (jac @ _skew(d))
+        rows[:, 2] = 0.0
+        return rows
 
     def _fuse_horizontal_position(self, xy: np.ndarray, R: np.ndarray, age_s: float,
-                                  source: PositionSource) -> FusionResult:
+                                  source: PositionSource, tilt: np.ndarray | None = None) -> FusionResult:
         c = self._cfg
         if age_s > 0.0:
             # Move the old fix forward with the estimated velocity; account for the velocity uncertainty.
@@ -796,7 +865,13 @@ class NavFilter:
         if not np.all(np.isfinite(innov)):
             return FusionResult(False, innov, float("inf"))
         selected = self._source == source
-        result = self._update_direct(innov, _XY_STATES, R, c.position_gate_sd, selected)
+        if tilt is None:
+            result = self._update_direct(innov, _XY_STATES, R, c.position_gate_sd, selected)
+        else:
+            H = np.zeros((2, NUM_ERROR_STATES))
+            H[0, 0] = H[1, 1] = 1.0
+            H[:, _ATT] = tilt
+            result = self._update_rows(innov, H, R, c.position_gate_sd, selected)
         if not selected:
             return result
         if result.accepted:

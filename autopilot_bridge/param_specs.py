@@ -37,6 +37,16 @@ SN_PARAM_SPECS: tuple[ParamSpec, ...] = (
               "With EK3_SRCn_YAW 6 (ExternalNav): after a vision fix's heading was fused the "
               "compass stays unfused this long, so that the gyro carries the heading between the "
               "fixes' headings and the compass's bias does not pull it back in the gaps", safe_min=0.0),
+    ParamSpec("SN_VIS_TILT", ParamType.INT8, 0, 0, 1, "",
+              "1: the vision fixes come from a camera fixed to the body whose images the perception "
+              "node aligned with this EKF's roll and pitch, so a fix's error holds the EKF's tilt "
+              "error times the height; the EKF fuses the fix with that dependence and corrects its "
+              "tilt with it. 0: a fix is of the position alone"),
+    ParamSpec("SN_VIS_WIDE_SD", ParamType.REAL32, 0.0, 0.0, 1000.0, "m",
+              "A vision fix wider than SN_VIS_MAX_SD that lies where the estimate is (within 3 "
+              "combined sigmas of the EKF's uncertainty and this) is fused with this 1-sigma at "
+              "every frame: an ambiguous match that agrees with the estimate is taken as the true "
+              "peak, whose error is that of a tracked one; 0 = off", safe_min=0.0),
 )
 # EKF source sets 2 and 3 (SET_EKF_SOURCE_SET, system_commands.py): ArduPilot's defaults are 0 (None).
 _SRC_VALUES = {
