@@ -298,16 +298,17 @@ class SensorFusionMixin:
         max_sd = self.params.get("SN_VIS_MAX_SD")
         cov = v.cov_m2
         if max_sd > 0.0 and largest_sd_2x2(v.cov_m2) > max_sd:
-            cov = self._narrowed(v, age)
-        if cov is not v.cov_m2:
-            self.stats["vision_wide_narrowed"] += 1
-        elif max_sd > 0.0 and largest_sd_2x2(v.cov_m2) > max_sd:
-            last = self._last_wide_vision_fused_s
-            if last is not None and self._now_s - last < self.cfg.wide_vision_fix_interval_s:
-                self.stats["vision_wide_skipped"] += 1
-                return
-            self._last_wide_vision_fused_s = self._now_s
-            self.stats["vision_wide_fused"] += 1
+            narrowed = self._narrowed(v, age)
+            if narrowed is not None:
+                cov = narrowed
+                self.stats["vision_wide_narrowed"] += 1
+            else:
+                last = self._last_wide_vision_fused_s
+                if last is not None and self._now_s - last < self.cfg.wide_vision_fix_interval_s:
+                    self.stats["vision_wide_skipped"] += 1
+                    return
+                self._last_wide_vision_fused_s = self._now_s
+                self.stats["vision_wide_fused"] += 1
         # SN_VIS_TILT 1: the node aligned the image with this EKF's roll and pitch (a fixed camera)
         tilt_h = (max(self._height_above_home(), 0.0)
                   if v.source != "mavlink" and self.params.get_int("SN_VIS_TILT") == 1 else 0.0)
@@ -323,18 +324,18 @@ class SensorFusionMixin:
         else:
             self.stats["vision_rejected"] += 1
 
-    def _narrowed(self, v: VisionReading, age_s: float) -> np.ndarray:
-        """SN_VIS_WIDE_SD: a wide fix (an ambiguous match, published as wide as its search area)
-        that lies where the estimate is, within ``wide_vision_narrow_gate_sd`` of the EKF's
-        uncertainty combined with SN_VIS_WIDE_SD, is taken as the true peak and gets that 1-sigma;
-        otherwise (or with 0) its own covariance."""
+    def _narrowed(self, v: VisionReading, age_s: float) -> np.ndarray | None:
+        """SN_VIS_WIDE_SD: the covariance a wide fix (an ambiguous match, published as wide as its
+        search area) is fused with when it lies where the estimate is, within
+        ``wide_vision_narrow_gate_sd`` of the EKF's uncertainty combined with SN_VIS_WIDE_SD (taken
+        as the true peak: that 1-sigma); None otherwise, or with 0."""
         narrow_sd = self.params.get("SN_VIS_WIDE_SD")
         if narrow_sd <= 0.0 or self.nav.position_source != PositionSource.EXTNAV:
-            return v.cov_m2
+            return None
         narrow = np.eye(2) * narrow_sd * narrow_sd
         ratio = self.nav.vision_test_ratio(v.xy_enu_m, narrow, self.cfg.wide_vision_narrow_gate_sd,
                                            age_s=max(age_s, 0.0))
-        return narrow if ratio <= 1.0 else v.cov_m2
+        return narrow if ratio <= 1.0 else None
 
     def _rangefinder_limits_m(self) -> tuple[float, float]:
         """RNGFND1_MIN_CM and RNGFND1_MAX_CM in metres: readings outside are out of range."""
