@@ -817,22 +817,36 @@ class NavFilter:
         Fused only when EXTNAV is the position source; otherwise the result reports the innovation only.
         """
         self._require_aligned("fuse_vision_position")
+        h = float(camera_height_m)
+        tilt = self.tilt_rows(h) if math.isfinite(h) and h > 0.0 else None
+        return self._fuse_horizontal_position(np.asarray(xy_enu_m, dtype=float)[:2],
+                                              self._vision_noise(cov_2x2_m2), float(age_s),
+                                              PositionSource.EXTNAV, tilt)
+
+    def _vision_noise(self, cov_2x2_m2) -> np.ndarray:
+        """A vision fix's noise covariance: symmetrised, each variance at least
+        ``vision_position_noise_min_m`` squared."""
         cov = np.asarray(cov_2x2_m2, dtype=float).reshape(2, 2)
         R = 0.5 * (cov + cov.T)
         floor2 = self._cfg.vision_position_noise_min_m ** 2
         R[0, 0] = max(R[0, 0], floor2)
         R[1, 1] = max(R[1, 1], floor2)
-        h = float(camera_height_m)
-        tilt = self.tilt_rows(h) if math.isfinite(h) and h > 0.0 else None
-        return self._fuse_horizontal_position(np.asarray(xy_enu_m, dtype=float)[:2], R, float(age_s),
-                                              PositionSource.EXTNAV, tilt)
+        return R
+
+    def _moved_forward(self, xy: np.ndarray, R: np.ndarray, age_s: float) -> tuple[np.ndarray, np.ndarray]:
+        """A horizontal fix measured ``age_s`` ago, moved forward to now with the estimated velocity;
+        its covariance gains the velocity's uncertainty over that time."""
+        if age_s > 0.0:
+            xy = xy + np.array(self._v[:2]) * age_s
+            R = R + self._P[3:5, 3:5] * (age_s * age_s)
+        return xy, R
 
     def vision_test_ratio(self, xy_enu_m, cov_2x2_m2, gate_sd: float, age_s: float = 0.0) -> float:
         """The innovation test ratio (squared Mahalanobis distance over ``gate_sd`` squared) a vision
         fix with this covariance would have now; nothing changes."""
         self._require_aligned("vision_test_ratio")
-        xy = np.asarray(xy_enu_m, dtype=float)[:2] + np.array(self._v[:2]) * age_s
-        R = np.asarray(cov_2x2_m2, dtype=float).reshape(2, 2) + self._P[3:5, 3:5] * (age_s * age_s)
+        xy, R = self._moved_forward(np.asarray(xy_enu_m, dtype=float)[:2], self._vision_noise(cov_2x2_m2),
+                                    float(age_s))
         innov = xy - np.array(self._p[:2])
         if not np.all(np.isfinite(innov)):
             return math.inf
@@ -857,10 +871,7 @@ class NavFilter:
     def _fuse_horizontal_position(self, xy: np.ndarray, R: np.ndarray, age_s: float,
                                   source: PositionSource, tilt: np.ndarray | None = None) -> FusionResult:
         c = self._cfg
-        if age_s > 0.0:
-            # Move the old fix forward with the estimated velocity; account for the velocity uncertainty.
-            xy = xy + np.array(self._v[:2]) * age_s
-            R = R + self._P[3:5, 3:5] * (age_s * age_s)
+        xy, R = self._moved_forward(xy, R, age_s)
         innov = xy - np.array(self._p[:2])
         if not np.all(np.isfinite(innov)):
             return FusionResult(False, innov, float("inf"))
