@@ -57,7 +57,21 @@ def _live_node(world, camera=None, alignment="rotation-scale", **settings):
         yield hub, keys, node, fixes, acks
     finally:
         node.close()
+        _settle(fixes, acks)
         hub.close()
+
+
+def _settle(*received, quiet_s=0.3, limit_s=5.0):
+    """Until nothing more arrives for ``quiet_s``: what a node publishes as it closes (the fixes it
+    still held) is on its way to the hub's subscribers when close returns; closing the hub at once
+    can drop the last of them (seen once in CI: frame 5's fix missing)."""
+    t0 = last_change = time.monotonic()
+    sizes = [len(r) for r in received]
+    while time.monotonic() - last_change < quiet_s and time.monotonic() - t0 < limit_s:
+        time.sleep(0.05)
+        now = [len(r) for r in received]
+        if now != sizes:
+            sizes, last_change = now, time.monotonic()
 
 
 def _wait_for(acks, n):
