@@ -96,6 +96,7 @@ from scenenav.core.contracts import (
 )
 from scenenav.core.errors import UserError
 from scenenav.core.formats.atomic_file import write_atomic
+from scenenav.core.formats.run_folder import MAVLINK_FILE
 from scenenav.core.keys import Keys
 from scenenav.core.presence import announce_node
 
@@ -106,7 +107,6 @@ IDLE_POLL_S = 0.01
 STATUS_PERIOD_US = 1_000_000
 AUTO_START_RETRY_US = 1_000_000
 STATS_FILE = "autopilot_stats.json"
-MAVLINK_FILE = "mavlink.json"
 SIGNING_KEY_FILE = "signing_key.json"   # a SETUP_SIGNING key when there is no parameter store
 TLOG_FILE = "autopilot.tlog"
 PARAMS_FILE = "params.json"

@@ -16,6 +16,12 @@ from scenenav.core.config import check
 
 #: Bump when the output of the generator changes for the same config (invalidates caches).
 GENERATOR_VERSION = 2
+#: The source files (in ``worlds/``) whose code decides the generated arrays; ``worlds/default.py``
+#: hashes them (sorted) to name the cache folders, so a change to any of them regenerates the worlds.
+GENERATOR_SOURCES = ("blocks.py", "changes.py", "city_config.py", "drawing.py", "features.py",
+                     "generator.py", "landcover.py", "materials.py", "perspective.py", "raycast.py",
+                     "reference.py", "registration.py", "rendering.py", "road_graph.py", "roads.py",
+                     "scene.py", "shadows.py", "surface.py", "traffic.py", "world.py")
 
 
 #: Values of CityConfig.reference_kind and CityConfig.season (scenenav.core.formats.world_manifest

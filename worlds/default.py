@@ -23,7 +23,7 @@ from pathlib import Path
 from scenenav.core.build_lock import exclusive_build
 from scenenav.core.errors import UserError
 from scenenav.core.formats.world_manifest import MANIFEST_FILE
-from worlds.generator import GENERATOR_SOURCES, GENERATOR_VERSION, CityConfig, generate_world
+from worlds.city_config import GENERATOR_SOURCES, GENERATOR_VERSION, CityConfig
 from worlds.world import World
 
 log = logging.getLogger(__name__)
@@ -148,6 +148,8 @@ def _generate(final: Path, cfg: CityConfig, name: str) -> World:
         raise UserError(f"{parent}: cannot create the world cache ({exc.strerror}); "
                         f"set {CACHE_ENV} to a writable folder") from None
     log.info("generating world %s into %s (first use)", name, final)
+    # imported here: a process that loads a cached world never pays for the generator (numba)
+    from worlds.generator import generate_world
     world = generate_world(cfg, name=name)
     tmp = Path(tempfile.mkdtemp(prefix=f".{final.name}-", dir=parent))
     try:

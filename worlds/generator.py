@@ -49,7 +49,7 @@ from scenenav.core.formats.world_manifest import (
     WorldSource,
 )
 from worlds.changes import day_scenes, plan_changes
-from worlds.city_config import GENERATOR_VERSION, CityConfig, Stream, stream_rng
+from worlds.city_config import GENERATOR_SOURCES, GENERATOR_VERSION, CityConfig, Stream, stream_rng
 from worlds.materials import MATERIAL_TO_COVER, Material
 from worlds.perspective import perspective_reference
 from worlds.reference import Season, capture_day, other_day, tone_map
@@ -62,14 +62,6 @@ from worlds.world import World
 log = logging.getLogger(__name__)
 
 __all__ = ["GENERATOR_SOURCES", "GENERATOR_VERSION", "CityConfig", "build_scene", "generate_world", "render"]
-
-#: The source files (in ``worlds/``) whose code decides the generated arrays; ``worlds/default.py``
-#: hashes them (sorted) to name the cache folders, so a change to any of them regenerates the worlds.
-GENERATOR_SOURCES = ("blocks.py", "changes.py", "city_config.py", "drawing.py", "features.py",
-                     "generator.py", "landcover.py", "materials.py", "perspective.py", "raycast.py",
-                     "reference.py", "registration.py", "rendering.py", "road_graph.py", "roads.py",
-                     "scene.py", "shadows.py", "surface.py", "traffic.py", "world.py")
-
 
 def generate_world(cfg: CityConfig, name: str | None = None) -> World:
     """Generate a city world; the same ``cfg`` always gives identical arrays."""

@@ -621,8 +621,10 @@ def plot_run(run_dir: Path, world, fx: dict, split: HeightSplit | None = None,
             xs = np.linspace(-half_w, half_w, dsm.shape[1])
             levels = [lv for lv in (6.0, 12.0, 20.0, 30.0) if lv < top]
             if levels:
+                # one legend entry per level instead of labels on the lines (clabel costs ~0.3 s)
                 cs = ax.contour(xs, ys, dsm, levels=levels, linewidths=0.4, cmap="viridis", alpha=0.8)
-                ax.clabel(cs, fontsize=5, fmt="%g m")
+                for lv, color in zip(levels, cs.get_edgecolor(), strict=False):
+                    ax.plot([], [], c=color, lw=1, label=f"height {lv:g} m")
     for i, route in enumerate(_routes(run_dir)):
         xy = np.array(route.waypoints_xy_m)
         if len(xy):
@@ -665,7 +667,8 @@ def plot_run(run_dir: Path, world, fx: dict, split: HeightSplit | None = None,
     ax2.legend(fontsize=7)
     if with_split:
         _plot_height_bars(axes[2], split)
-    fig.tight_layout()
+    # fixed margins: tight_layout measures every text first (~0.25 s)
+    fig.subplots_adjust(left=0.05, right=0.985, bottom=0.13, top=0.94, wspace=0.2)
     # zlib level 1: faster encoding than the default level 6, for a somewhat larger file
     fig.savefig(run_dir / "trajectory.png", dpi=90, pil_kwargs={"compress_level": 1})
 

@@ -46,6 +46,7 @@ from scenenav.core.bus import EXIT_HUB_PORT_TAKEN, free_port
 from scenenav.core.contracts import ClockMode, LockstepRole
 from scenenav.core.errors import UserError
 from scenenav.core.formats.atomic_file import write_atomic
+from scenenav.core.formats.run_folder import MAVLINK_FILE
 from scenenav.core.parent_death import set_parent_death_signal
 
 log = logging.getLogger(__name__)
@@ -203,7 +204,7 @@ def await_mavlink(launch: Launch, autopilot: Child, timeout_s: float = MAVLINK_R
                   ) -> dict | None:
     """Wait for the autopilot's ``mavlink.json`` (the ports it bound) and write them into run.json,
     so that run.json names the true endpoints of this run. None if the autopilot died first."""
-    path = launch.run_dir / "mavlink.json"
+    path = launch.run_dir / MAVLINK_FILE
     deadline = time.monotonic() + timeout_s
     while time.monotonic() < deadline:
         try:
@@ -253,7 +254,7 @@ def restart_on_new_hub_port(launch: Launch) -> None:
     old = launch.hub_port
     launch.stop_all()
     launch.children.clear()
-    for name in ("mavlink.json", HUB_FILE):
+    for name in (MAVLINK_FILE, HUB_FILE):
         (launch.run_dir / name).unlink(missing_ok=True)
     launch.hub_port = free_port(launch.listen_host)
     log.warning("the Zenoh hub port %d was taken before the simulator could listen on it: starting "

@@ -341,8 +341,8 @@ def run_mavlink_port(run_dir: Path, timeout_s: float) -> int:
     """The MAVLink TCP port the autopilot of THIS run bound (``<run>/mavlink.json``, written once
     it is bound; waited for up to ``timeout_s``), never a port from the configuration that another
     run may hold."""
-    from autopilot_bridge.node import MAVLINK_FILE
     from scenenav.core.errors import UserError
+    from scenenav.core.formats.run_folder import MAVLINK_FILE
     path = run_dir / MAVLINK_FILE
     deadline = time.monotonic() + timeout_s
     while True:

@@ -47,6 +47,7 @@ from scenenav.app.signals import interrupt_on_stop_signals
 from scenenav.core.config import apply_overrides, load_config, set_dotted
 from scenenav.core.errors import UserError
 from scenenav.core.formats.atomic_file import write_atomic
+from scenenav.core.formats.run_folder import MAVLINK_FILE
 
 log = logging.getLogger(__name__)
 
@@ -254,7 +255,7 @@ def _run_sitl(opts: SitlOptions, announce: Callable[[str], None]) -> dict:
 
 def _wait_ready(run_dir: Path, autopilot) -> dict:
     """The autopilot's MAVLink endpoints, once it has opened them (it writes mavlink.json)."""
-    path = run_dir / "mavlink.json"
+    path = run_dir / MAVLINK_FILE
     deadline = time.monotonic() + READY_TIMEOUT_S
     while time.monotonic() < deadline:
         if path.is_file():

@@ -22,9 +22,9 @@ def _events(run_dir) -> list[str]:
 
 
 def test_a_stopped_member_is_reported_skipped_and_rejoins(tmp_path):
-    # the run (100 s) still flies when perception wakes: without perception to wait for, the
+    # the run (70 s) still flies when perception wakes: without perception to wait for, the
     # clock runs at the simulator's own speed (about 14x here: some 30 s in the 2 s after the timeout)
-    r = FaultRun(tmp_path / "hung", "--set", "duration_s=100", "--set", "perception.method=statistical",
+    r = FaultRun(tmp_path / "hung", "--set", "duration_s=70", "--set", "perception.method=statistical",
                  "--set", "clock.member_timeout_s=2", scenario="scenarios/logging_flight.yaml")
     try:
         t_stop = r.wait_sim_time(4.0)

@@ -45,6 +45,7 @@ import yaml
 
 from scenenav.app.json_output import emit_json
 from scenenav.core.config import check
+from scenenav.core.formats.run_folder import MAVLINK_FILE
 
 log = logging.getLogger(__name__)
 
@@ -403,7 +404,7 @@ class Fuzzer(threading.Thread):
 
     def _port(self) -> int | None:
         try:
-            return int(json.loads((self.run_dir / "mavlink.json").read_text())["tcp_port"])
+            return int(json.loads((self.run_dir / MAVLINK_FILE).read_text())["tcp_port"])
         except (OSError, ValueError, KeyError, TypeError):
             return None
 

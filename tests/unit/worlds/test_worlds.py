@@ -401,7 +401,8 @@ def test_default_world_is_cached(tmp_path, monkeypatch, default_world):
     def no_generation(*_a, **_k):
         raise AssertionError("a cached world was generated again")
 
-    monkeypatch.setattr(default, "generate_world", no_generation)
+    from worlds import generator
+    monkeypatch.setattr(generator, "generate_world", no_generation)   # default imports it when needed
     first = default.load_default_world()
     assert np.array_equal(first.orthophoto, default_world.orthophoto)
     assert np.array_equal(first.reference, default_world.reference)
