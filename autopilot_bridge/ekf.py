@@ -348,6 +348,11 @@ class NavFilter:
         """Largest jump of a position reset onto vision fixes (``SN_VIS_RST_MAX``; 0 = no limit)."""
         self._cfg = dataclasses.replace(self._cfg, vision_reset_max_m=float(max_m))
 
+    def set_position_gate(self, gate_sd: float) -> None:
+        """Change the horizontal position innovation gate, in standard deviations (``EK3_POS_I_GATE``
+        / 100); from the next position fusion on."""
+        self._cfg = dataclasses.replace(self._cfg, position_gate_sd=float(gate_sd))
+
     def set_compass_noise(self, std_rad: float) -> None:
         """Change the compass heading's measurement noise (``EK3_YAW_M_NSE``); from the next fusion on.
         A larger value lets position fixes and drag correct a biased compass heading."""

@@ -1,6 +1,6 @@
 """Parameter binding (part of ``FlightCore``): the ArduCopter parameters mapped onto the algorithms'
 configs (ANGLE_MAX, WPNAV_*, PILOT_*, LAND_*, RTL_*, WP_YAW_BEHAVIOR, EK3_SRC1_POSXY, EK3_GBIAS_P_NSE,
-EK3_YAW_M_NSE, EK3_DRAG_* and EK3_WIND_P_NSE, the airframe
+EK3_YAW_M_NSE, EK3_POS_I_GATE, EK3_DRAG_* and EK3_WIND_P_NSE, the airframe
 model), applied again whenever the parameter store reports a change.
 
 Pure module: no zenoh, no pymavlink.
@@ -85,6 +85,8 @@ class ParamBindingMixin:
             self.nav.set_accel_noise(accel_noise_density(value))
         if name == "EK3_YAW_M_NSE":
             self.nav.set_compass_noise(value)
+        if name == "EK3_POS_I_GATE":
+            self.nav.set_position_gate(value / 100.0)
         if name.startswith("EK3_DRAG_") or name == "EK3_WIND_P_NSE":
             self.nav.set_drag_model(**drag_model(self.params))
         if name == f"EK3_SRC{self._source_set}_POSXY":

@@ -175,6 +175,10 @@ DEFAULT_PARAM_SPECS: tuple[ParamSpec, ...] = (
     _spec("EK3_FLOW_I_GATE", _I16, 300, 100, 1000, "",
           "Optical flow innovation gate: a flow measurement more than EK3_FLOW_I_GATE / 100 standard "
           "deviations off the prediction is rejected", safe=(100, None)),
+    _spec("EK3_POS_I_GATE", _I16, 500, 100, 1000, "",
+          "Horizontal position innovation gate (GPS and external navigation, vision fixes): a fix "
+          "more than EK3_POS_I_GATE / 100 standard deviations off the prediction is rejected",
+          safe=(100, None)),
     _spec("EK3_FLOW_M_NSE", _F, 0.25, 0.05, 1.0, "rad/s",
           "Optical flow measurement noise the EKF assumes (sensor noise, timing and scale errors)",
           safe=(0.05, None)),

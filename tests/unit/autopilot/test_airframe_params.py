@@ -74,3 +74,17 @@ def test_ek3_acc_p_nse_sets_the_filters_velocity_process_noise_at_start_and_in_f
     store2 = ParameterStore(PARAM_SPECS)
     assert store2.set("EK3_ACC_P_NSE", 0.35).ok                                 # ArduPilot's default
     assert FlightCore(store2).nav._cfg.accel_noise_m_s2_per_rt_hz == pytest.approx(0.035)
+
+
+def test_ek3_pos_i_gate_sets_the_filters_position_gate_at_start_and_in_flight():
+    from autopilot_bridge.config import EkfConfig
+    store = ParameterStore(PARAM_SPECS)
+    core = FlightCore(store)
+    assert core.nav._cfg.position_gate_sd == EkfConfig().position_gate_sd == 5.0   # 500 = 5 SD
+    assert store.set("EK3_POS_I_GATE", 300).ok
+    assert core.nav._cfg.position_gate_sd == pytest.approx(3.0)
+    store2 = ParameterStore(PARAM_SPECS)
+    assert store2.set("EK3_POS_I_GATE", 250).ok
+    assert FlightCore(store2).nav._cfg.position_gate_sd == pytest.approx(2.5)
+    low = store.set("EK3_POS_I_GATE", 50)                # below one SD: clamped to the safe minimum
+    assert low.ok and "clamped to 100" in low.reason and core.nav._cfg.position_gate_sd == pytest.approx(1.0)

@@ -223,6 +223,23 @@ def test_dead_reckoning_covariance_grows():
     assert nav.is_healthy()
 
 
+def test_position_gate_follows_its_setting():
+    """A fix 4 sigma off passes the default 5-sigma gate and not a 3-sigma one (EK3_POS_I_GATE 300)."""
+    rng = np.random.default_rng(4)
+    truth = KinematicTruth(_still, _still)
+    nav = _align(truth, rng)
+    _run(nav, truth, rng, 20.0)
+    sd = math.sqrt(float(nav.covariance()[0, 0]) + 1.0)   # the innovation's, with R = 1 m^2
+    probe = np.asarray(nav.state().position_enu_m[:2]) + np.array([4.0 * sd, 0.0])
+    assert nav.vision_test_ratio(probe, np.eye(2), 5.0) == pytest.approx((4.0 / 5.0) ** 2, rel=0.05)
+    nav.set_position_source(PositionSource.EXTNAV)
+    nav.set_position_gate(3.0)
+    tight = nav.fuse_vision_position(probe, np.eye(2))
+    assert not tight.accepted and tight.test_ratio == pytest.approx((4.0 / 3.0) ** 2, rel=0.05)
+    nav.set_position_gate(5.0)
+    assert nav.fuse_vision_position(probe, np.eye(2)).accepted
+
+
 def test_source_switch_gps_to_extnav_is_continuous():
     rng = np.random.default_rng(6)
     truth = KinematicTruth(_accel_then_cruise, _still)
