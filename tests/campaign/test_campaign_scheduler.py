@@ -60,7 +60,7 @@ def test_campaign_runs_on_an_existing_cluster(tmp_path, cluster):
     start_worker("--resources", "flight=1")
     wait_for(lambda: _workers(address) == 1, 60, "the worker to join")
     campaign = write_campaign(tmp_path / "remote.yaml", name="remote", base=str(SCRIPTED),
-                              set={"duration_s": 10}, grid={"seed": [1, 2]})
+                              set={"duration_s": 5}, grid={"seed": [1, 2]})   # short: the cluster is under test
     out = tmp_path / "out"
     proc = start_campaign(campaign, out, "--scheduler", address)
     _stdout, stderr = proc.communicate(timeout=600)
