@@ -72,7 +72,7 @@ class EkfConfig:
     vision_position_noise_min_m: float = 0.3  # floor on sqrt of each vision covariance diagonal
 
     # --- innovation gates, in standard deviations (ArduPilot *_I_GATE is in percent of an SD: 500 = 5 SD)
-    position_gate_sd: float = 5.0   # EK3_POS_I_GATE 500
+    position_gate_sd: float = 5.0   # EK3_POS_I_GATE 500 (set from the parameter in a flight)
     velocity_gate_sd: float = 5.0   # EK3_VEL_I_GATE 500
     height_gate_sd: float = 5.0     # EK3_HGT_I_GATE 500
     heading_gate_sd: float = 3.0    # EK3_YAW_I_GATE 300

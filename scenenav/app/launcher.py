@@ -36,7 +36,7 @@ import yaml
 
 from scenenav.app.evaluation import NodeFailure, last_sim_time_s, last_status
 from scenenav.app.mavlink_claim import DEFAULT_SYSID, SysidClaim, claim_sysid
-from scenenav.app.nodes import EXIT_EXTERNAL_MISSING, HUB_FILE
+from scenenav.app.nodes import EXIT_EXTERNAL_MISSING
 
 LIVE_FILE = "live.json"           # written by the live node (scenenav.app.live): its port and URL
 from scenenav.app.preflight import check_free_space, free_bytes, mount_point, validate_inputs
@@ -46,7 +46,7 @@ from scenenav.core.bus import EXIT_HUB_PORT_TAKEN, free_port
 from scenenav.core.contracts import ClockMode, LockstepRole
 from scenenav.core.errors import UserError
 from scenenav.core.formats.atomic_file import write_atomic
-from scenenav.core.formats.run_folder import MAVLINK_FILE
+from scenenav.core.formats.run_folder import HUB_FILE, MAVLINK_FILE
 from scenenav.core.parent_death import set_parent_death_signal
 
 log = logging.getLogger(__name__)

@@ -21,6 +21,7 @@ from scenenav.app.signals import stop_event
 from scenenav.core.bus import EXIT_HUB_PORT_TAKEN, BusConfig, HubPortTaken
 from scenenav.core.contracts import LockstepRole
 from scenenav.core.formats.atomic_file import write_atomic
+from scenenav.core.formats.run_folder import HUB_FILE
 from scenenav.core.presence import parse_node_key, parse_sees_key
 
 log = logging.getLogger(__name__)
@@ -61,8 +62,6 @@ def sim_node_config(cfg: ScenarioConfig, world, expect: tuple[str, ...] = ()):
         expected_camera_members=sum(1 for item in expect if item == LockstepRole.CAMERA.value))
 
 
-#: Written by the simulator once its Zenoh hub endpoint listens (``{"hub_port": N}``).
-HUB_FILE = "hub.json"
 #: Written by the simulator once it stopped waiting for the external nodes: which joined, which not.
 EXTERNAL_FILE = "external.json"
 #: Exit code of the simulator when an external node did not join in time (``EX_UNAVAILABLE``).
