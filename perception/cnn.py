@@ -23,7 +23,6 @@ standardisation: the absolute contrast of a crop is part of what tells a flat la
 
 from __future__ import annotations
 
-import enum
 import logging
 import pickle
 import time
@@ -36,69 +35,32 @@ import numpy as np
 import torch
 from torch import nn
 
+from perception.cnn_spec import (
+    CONV1_KERNELS,
+    CONV2_KERNELS,
+    DEFAULT_INPUT_PX,
+    DROPOUT_P,
+    FC1_UNITS,
+    FC2_UNITS,
+    INPUT_MEAN,
+    INPUT_STD,
+    KERNEL_PX,
+    NUM_CLASSES,
+    POOL_PX,
+    MatchClass,
+    check_input_px,
+    feature_side_px,
+)
 from perception.shipped import DEFAULT_WEIGHTS_PATH, WEIGHTS_DIR  # noqa: F401  (re-exported)
 from scenenav.core.errors import UserError
 
 log = logging.getLogger(__name__)
 
-PAPER_INPUT_PX = 200
-"""The paper's image size (section 5.2: 'resized to 200x200 pixels')."""
-DEFAULT_INPUT_PX = 48
-"""Our default network input: the 200 px dataset images downscaled 200 -> 48 for CPU speed."""
-INPUT_MEAN = 0.5
-INPUT_STD = 0.25
-CONV1_KERNELS = 64
-CONV2_KERNELS = 32
-KERNEL_PX = 3
-POOL_PX = 2
-FC1_UNITS = 128
-FC2_UNITS = 64
-DROPOUT_P = 0.5
 DEFAULT_BATCH_SIZE = 16
 """Inference chunk: at 48 px, chunks of <= 16 crops stay in cache (~0.6 ms/crop on one core, ~1.3 ms at 32+)."""
 RESIZE_BLOCK = 512
 """Crops resized per block in ``predict_proba`` (P x P float32 each, ~4.6 MB at 48 px)."""
 WEIGHTS_FORMAT_VERSION = 1
-BAD_THRESHOLD = 0.5
-"""Section 5.4: a capture with P(class 1 = bad) > 0.5 is rejected."""
-
-
-class MatchClass(enum.IntEnum):
-    """CNN output classes. Index = network output; the paper numbers them 1..4."""
-
-    BAD = 0         # paper class 1: bad matching area
-    FOUR_ARM = 1    # paper class 2: junction with 4 arms
-    THREE_ARM = 2   # paper class 3: junction with 3 arms
-    TWO_ARM = 3     # paper class 4: junction with 2 arms
-
-    @property
-    def paper_class(self) -> int:
-        """The paper's 1-based class number."""
-        return int(self) + 1
-
-
-NUM_CLASSES = len(MatchClass)
-
-
-class Labelling(str, enum.Enum):
-    """How dataset labels were produced (see perception.dataset)."""
-
-    PAPER = "paper"                 # junction arm count / dominant bad land cover (section 5.2)
-    MATCHABILITY = "matchability"   # simulated NCC success rate (perception.matchability)
-
-
-def feature_side_px(input_px: int) -> int:
-    """Side of the feature map after conv-pool-conv-pool with 'valid' 3x3 convolutions."""
-    side = input_px
-    for _ in range(2):
-        side = (side - (KERNEL_PX - 1)) // POOL_PX
-    return side
-
-
-def check_input_px(input_px: int) -> None:
-    """Raise UserError unless the network can take ``input_px`` x ``input_px`` inputs."""
-    if not isinstance(input_px, int) or input_px < 16 or input_px > PAPER_INPUT_PX:
-        raise UserError(f"--input-px = {input_px!r}: expected an integer in [16, {PAPER_INPUT_PX}]")
 
 
 class SceneMatchNet(nn.Module):

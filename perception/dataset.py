@@ -64,7 +64,7 @@ import cv2
 import numpy as np
 from tqdm import tqdm
 
-from perception.cnn import Labelling, MatchClass
+from perception.cnn_spec import Labelling, MatchClass
 from perception.dataset_config import EVAL_WORLD_SEEDS, DatasetConfig, check_config
 from perception.dataset_files import DATASET_VERSION, IMAGES_DIR, INDEX_COLUMNS, INDEX_FILE, MANIFEST_FILE
 from perception.dataset_images import augment_image

@@ -11,7 +11,7 @@ from dataclasses import dataclass, field
 from enum import Enum
 
 from perception.capture import CaptureSettings
-from perception.cnn import PAPER_INPUT_PX, Labelling, MatchClass
+from perception.cnn_spec import PAPER_INPUT_PX, Labelling, MatchClass
 from perception.matchability import MatchabilityConfig, footprint_px
 from scenenav.core.errors import UserError
 

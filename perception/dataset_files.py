@@ -16,7 +16,7 @@ import cv2
 import numpy as np
 from tqdm import tqdm
 
-from perception.cnn import PAPER_INPUT_PX, Labelling, MatchClass
+from perception.cnn_spec import PAPER_INPUT_PX, Labelling, MatchClass
 from scenenav.core.errors import UserError
 
 log = logging.getLogger(__name__)

@@ -15,7 +15,7 @@ import cv2
 import numpy as np
 
 from perception.capture import CaptureScene
-from perception.cnn import MatchClass
+from perception.cnn_spec import MatchClass
 from perception.dataset_arms import DEFAULT_ARM_COUNT, ArmCountConfig, ArmVerdict, arm_check
 from perception.dataset_config import ArmLabels, DatasetConfig
 from scenenav.core.errors import UserError

@@ -26,7 +26,6 @@ import logging
 import platform
 import time
 from dataclasses import asdict, dataclass, replace
-from enum import Enum
 from pathlib import Path
 
 import numpy as np
@@ -35,25 +34,20 @@ from torch import nn
 from tqdm import tqdm
 
 from perception.capture import CaptureSettings
-from perception.cnn import (
+from perception.cnn import MatchClassifier, SceneMatchNet, WeightsMeta, normalise, save_weights
+from perception.cnn_spec import (
     BAD_THRESHOLD,
-    DEFAULT_INPUT_PX,
     NUM_CLASSES,
     PAPER_INPUT_PX,
     Labelling,
     MatchClass,
-    MatchClassifier,
-    SceneMatchNet,
-    WeightsMeta,
-    check_input_px,
-    normalise,
-    save_weights,
 )
-from perception.dataset_config import EVAL_WORLD_SEEDS, DatasetConfig
+from perception.dataset_config import DatasetConfig
 from perception.dataset_files import LoadedDataset, load_dataset, read_manifest
 from perception.dataset_images import render_crop
 from perception.dataset_samples import generate_world_data, select_base_samples
 from perception.matchability import MatchabilityConfig, footprint_px, simulate_capture
+from perception.training_config import CnnMode, CompareConfig, PositionSet, SplitMethod, TrainConfig
 from scenenav.core.errors import UserError
 
 log = logging.getLogger(__name__)
@@ -61,45 +55,6 @@ log = logging.getLogger(__name__)
 PAPER_TABLE1 = {"training": {"accuracy": 0.96, "loss": 0.08}, "validation": {"accuracy": 0.92, "loss": 0.10}}
 RECORD_FORMAT_VERSION = 1
 DEFAULT_STEM = "default"
-
-
-class SplitMethod(str, Enum):
-    """How the 80/20 split is drawn."""
-
-    GROUPED = "grouped"   # whole spatial tiles, stratified by class (no augmented copy straddles the split)
-    RANDOM = "random"     # image-level, stratified by class (the paper's presumable Keras split; leaks copies)
-
-
-@dataclass(frozen=True)
-class TrainConfig:
-    """Training hyper-parameters (stored in the training record)."""
-
-    epochs: int = 30
-    seed: int = 0
-    input_px: int = DEFAULT_INPUT_PX
-    batch_size: int = 32
-    learning_rate: float = 1e-3
-    val_share: float = 0.2
-    num_threads: int = 2
-    split: str = "grouped"           # SplitMethod value
-    online_dihedral: bool = True      # random rot90 / mirror per training batch
-    weight_decay: float = 0.0
-    cosine_lr: bool = True            # learning rate decays to 0 over the epochs (cosine)
-
-    def check(self) -> None:
-        if self.epochs < 1:
-            raise UserError(f"--epochs = {self.epochs}: expected a positive integer")
-        if self.seed < 0:
-            raise UserError(f"--seed = {self.seed}: expected an integer >= 0")
-        check_input_px(self.input_px)
-        if self.batch_size < 1:
-            raise UserError(f"--batch-size = {self.batch_size}: expected a positive integer")
-        if not 0.0 < self.val_share < 1.0:
-            raise UserError(f"val_share = {self.val_share}: expected a number in (0, 1)")
-        if self.split not in {m.value for m in SplitMethod}:
-            raise UserError(f"--split = {self.split!r}: expected one of {[m.value for m in SplitMethod]}")
-        if not 1 <= self.num_threads <= 2:
-            raise UserError(f"--threads = {self.num_threads}: expected 1 or 2 (the machine is shared)")
 
 
 @dataclass(frozen=True)
@@ -395,34 +350,6 @@ def _train(data_dir: str | Path, out: Path, cfg: TrainConfig, progress: bool, co
 # ----------------------------------------------------------------------------------------------------
 # Labelling comparison (`scenenav cnn compare`)
 # ----------------------------------------------------------------------------------------------------
-
-class PositionSet(str, Enum):
-    """Where the held-out captures are taken."""
-
-    UNIFORM = "uniform"   # uniformly random positions (what an assistant map covers)
-    PAPER = "paper"       # junction-centred and bad-area positions (the paper's dataset positions)
-
-
-class CnnMode(str, Enum):
-    """What the CNN looks at."""
-
-    ONLINE = "online"                 # the raw 200 x 200 camera capture (paper 5.4, online classification)
-    ASSISTANT_MAP = "assistant_map"   # the north-up REFERENCE crop at the true position (offline map)
-
-
-@dataclass(frozen=True)
-class CompareConfig:
-    """Held-out evaluation of the two labellings."""
-
-    eval_world_seeds: tuple[int, ...] = EVAL_WORLD_SEEDS
-    uniform_positions_per_world: int = 300
-    paper_positions_per_world: int = 120
-    captures_per_position: int = 4
-    seed: int = 0
-    epochs: int = TrainConfig.epochs
-    input_px: int = DEFAULT_INPUT_PX
-    num_threads: int = 2
-
 
 def roc_auc(scores: np.ndarray, positives: np.ndarray) -> float:
     """Area under the ROC curve of ``scores`` for boolean ``positives`` (Mann-Whitney, ties averaged)."""

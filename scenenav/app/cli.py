@@ -157,7 +157,7 @@ def _sitl(args: argparse.Namespace) -> int:
 # whose registration imports torch, scipy and the planner (1.5-2 s of CPU), so the launcher and every
 # node of a run (``scenenav node sim ...``) start without them. The parser of each of these commands
 # is the same either way; ``scenenav --help`` and every other command get the whole parser.
-_OWN_COMMANDS = frozenset({"run", "summarize", "node", "sitl"})
+_OWN_COMMANDS = frozenset({"run", "summarize", "node", "sitl", "experiment"})
 
 
 def _live_args(p: argparse.ArgumentParser) -> None:
@@ -178,10 +178,10 @@ _DOMAIN_COMMAND_MODULES = {"world": "world", "plan": "plan", "dataset": "percept
 _ALL_COMMAND_MODULES = ("world", "plan", "perception", "assistant_map", "campaign")
 
 
-def build_parser(domain_commands: bool | str = True) -> argparse.ArgumentParser:
+def build_parser(domain_commands: bool | str = True, bench: str | None = None) -> argparse.ArgumentParser:
     """The ``scenenav`` parser; without ``domain_commands`` only the commands of this module; with a
     command's name, this module's commands and that one (its parser is the same as in the whole
-    parser; ``bench`` names the benchmarks)."""
+    parser; ``bench`` names the benchmarks, and ``bench`` the one benchmark to register: None, all)."""
     p = argparse.ArgumentParser(
         prog="scenenav",
         description="Software-in-the-loop stack for GPS-denied drone navigation by scene matching: "
@@ -406,7 +406,7 @@ def build_parser(domain_commands: bool | str = True) -> argparse.ArgumentParser:
         _register_domain_commands(sub, _ALL_COMMAND_MODULES)
         _register_benches(bsub)
     elif domain_commands == "bench":
-        _register_benches(bsub)
+        _register_benches(bsub, bench)
     elif domain_commands in _DOMAIN_COMMAND_MODULES:
         _register_domain_commands(sub, (_DOMAIN_COMMAND_MODULES[str(domain_commands)],))
     return p
@@ -420,20 +420,23 @@ def _register_domain_commands(sub, modules: tuple[str, ...]) -> None:
         importlib.import_module(f"scenenav.app.commands.{name}").register(sub)
 
 
-def _register_benches(bsub) -> None:
-    """The benchmarks of the domain packages (their own modules under app/bench)."""
-    from scenenav.app.bench.autopilot import register_bench as register_autopilot_bench
-    from scenenav.app.bench.campaign import register_bench as register_campaign_bench
-    from scenenav.app.bench.e2e import register_bench as register_e2e_bench
-    from scenenav.app.bench.plan import register_bench as register_plan_bench
-    from scenenav.app.bench.render import register_bench as register_render_bench
-    from scenenav.app.bench.soak import register_bench as register_soak_bench
-    register_plan_bench(bsub)
-    register_autopilot_bench(bsub)
-    register_e2e_bench(bsub)
-    register_campaign_bench(bsub)
-    register_soak_bench(bsub)
-    register_render_bench(bsub)
+#: The module under ``scenenav.app.bench`` that registers each benchmark of the domain packages
+#: (``sim`` and ``perception`` are defined in this module), in the order of ``scenenav bench --help``.
+_BENCH_MODULES = {"plan": "plan", "autopilot": "autopilot", "e2e": "e2e", "campaign": "campaign",
+                  "soak": "soak", "render": "render"}
+_OWN_BENCHES = frozenset({"sim", "perception"})
+
+
+def _register_benches(bsub, only: str | None = None) -> None:
+    """The benchmarks of the domain packages (their own modules under app/bench): all of them, or
+    only the one ``scenenav bench NAME`` names (the others import the EKF, the planner, ...: about
+    1 s of CPU a command does not need; its parser is the same either way)."""
+    import importlib
+    if only in _OWN_BENCHES:
+        return
+    names = (only,) if only in _BENCH_MODULES else tuple(_BENCH_MODULES)
+    for name in names:
+        importlib.import_module(f"scenenav.app.bench.{_BENCH_MODULES[name]}").register_bench(bsub)
 
 
 _NEGATIVE_LIST = re.compile(r"^-\d[\d.eE+-]*(,\s*[-+]?[\d.eE+-]+)+$")
@@ -499,7 +502,9 @@ def main(argv: list[str] | None = None) -> int:
     command = _command_of(argv)
     if command in _OWN_COMMANDS:
         parser = build_parser(domain_commands=False)
-    elif command == "bench" or command in _DOMAIN_COMMAND_MODULES:
+    elif command == "bench":
+        parser = build_parser(domain_commands=command, bench=_command_of(argv[argv.index("bench") + 1:]))
+    elif command in _DOMAIN_COMMAND_MODULES:
         parser = build_parser(domain_commands=command)
     else:
         parser = build_parser()     # --help, no command, a misspelt one: the whole list

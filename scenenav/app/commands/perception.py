@@ -45,7 +45,7 @@ def _command_line() -> str:
 
 def _dataset(args: argparse.Namespace) -> int:
     from perception.capture import CaptureSettings
-    from perception.cnn import Labelling
+    from perception.cnn_spec import Labelling
     from perception.dataset import build_dataset
     from perception.dataset_config import ArmLabels, CropGeometry, DatasetConfig, IntersectionView
     w, h = args.world_size
@@ -174,9 +174,9 @@ def _fit_decision(args: argparse.Namespace) -> int:
 
 def register(subparsers) -> None:
     """Add `dataset`, `train` and `cnn` to the scenenav command."""
-    from perception.cnn import DEFAULT_INPUT_PX
+    from perception.cnn_spec import DEFAULT_INPUT_PX
     from perception.dataset_config import EVAL_WORLD_SEEDS, DatasetConfig
-    from perception.training import CompareConfig, TrainConfig
+    from perception.training_config import CompareConfig, TrainConfig
     dc, tc, cc = DatasetConfig(), TrainConfig(), CompareConfig()
 
     d = subparsers.add_parser(

@@ -8,7 +8,14 @@ import sys
 
 import pytest
 
-from scenenav.app.cli import _DOMAIN_COMMAND_MODULES, _OWN_COMMANDS, _command_of, build_parser
+from scenenav.app.cli import (
+    _BENCH_MODULES,
+    _DOMAIN_COMMAND_MODULES,
+    _OWN_BENCHES,
+    _OWN_COMMANDS,
+    _command_of,
+    build_parser,
+)
 
 
 def _subparser(parser: argparse.ArgumentParser, name: str) -> argparse.ArgumentParser:
@@ -35,6 +42,14 @@ def test_a_domain_command_alone_has_the_same_parser_as_in_the_whole_one(command)
     assert not others & set(sub.choices)          # the other domain modules were not registered
 
 
+@pytest.mark.parametrize("name", sorted(_BENCH_MODULES) + sorted(_OWN_BENCHES))
+def test_one_benchmark_alone_has_the_same_parser_as_in_the_whole_one(name):
+    full, light = build_parser(), build_parser(domain_commands="bench", bench=name)
+    full_bench, light_bench = _subparser(full, "bench"), _subparser(light, "bench")
+    assert _subparser(light_bench, name).format_help() == _subparser(full_bench, name).format_help()
+    assert set(_subparser(light, "bench")._actions[-1].choices) == _OWN_BENCHES | {name}
+
+
 def test_the_command_is_found_after_the_global_option():
     assert _command_of(["--log-level", "INFO", "node", "sim"]) == "node"
     assert _command_of(["--log-level=DEBUG", "run", "--out", "x"]) == "run"
@@ -51,8 +66,20 @@ def test_a_node_process_parses_its_arguments_without_torch():
     assert r.returncode == 0, r.stderr
     assert "--namespace" in r.stdout                      # the node's own help was printed
     assert r.stdout.strip().splitlines()[-1] == "False False"
-    # the whole parser (any other command) still registers the domain commands, torch included
+    # the whole parser (any other command) still registers the domain commands: the planner's
+    # benchmark imports scipy; the CNN's commands know the network without torch (cnn_spec)
     r = subprocess.run([sys.executable, "-c", code.replace("'node', 'sim', '--help'", "'--help'")],
                        capture_output=True, text=True, timeout=120)
     assert r.returncode == 0, r.stderr
-    assert "campaign" in r.stdout and r.stdout.strip().splitlines()[-1] == "True True"
+    assert "campaign" in r.stdout and r.stdout.strip().splitlines()[-1] == "False True"
+
+
+@pytest.mark.parametrize("command", [["cnn", "info"], ["train"], ["experiment", "table2"], ["bench", "e2e"]])
+def test_commands_that_do_not_run_the_network_parse_without_torch(command):
+    code = ("import sys; from scenenav.app import cli; sys.argv = ['scenenav', *sys.argv[1:], '--help']\n"
+            "try:\n    cli.main()\nexcept SystemExit:\n    pass\n"
+            "print('torch' in sys.modules)")
+    r = subprocess.run([sys.executable, "-c", code, *command], capture_output=True, text=True, timeout=120)
+    assert r.returncode == 0, r.stderr
+    assert "usage: scenenav " + " ".join(command) in r.stdout
+    assert r.stdout.strip().splitlines()[-1] == "False"

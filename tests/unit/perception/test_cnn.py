@@ -9,16 +9,14 @@ from torch import nn
 
 from perception.cnn import (
     DEFAULT_WEIGHTS_PATH,
-    NUM_CLASSES,
-    MatchClass,
     MatchClassifier,
     SceneMatchNet,
     WeightsMeta,
-    feature_side_px,
     load_weights,
     normalise,
     save_weights,
 )
+from perception.cnn_spec import NUM_CLASSES, MatchClass, feature_side_px
 from scenenav.core.errors import UserError
 
 

@@ -11,7 +11,7 @@ import numpy as np
 import pytest
 
 from perception.capture import CaptureScene
-from perception.cnn import Labelling, MatchClass
+from perception.cnn_spec import Labelling, MatchClass
 from perception.dataset import build_dataset
 from perception.dataset_config import (
     EVAL_WORLD_SEEDS,

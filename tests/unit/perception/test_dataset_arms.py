@@ -135,7 +135,7 @@ def test_flight_view_is_the_central_square_of_the_100_m_camera():
 
 def test_crops_of_one_junction_share_a_split_group():
     """Jittered repeats of a junction near a tile border stay in one group (no train/val leak)."""
-    from perception.cnn import MatchClass
+    from perception.cnn_spec import MatchClass
     from perception.dataset_samples import BaseSample, CropSource, _pick_junctions, assign_ids
     j = BaseSample(world_seed=1, source=CropSource.JUNCTION, u_px=188.0, v_px=188.0,
                    label=MatchClass.THREE_ARM, arms=3)

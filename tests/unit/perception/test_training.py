@@ -9,7 +9,8 @@ import numpy as np
 import pytest
 import torch
 
-from perception.cnn import DEFAULT_WEIGHTS_PATH, MatchClass, MatchClassifier, load_weights
+from perception.cnn import DEFAULT_WEIGHTS_PATH, MatchClassifier, load_weights
+from perception.cnn_spec import MatchClass
 from perception.dataset import DatasetConfig, build_dataset
 from perception.training import (
     TrainConfig,
