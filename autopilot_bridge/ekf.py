@@ -181,6 +181,7 @@ class NavFilter:
 
     def __init__(self, cfg: EkfConfig | None = None) -> None:
         self._cfg = cfg if cfg is not None else EkfConfig()
+        self._vision_floor_m = 0.0      # VISO_POS_M_NSE (set_vision_noise_floor); the config's floor rules below it
         c = self._cfg
         self._g = c.gravity_m_s2
         self._source = c.position_source
@@ -352,6 +353,12 @@ class NavFilter:
         """Change the horizontal position innovation gate, in standard deviations (``EK3_POS_I_GATE``
         / 100); from the next position fusion on."""
         self._cfg = dataclasses.replace(self._cfg, position_gate_sd=float(gate_sd))
+
+    def set_vision_noise_floor(self, floor_m: float) -> None:
+        """Raise the floor on each vision fix's 1-sigma per axis (``VISO_POS_M_NSE``, ArduPilot's
+        minimum visual-odometry position noise) above ``vision_position_noise_min_m``; from the next
+        fusion on. A floor below the configured one changes nothing."""
+        self._vision_floor_m = float(floor_m)
 
     def set_compass_noise(self, std_rad: float) -> None:
         """Change the compass heading's measurement noise (``EK3_YAW_M_NSE``); from the next fusion on.
@@ -830,10 +837,10 @@ class NavFilter:
 
     def _vision_noise(self, cov_2x2_m2) -> np.ndarray:
         """A vision fix's noise covariance: symmetrised, each variance at least
-        ``vision_position_noise_min_m`` squared."""
+        ``vision_position_noise_min_m`` (or the ``set_vision_noise_floor``, the larger) squared."""
         cov = np.asarray(cov_2x2_m2, dtype=float).reshape(2, 2)
         R = 0.5 * (cov + cov.T)
-        floor2 = self._cfg.vision_position_noise_min_m ** 2
+        floor2 = max(self._cfg.vision_position_noise_min_m, self._vision_floor_m) ** 2
         R[0, 0] = max(R[0, 0], floor2)
         R[1, 1] = max(R[1, 1], floor2)
         return R

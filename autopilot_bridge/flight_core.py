@@ -155,6 +155,7 @@ class FlightCore(SensorFusionMixin, ArmingMixin, GuidedMixin, AutoMissionMixin,
         self.nav.set_accel_noise(accel_noise_density(params.get("EK3_ACC_P_NSE")))
         self.nav.set_compass_noise(params.get("EK3_YAW_M_NSE"))
         self.nav.set_position_gate(params.get("EK3_POS_I_GATE") / 100.0)
+        self.nav.set_vision_noise_floor(params.get("VISO_POS_M_NSE"))
         self.nav.set_vision_reset_max(params.get("SN_VIS_RST_MAX"))
         self.fc = FlightController(self._control_config(), self.airframe)
         self.mixer = QuadXMixer(self.airframe)

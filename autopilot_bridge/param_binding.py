@@ -87,6 +87,8 @@ class ParamBindingMixin:
             self.nav.set_compass_noise(value)
         if name == "EK3_POS_I_GATE":
             self.nav.set_position_gate(value / 100.0)
+        if name == "VISO_POS_M_NSE":
+            self.nav.set_vision_noise_floor(value)
         if name.startswith("EK3_DRAG_") or name == "EK3_WIND_P_NSE":
             self.nav.set_drag_model(**drag_model(self.params))
         if name == f"EK3_SRC{self._source_set}_POSXY":

@@ -69,7 +69,8 @@ VISO_PARAM_SPECS: tuple[ParamSpec, ...] = (
     ParamSpec("VISO_POS_Y", ParamType.REAL32, 0.0, -5.0, 5.0, "m", "Visual odometry sensor position, right"),
     ParamSpec("VISO_POS_Z", ParamType.REAL32, 0.0, -5.0, 5.0, "m", "Visual odometry sensor position, down"),
     ParamSpec("VISO_POS_M_NSE", ParamType.REAL32, 0.2, 0.0, 5.0, "m",
-              "Visual odometry position noise: floor of the covariance-derived error", safe_min=0.0),
+              "Visual odometry position noise: floor of the covariance-derived error (MAVLink vision "
+              "messages; bus fixes too, above the EKF's own 0.3 m)", safe_min=0.0),
     ParamSpec("VISO_QUAL_MIN", ParamType.INT8, 0, -1, 100, "%",
               "Visual odometry minimum quality: ODOMETRY below it is ignored"),
     ParamSpec("VISO_YAW_M_NSE", ParamType.REAL32, 0.2, 0.05, 1.0, "rad",

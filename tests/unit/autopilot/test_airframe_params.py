@@ -88,3 +88,14 @@ def test_ek3_pos_i_gate_sets_the_filters_position_gate_at_start_and_in_flight():
     assert FlightCore(store2).nav._cfg.position_gate_sd == pytest.approx(2.5)
     low = store.set("EK3_POS_I_GATE", 50)                # below one SD: clamped to the safe minimum
     assert low.ok and "clamped to 100" in low.reason and core.nav._cfg.position_gate_sd == pytest.approx(1.0)
+
+
+def test_viso_pos_m_nse_sets_the_filters_vision_noise_floor_at_start_and_in_flight():
+    store = ParameterStore(PARAM_SPECS)
+    core = FlightCore(store)
+    assert core.nav._vision_floor_m == pytest.approx(0.2)          # ArduPilot's default, under the 0.3 m floor
+    assert store.set("VISO_POS_M_NSE", 2.0).ok
+    assert core.nav._vision_floor_m == pytest.approx(2.0)
+    store2 = ParameterStore(PARAM_SPECS)
+    assert store2.set("VISO_POS_M_NSE", 1.5).ok
+    assert FlightCore(store2).nav._vision_floor_m == pytest.approx(1.5)

@@ -240,6 +240,25 @@ def test_position_gate_follows_its_setting():
     assert nav.fuse_vision_position(probe, np.eye(2)).accepted
 
 
+def test_vision_noise_floor_weighs_a_narrow_fix_less():
+    """VISO_POS_M_NSE floors each fix's 1-sigma: a fix stated at 0.5 m pulls the estimate less with
+    a 2 m floor; a floor under the configured 0.3 m changes nothing."""
+    def pull(floor_m: float) -> float:
+        rng = np.random.default_rng(4)
+        truth = KinematicTruth(_still, _still)
+        nav = _align(truth, rng)
+        _run(nav, truth, rng, 20.0)
+        nav.set_position_source(PositionSource.EXTNAV)
+        nav.set_vision_noise_floor(floor_m)
+        before = np.asarray(nav.state().position_enu_m[:2], float)
+        r = nav.fuse_vision_position(before + np.array([1.0, 0.0]), np.eye(2) * 0.25)
+        assert r.accepted
+        return float(nav.state().position_enu_m[0] - before[0])
+    narrow, floored, below = pull(0.0), pull(2.0), pull(0.2)
+    assert 0.0 < floored < 0.5 * narrow
+    assert below == narrow
+
+
 def test_source_switch_gps_to_extnav_is_continuous():
     rng = np.random.default_rng(6)
     truth = KinematicTruth(_accel_then_cruise, _still)
