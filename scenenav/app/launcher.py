@@ -834,6 +834,16 @@ def startup_death_text(failures: list[NodeFailure]) -> str:
             "clock.startup_timeout_s for it and flown without it")
 
 
+def autopilot_death_text(failure: NodeFailure) -> str:
+    """Why the launcher stopped an autopilot flight whose autopilot died after take-off had begun:
+    nothing flies the vehicle any more (the simulator would step it on the last motor commands),
+    and the guidance and perception nodes would wait out their timeouts on every tick for a
+    controller that never answers, so the run would crawl to its duration."""
+    at = f" at t={failure.sim_time_s:.1f} s" if failure.sim_time_s is not None else ""
+    return (f"stopped the run: the autopilot died{at} (see logs/autopilot.log); nothing flies the "
+            "vehicle any more, so the rest of the flight would mean nothing")
+
+
 def _wait_sim(sim: Child, launch: Launch, cfg: ScenarioConfig, progress: bool,
               swap: PerceptionSwap | None = None, watch: ChildWatch | None = None,
               disk: DiskWatch | None = None, restarter: NodeRestarter | None = None) -> str | None:
@@ -841,7 +851,8 @@ def _wait_sim(sim: Child, launch: Launch, cfg: ScenarioConfig, progress: bool,
     run was ended early, else None: a node the simulator waits for died before its first tick
     (flying without it is not what the scenario asked for), or, in an autopilot flight, one of the
     ``MISSION_STARTERS`` died while the vehicle had never armed (a guidance node without a route,
-    say: the mission cannot start, and the simulator would idle on the ground to the duration)."""
+    say: the mission cannot start, and the simulator would idle on the ground to the duration), or
+    the autopilot died later (``autopilot_death_text``)."""
     bar = None
     if progress and sys.stderr.isatty():
         from tqdm import tqdm
@@ -864,6 +875,9 @@ def _wait_sim(sim: Child, launch: Launch, cfg: ScenarioConfig, progress: bool,
             elif grounded and not watch.failed("recorder"):     # status.csv is the recorder's
                 blocking = [f for f in dead if f.node in MISSION_STARTERS]
                 why = grounded_death_text(blocking) if blocking else None
+            if why is None and autopilot_flight:
+                pilot = [f for f in dead if f.node == "autopilot"]
+                why = autopilot_death_text(pilot[0]) if pilot else None
             if why is not None:
                 if bar is not None:
                     bar.close()

@@ -6,6 +6,7 @@
   the summary; the node is started again and the vehicle, which cannot arm without its fixes, flies.
 * A node the simulator waits for dies while the run is starting: the run is stopped before take-off
   (not flown without it after the simulator's start-up timeout), said on one line and in the summary.
+* SIGKILL of the autopilot in flight: the run is stopped at once (nothing flies the vehicle).
 * SIGKILL of the recorder: bus.mcap opens with the standard mcap reader (recovered from its whole
   chunks), CSV rows are whole, the summary says the recording ended early.
 """
@@ -207,3 +208,30 @@ def test_sitl_stops_when_a_node_dies_before_take_off(tmp_path):
         assert wait_gone(children) == set(), "processes of the run outlived it"
     finally:
         s.stop()
+
+
+def test_the_autopilot_dying_in_flight_stops_the_run(runs, tmp_path):
+    # Nothing flies the vehicle after the autopilot's death, and the nodes that wait for it on every
+    # tick would make the rest of the run crawl (about 0.2x real time): the launcher stops it.
+    r = FaultRun(tmp_path / "autopilot", "--set", "duration_s=300", "--set", "perception.method=statistical",
+                 "--set", "autopilot.params.EK3_GBIAS_P_NSE=1e-3", scenario="scenarios/gps_denied.yaml")
+    runs.append(r)
+    deadline = time.monotonic() + 240.0
+    while not _armed(r.run_dir):
+        assert time.monotonic() < deadline and r.proc.poll() is None, "the mission never started"
+        time.sleep(0.2)
+    killed_after = r.wait_sim_time((last_sim_time(r.run_dir) or 0.0) + 3.0)
+    pids = r.group_pids()
+    r.kill_node("autopilot", signal.SIGKILL)
+    code = r.finish()
+    assert code == 1, r.stderr[-3000:]
+    assert wait_gone(pids) == set(), "processes of the run outlived it"
+    assert "Traceback" not in r.stderr
+    lines = [ln for ln in r.stderr.splitlines() if "stopped the run: the autopilot died" in ln]
+    assert len(lines) == 1 and "logs/autopilot.log" in lines[0], r.stderr[-3000:]
+    s = r.summary()
+    assert s["aborted"] is True and s["end_reason"].startswith("stopped the run: the autopilot died at t=")
+    assert s["failed_nodes"] == ["autopilot"]
+    t_died = float(s["end_reason"].split("t=")[1].split(" s")[0])
+    assert t_died >= killed_after
+    assert (last_sim_time(r.run_dir) or 0.0) < t_died + 30.0, "the run flew on without its autopilot"
