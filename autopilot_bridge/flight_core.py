@@ -332,6 +332,7 @@ class FlightCore(SensorFusionMixin, ArmingMixin, GuidedMixin, AutoMissionMixin,
         self._gyro = gyro
         self._accel = accel
         self._imu_dt_s = float(dt_s)
+        self._record_gyro(self._now_s, gyro)
         self.vibration.add(accel, dt_s)
         if not self.nav.aligned:
             self.alignment.add_imu(self._now_s, accel, gyro)

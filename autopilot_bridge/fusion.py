@@ -12,7 +12,10 @@ biases (zero-rate update: a dead-reckoned climb drifts by g eps t^3 / 6 for a re
 ``on_flow`` takes the optical-flow module's samples: in the air, with FLOW_TYPE > 0 and the active
 EK3_SRCn_VELXY = 5 (OpticalFlow), a sample with a valid range within RNGFND1_MIN_CM .. RNGFND1_MAX_CM, quality > 0, a tilt under 45 deg and a
 rate under EK3_MAX_FLOW is fused as body velocity (``NavFilter.fuse_optical_flow``, EK3_FLOW_M_NSE,
-EK3_FLOW_I_GATE). ``on_power`` feeds the battery monitor.
+EK3_FLOW_I_GATE). ``on_camera_flow`` takes the followed perception node's camera flow (VisionFix
+version 3): with SN_CAM_FLOW 1 it is fused the same way, its body rotation removed with this
+autopilot's own gyro over the frame interval (``_camera_flow_fusion``). ``on_power`` feeds the
+battery monitor.
 
 Pure module: no zenoh, no pymavlink.
 """
@@ -21,6 +24,7 @@ from __future__ import annotations
 
 import logging
 import math
+from collections import deque
 from dataclasses import dataclass
 from typing import NamedTuple
 
@@ -54,6 +58,20 @@ OPTFLOW_SOURCE = 5           # EK3_SRCn_VELXY value OpticalFlow
 FLOW_MAX_TILT_COS = math.cos(math.radians(45.0))
 #: the flow module's range accuracy (FlowSample.distance_m), 1 % of the range: the EKF's range variance
 FLOW_RANGE_STD_FRACTION = 0.01
+#: the camera flow's range 1-sigma as a fraction: the image holds roofs 10-30 m above the street at a
+#: 100 m survey height (worlds.city_config), which move 10-40 % faster than the street; the range
+#: finder's recent mean (CAMERA_FLOW_RANGE_WINDOW_S) follows how much of the scene is roof, but along
+#: the track only, and height above home / cos(tilt) not at all
+CAMERA_FLOW_RANGE_STD_FRACTION = 0.1
+#: the range finder's ranges of this many seconds are averaged (harmonically: the flow scales with
+#: 1 / range) into the camera flow's range; at 10 m/s, 30 m of track. Measured on a realistic flight
+#: (docs/realism.md "The camera as a flow sensor"): the camera flow's forward bias against the truth
+#: fell from +0.36 m/s (height above home) to +0.08 m/s
+CAMERA_FLOW_RANGE_WINDOW_S = 3.0
+#: fewer valid ranges than this in the window: height above home / cos(tilt) instead
+CAMERA_FLOW_RANGE_MIN_SAMPLES = 5
+#: body rates kept for the camera flow's rotation (s): the frame interval plus the fix's delivery lag
+GYRO_HISTORY_S = 2.0
 _TWO_PI = 2.0 * math.pi
 
 
@@ -106,6 +124,18 @@ def flow_reading(msg: FlowSample) -> FlowReading:
                        msg.distance_m, msg.quality)
 
 
+@dataclass(frozen=True)
+class CameraFlowReading:
+    """A perception node's camera flow (VisionFix version 3): ``t_s`` the frame's capture time,
+    ``flow_flu_rad_s`` the image motion as a flow rate, body rotation not removed, over
+    ``interval_s`` before it; ``quality`` 0..1."""
+
+    t_s: float
+    flow_flu_rad_s: tuple[float, float]
+    interval_s: float
+    quality: float
+
+
 class SensorFusionMixin:
     """Part of ``FlightCore`` (``autopilot_bridge.flight_core``); works on its state."""
 
@@ -115,6 +145,9 @@ class SensorFusionMixin:
         self._compass: list[float] = []
         self._gps: list[GpsReading] = []
         self._flow: list[FlowReading] = []
+        self._camera_flow: list[CameraFlowReading] = []
+        self._ranges: deque[tuple[float, float]] = deque()   # (t s, valid range finder range m)
+        self._gyro_history: deque[tuple[float, np.ndarray]] = deque()   # (t s, raw gyro FLU rad/s)
         self._last_flow: FlowReading | None = None     # telemetry (OPTICAL_FLOW, DISTANCE_SENSOR)
         self._vision: list[VisionReading] = []
         self._last_gps: GpsReading | None = None
@@ -180,6 +213,47 @@ class SensorFusionMixin:
         self._last_flow = reading
         if self.nav.aligned:
             self._flow.append(reading)
+        self._record_range(reading)
+
+    def _record_range(self, reading: FlowReading) -> None:
+        """Keep the range finder's valid ranges of the last CAMERA_FLOW_RANGE_WINDOW_S (camera flow)."""
+        r_min, r_max = self._rangefinder_limits_m()
+        h = self._ranges
+        if all_finite(reading.distance_m) and r_min <= reading.distance_m <= r_max:
+            h.append((reading.t_s, float(reading.distance_m)))
+        while h and h[0][0] < reading.t_s - CAMERA_FLOW_RANGE_WINDOW_S:
+            h.popleft()
+
+    def _camera_flow_range(self, tilt_cos: float, height_m: float) -> float:
+        """The range the camera flow is scaled by: the harmonic mean of the range finder's recent
+        ranges when it has enough of them (FLOW_TYPE > 0), else height above home / cos(tilt)."""
+        h = self._ranges
+        if (self.params.get_int("FLOW_TYPE") != 0 and len(h) >= CAMERA_FLOW_RANGE_MIN_SAMPLES
+                and self._now_s - h[-1][0] <= 1.0):
+            return len(h) / sum(1.0 / r for _, r in h)
+        return height_m / tilt_cos
+
+    def on_camera_flow(self, reading: CameraFlowReading) -> None:
+        """The followed perception node's camera flow for one frame (buffered; fused after the next
+        predict with SN_CAM_FLOW 1, ``_camera_flow_fusion``)."""
+        if not (all_finite(reading.t_s, reading.interval_s, reading.quality, *reading.flow_flu_rad_s)
+                and reading.interval_s > 0.0):
+            self.stats["camera_flow_nan"] += 1
+            return
+        if self.nav.aligned:
+            self._camera_flow.append(reading)
+
+    def _record_gyro(self, t_s: float, gyro_flu_rad_s: np.ndarray) -> None:
+        """A control tick's raw body rates (averaged over the tick ending at ``t_s``)."""
+        h = self._gyro_history
+        h.append((t_s, gyro_flu_rad_s))
+        while h and h[0][0] < t_s - GYRO_HISTORY_S:
+            h.popleft()
+
+    def _mean_gyro(self, t0_s: float, t1_s: float) -> np.ndarray | None:
+        """The mean raw body rate over (t0, t1] from the ticks in it (None when there are none)."""
+        rates = [g for t, g in self._gyro_history if t0_s + 1e-6 < t <= t1_s + 1e-6]
+        return np.mean(rates, axis=0) if rates else None
 
     def on_power(self, t_s: float, voltage_v: float, current_a: float) -> None:
         """A power-module measurement (battery voltage and current), reported over MAVLink."""
@@ -257,6 +331,7 @@ class SensorFusionMixin:
             self._fuse_vision(v)
         self._vision.clear()
         self._flow_fusion()
+        self._camera_flow_fusion()
         self._ground_fusion()
         self._rest_fusion()
         self._drag_fusion()
@@ -375,6 +450,44 @@ class SensorFusionMixin:
             rx, ry = self.nav.fuse_optical_flow(rate, r, noise, gate, FLOW_RANGE_STD_FRACTION * r)
             self.stats["flow_fused"] += int(rx.accepted) + int(ry.accepted)
             self.stats["flow_rejected"] += int(not rx.accepted) + int(not ry.accepted)
+
+    def _camera_flow_fusion(self) -> None:
+        """The buffered camera flows (SN_CAM_FLOW 1): each with the body rotation over its frame
+        interval removed (this autopilot's gyro minus the EKF's bias), over the range height above
+        home / cos(tilt), as two scalar flow measurements (``NavFilter.fuse_optical_flow``)."""
+        flows, self._camera_flow = self._camera_flow, []
+        p = self.params
+        if not flows or p.get_int("SN_CAM_FLOW") == 0 or not self._armed or self.fc.landed:
+            return
+        st = self.nav.state()
+        tilt_cos = float(quat_to_rotation_matrix(st.q_wxyz)[2, 2])
+        height = self._height_above_home()
+        if tilt_cos < FLOW_MAX_TILT_COS or height < max(p.get("SN_VIS_MIN_ALT"), 1.0):
+            self.stats["camera_flow_unusable"] += len(flows)
+            return
+        r = self._camera_flow_range(tilt_cos, height)
+        noise = p.get("SN_CAM_FLOW_NSE")
+        gate = p.get("EK3_FLOW_I_GATE") / 100.0
+        max_rate = p.get("EK3_MAX_FLOW")
+        q_min = p.get("SN_CAM_FLOW_QMIN")
+        for f in flows:
+            if f.quality < q_min:
+                self.stats["camera_flow_low_quality"] += 1
+                continue
+            gyro = self._mean_gyro(f.t_s - f.interval_s, f.t_s)
+            if gyro is None:
+                self.stats["camera_flow_no_gyro"] += 1
+                continue
+            rate = (f.flow_flu_rad_s[0] + float(gyro[0] - st.gyro_bias[0]),
+                    f.flow_flu_rad_s[1] + float(gyro[1] - st.gyro_bias[1]))
+            if max(abs(rate[0]), abs(rate[1])) > max_rate:
+                self.stats["camera_flow_too_fast"] += 1
+                continue
+            # a weaker correlation peak, a less sure shift: 1 / quality^2 (measured, docs/perception.md)
+            rx, ry = self.nav.fuse_optical_flow(rate, r, noise / (f.quality * f.quality), gate,
+                                                CAMERA_FLOW_RANGE_STD_FRACTION * r)
+            self.stats["camera_flow_fused"] += int(rx.accepted) + int(ry.accepted)
+            self.stats["camera_flow_rejected"] += int(not rx.accepted) + int(not ry.accepted)
 
     def _ground_fusion(self) -> None:
         """On the ground without a usable external-nav fix: fuse the landed position."""

@@ -11,6 +11,7 @@ Inputs (``scenenav/<ns>/...``)
   ``sensors/flow``                   FlowSample    optical flow and range (EKF velocity, FLOW_TYPE > 0 and
                                                    EK3_SRC1_VELXY = 5)
   ``perception/fix/*``               VisionFix     scene-matching fixes of the followed perception node
+                                                   (and its camera flow, fused with SN_CAM_FLOW 1)
   liveliness ``nodes/perception/*``  which perception nodes are live (the newest one is followed)
   liveliness ``lockstep/member/camera/*``  which of them answer camera frames in lockstep
   MAVLink (TCP 127.0.0.1:5760, UDP out 127.0.0.1:14550 by default): commands, missions,
@@ -63,7 +64,7 @@ import zenoh
 
 from autopilot_bridge.config import AutopilotSetup, PositionSource, udp_bind_host_for
 from autopilot_bridge.flight_core import FlightCore
-from autopilot_bridge.fusion import GpsReading, ImuReading, flow_reading
+from autopilot_bridge.fusion import CameraFlowReading, GpsReading, ImuReading, flow_reading
 from autopilot_bridge.mavlink_server import MavlinkServer, MavlinkServerConfig
 from autopilot_bridge.modes import CopterMode
 from autopilot_bridge.param_specs import PARAM_SPECS
@@ -555,6 +556,10 @@ class AutopilotNode:
             cov = np.asarray(fix.covariance_xy_m2, dtype=float).reshape(2, 2)
             self.core.on_vision_fix(t_s, fix.position_xy_enu_m, cov, fix.valid, fix.accepted, node,
                                     fix.heading_rad, fix.heading_std_rad)
+            if fix.flow_interval_us > 0:
+                self.core.on_camera_flow(CameraFlowReading(
+                    t_s, (float(fix.flow_flu_rad_s[0]), float(fix.flow_flu_rad_s[1])),
+                    fix.flow_interval_us * 1e-6, float(fix.flow_quality)))
             self.stats["fixes_delivered"] += 1
 
     # ------------------------------------------------------------------ the run's own mission

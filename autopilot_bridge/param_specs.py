@@ -47,6 +47,17 @@ SN_PARAM_SPECS: tuple[ParamSpec, ...] = (
               "combined sigmas of the EKF's uncertainty and this) is fused with this 1-sigma at "
               "every frame: an ambiguous match that agrees with the estimate is taken as the true "
               "peak, whose error is that of a tracked one; 0 = off", safe_min=0.0),
+    ParamSpec("SN_CAM_FLOW", ParamType.INT8, 0, 0, 1, "",
+              "1: fuse the followed perception node's camera flow (VisionFix flow_flu_rad_s, "
+              "perception.camera_flow) as optical flow: its body rotation removed with this "
+              "autopilot's gyro over the frame interval, over the range finder's recent mean range "
+              "(FLOW_TYPE > 0) or else height above home / cos(tilt); in the air above SN_VIS_MIN_ALT, "
+              "gated at EK3_FLOW_I_GATE. 0: ignored"),
+    ParamSpec("SN_CAM_FLOW_NSE", ParamType.REAL32, 0.01, 0.001, 1.0, "rad/s",
+              "Camera-flow measurement noise the EKF assumes (SN_CAM_FLOW 1) for a flow of quality 1, "
+              "per axis and frame; a flow of quality q is fused with this / q^2"),
+    ParamSpec("SN_CAM_FLOW_QMIN", ParamType.REAL32, 0.5, 0.0, 1.0, "",
+              "Camera flows with a lower quality (the correlation peak's height against that of identical images) are not fused"),
 )
 # EKF source sets 2 and 3 (SET_EKF_SOURCE_SET, system_commands.py): ArduPilot's defaults are 0 (None).
 _SRC_VALUES = {

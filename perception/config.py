@@ -331,6 +331,9 @@ class PerceptionNodeConfig:
     confirm_tol_m: float = 2.0         # how far from that track a match may lie
     confirm_max_span_s: float = 0.8    # successors later than this after the fix: unconfirmed (keep it
                                        # below the autopilot's vision_max_age_s, or held fixes go stale)
+    camera_flow: bool = False          # measure the camera's optical flow between consecutive fixed-mount
+                                       # frames and publish it with each fix (VisionFix version 3,
+                                       # perception/frame_flow.py; fused by the autopilot with SN_CAM_FLOW 1)
 
     def __post_init__(self) -> None:
         methods = ("cnn", "assistant-map", "statistical", "none")

@@ -19,7 +19,9 @@ Inputs
 Outputs
   ``perception/fix/<node_id>``   VisionFix  (one per frame; ``valid`` false when no match; with
                                             ``confirm_successors`` N > 0 held until N more matches
-                                            decide it, then published in frame order)
+                                            decide it, then published in frame order; with
+                                            ``camera_flow`` the image motion since the previous
+                                            fixed-mount frame, perception/frame_flow.py)
   ``lockstep/ack/<node_id>``     LockstepAck (role camera, after the fix) when in lockstep
   liveliness ``nodes/perception/<node_id>`` and, in lockstep, ``lockstep/member/camera/<node_id>``
   ``info/<node_id>``, ``events/<node_id>``
@@ -49,9 +51,11 @@ from typing import TYPE_CHECKING
 import numpy as np
 
 from perception.config import ExpectedCamera, PerceptionConfig, PerceptionNodeConfig
+from perception.frame_flow import CameraFlow, FrameFlow
 from perception.match_confirmation import MatchConfirmation
 from perception.match_metrics import MatchMetrics
 from scenenav.core.bus import Bus, BusConfig
+from scenenav.core.camera_geometry import focal_length_px
 from scenenav.core.contracts import (
     BaroSample,
     CameraFrame,
@@ -139,6 +143,14 @@ FRAME_BACKLOG = 64
 #: ``_estimate_settled``); after that it aligns with the newest one it has (``stats["estimate_late"]``).
 ESTIMATE_WAIT_S = 0.5
 
+def _flow_fields(flow: CameraFlow | None) -> dict:
+    """VisionFix's version-3 fields for a camera flow (their defaults: not measured)."""
+    if flow is None:
+        return {}
+    return {"flow_flu_rad_s": (float(flow.flow_flu_rad_s[0]), float(flow.flow_flu_rad_s[1])),
+            "flow_interval_us": round(flow.interval_s * 1e6), "flow_quality": float(flow.quality)}
+
+
 class PerceptionNode:
     """See the module docstring. ``camera``: the camera this node expects (FOV and size)."""
 
@@ -159,6 +171,7 @@ class PerceptionNode:
         import cv2
         cv2.setNumThreads(1)
         self.pipeline = make_pipeline(world, settings, fov_deg=self.camera.fov_deg, weights=weights)
+        self._frame_flow = FrameFlow()
         self._confirm: MatchConfirmation[tuple[CameraFrame, FixResult, bool]] = MatchConfirmation(
             settings.confirm_successors, settings.confirm_tol_m, settings.confirm_max_span_s)
         self._diag = None
@@ -377,7 +390,7 @@ class PerceptionNode:
                         self._drop("bad_input", msg, str(exc))
                         self._answer_invalid(msg)
                     else:
-                        self._emit(msg, res)
+                        self._emit(msg, self._with_camera_flow(msg, res))
                         self.stats["fixes"] += 1
             except Exception:   # keep serving frames whatever one frame did
                 log.exception("frame %d failed", msg.seq)
@@ -386,6 +399,23 @@ class PerceptionNode:
                 if self.settings.lockstep:
                     self.bus.publish(self.keys.lockstep_ack(self.node_id), LockstepAck(
                         msg.timestamp_us, self.node_id, LockstepRole.CAMERA.value, msg.seq))
+
+    def _with_camera_flow(self, msg: CameraFrame, res: FixResult) -> FixResult:
+        """``res`` with the camera's flow from the previous frame (``perception.camera_flow``, a
+        fixed-mount frame whose capture was aligned); the flow history restarts otherwise."""
+        capture = self.pipeline.last_capture
+        if not self.settings.camera_flow or msg.mount != "fixed" or capture is None:
+            self._frame_flow.reset()
+            return res
+        intr = msg.intrinsics_fx_fy_cx_cy_px
+        if intr is None or not all(math.isfinite(v) for v in intr):
+            f = focal_length_px(capture.gray.shape[1], msg.fov_deg)
+            intr = (f, f, 0.0, 0.0)
+        flow = self._frame_flow.update(msg.timestamp_us * 1e-6, capture.gray, (intr[0], intr[1]))
+        if flow is None:
+            return res
+        self.stats["camera_flows"] += 1
+        return dataclasses.replace(res, camera_flow=flow)
 
     def _fix_message(self, msg: CameraFrame, r: FixResult) -> VisionFix:
         cov = np.asarray(r.covariance_m2, dtype=float).reshape(2, 2)
@@ -403,7 +433,8 @@ class PerceptionNode:
             time_align_ms=float(t.align_ms), time_ncc_ms=float(t.ncc_ms),
             time_cnn_ms=float(t.cnn_ms), time_lookup_ms=float(t.lookup_ms),
             time_total_ms=float(t.total_ms),
-            heading_rad=float(r.heading_rad), heading_std_rad=float(r.heading_std_rad))
+            heading_rad=float(r.heading_rad), heading_std_rad=float(r.heading_std_rad),
+            **_flow_fields(r.camera_flow))
 
     def _write_diag(self, msg: CameraFrame, r: FixResult) -> None:
         if self._diag is None:

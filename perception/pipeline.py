@@ -57,6 +57,7 @@ from perception.decision import (
     split_classifier_output,
 )
 from perception.fix_covariance import local_mode_posterior, pointing_covariance_m2
+from perception.frame_flow import CameraFlow
 from perception.heading_offset import HeadingDeviation, parabola_vertex, rotation_peaks
 from perception.match_consistency import MatchConsistency
 from perception.match_metrics import MatchMetrics, StageTimes
@@ -142,6 +143,9 @@ class FixResult:
     #: fits the reference best at the matched position (``_learn_heading``); NaN when not measured
     heading_rad: float = _NAN
     heading_std_rad: float = _NAN       # its 1-sigma (``HeadingOffsetConfig.measurement_std_deg``); NaN with it
+    #: the camera's flow from the previous capture (``perception.frame_flow``; the node adds it with
+    #: ``perception.camera_flow``); None: not measured
+    camera_flow: CameraFlow | None = None
 
     @property
     def covariance_row_major(self) -> tuple[float, float, float, float]:
@@ -201,6 +205,9 @@ class PerceptionPipeline:
         self.heading_deviation = (HeadingDeviation(self.cfg.heading_offset)
                                   if self.cfg.heading_offset.enabled else None)
         self.last_aligned: AlignedCapture | None = None
+        #: this call's aligned capture (None when alignment failed); ``last_aligned`` keeps the last
+        #: one matched
+        self.last_capture: AlignedCapture | None = None
         self.last_match: MatchResult | None = None
         self.classify = classify
         h, w = gray.shape
@@ -278,6 +285,7 @@ class PerceptionPipeline:
         t_s = finite_number("timestamp_s", timestamp_s)
         cfg = self.cfg
         timings = StageTimes()
+        self.last_capture = None
         deviation = self.heading_deviation
         if deviation is not None:
             heading_rad = finite_number("heading_rad", heading_rad)
@@ -304,6 +312,7 @@ class PerceptionPipeline:
             return self._invalid(t_s, Reason.TEMPLATE_TOO_SMALL, exc.side_px, timings)
         t_align = time.perf_counter()
         timings.align_ms = (t_align - t_start) * _MS
+        self.last_capture = aligned      # the undistorted capture (``gray``) for the camera flow
         side = aligned.side_px
 
         if (reacquire_prior is not None and reacquire_prior[2] is not None

@@ -31,7 +31,7 @@ def examples() -> list:
         c.LockstepAck(1_200_000, "my_matcher", "camera", 12),
         c.VisionFix(1_200_000, 12, "my_matcher", "example-ncc", True, True, (61.25, -94.8),
                     (2.25, 0.1, 0.1, 2.56), NAN, (NAN, NAN, NAN, NAN), 0.71, 11.2, 0.62,
-                    3.1, 18.4, 0.0, 0.0, 21.9),
+                    3.1, 18.4, 0.0, 0.0, 21.9, NAN, NAN, (0.006, 0.083), 100_000, 0.87),
         c.NavEstimate(1_230_000, (61.0, -95.1, 99.8), (2.0, 0.4, 0.0), (0.7071, 0.0, 0.0, -0.7071),
                       1.5708, (1.5, 1.6, 0.3), 6, "my_matcher"),
         c.AutopilotStatus(1_000_000, True, "AUTO", False, 2, 4, False, False),

@@ -6,7 +6,8 @@ Encoding (documented for other languages in docs/interfaces.md):
   Vectors are JSON arrays of fixed length; non-finite floats (NaN, inf) travel as ``null`` and decode
   to NaN. Unknown extra keys are ignored (forward compatibility); missing keys are errors, except
   that a message of an older version a class still reads (``READABLE_VERSIONS``) may lack the fields
-  a later version added (those with a default), which then take their default.
+  a later version added (those with a default; ``FIELD_VERSIONS`` says which version added which),
+  which then take their default.
 * ``CameraFrame`` is binary: ``uint32 little-endian header length N`` + ``N bytes JSON header`` (the
   same JSON form as above, without the pixels) + raw pixel bytes, row-major, top row first, with the
   shape and encoding stated in the header.
@@ -266,9 +267,14 @@ class VisionFix:
     computed (the position is then NaN); ``accepted`` is the false-match detector's verdict.
     """
 
-    VERSION: ClassVar[int] = 2
-    #: older versions this node still reads: version 1 had no heading (it decodes to NaN)
-    READABLE_VERSIONS: ClassVar[tuple[int, ...]] = (1,)
+    VERSION: ClassVar[int] = 3
+    #: older versions this node still reads: version 1 had no heading, version 2 no camera flow
+    #: (they decode to NaN)
+    READABLE_VERSIONS: ClassVar[tuple[int, ...]] = (1, 2)
+    #: the version that added each later field: a message of an older version may lack it (and
+    #: decodes with its default), one of that version or later must carry it
+    FIELD_VERSIONS: ClassVar[dict[str, int]] = {"heading_rad": 2, "heading_std_rad": 2, "flow_flu_rad_s": 3,
+                                                "flow_interval_us": 3, "flow_quality": 3}
     timestamp_us: int
     frame_seq: int
     node_id: str
@@ -292,6 +298,15 @@ class VisionFix:
     # autopilot fuses it as external-navigation yaw (EK3_SRC1_YAW = 6) with an accepted fix.
     heading_rad: float = math.nan
     heading_std_rad: float = math.nan
+    # Version 3: the camera's own optical flow between the previous frame and this one (a camera
+    # fixed to the body only): the mean apparent angular rate (rad/s about body x and y, FLU, the
+    # convention of FlowSample.flow_flu_rad_s) of the surface at the image centre over
+    # ``flow_interval_us`` (microseconds from the previous frame's capture time to this one's), the
+    # body rotation NOT removed; ``flow_quality`` in [0, 1] (phase-correlation response). NaN / 0:
+    # not measured. The autopilot fuses it with SN_CAM_FLOW 1.
+    flow_flu_rad_s: tuple[float, float] = (math.nan, math.nan)
+    flow_interval_us: int = 0
+    flow_quality: float = math.nan
 
 
 @dataclass(frozen=True)
@@ -474,6 +489,12 @@ def _added_fields(cls: type) -> frozenset[str]:
 _ADDED: dict[type, frozenset[str]] = {}
 
 
+def _added_in(cls: type, name: str) -> int:
+    """The version that added the defaulted field ``name`` (``FIELD_VERSIONS``; without it: the
+    class's current version, so that every older version may lack it)."""
+    return int(getattr(cls, "FIELD_VERSIONS", {}).get(name, cls.VERSION))  # type: ignore[attr-defined]
+
+
 def _from_json_obj(cls: type[Any], obj: Any) -> Any:
     if not isinstance(obj, dict):
         raise DecodeError(f"{cls.__name__}: expected a JSON object")
@@ -489,7 +510,7 @@ def _from_json_obj(cls: type[Any], obj: Any) -> Any:
         try:
             value = obj[name]
         except KeyError:
-            if older and name in _added_fields(cls):
+            if older and name in _added_fields(cls) and _added_in(cls, name) > version:
                 continue                    # a field a later version added: its default
             raise DecodeError(f"{cls.__name__}: missing field {name!r}") from None
         if kind == _KIND_FLOAT and type(value) is float:              # fast path

@@ -18,11 +18,11 @@ import numpy as np
 
 from autopilot_bridge.config import FlightCoreConfig
 from autopilot_bridge.flight_core import FlightCore
-from autopilot_bridge.fusion import GpsReading, ImuReading, flow_reading
+from autopilot_bridge.fusion import CameraFlowReading, GpsReading, ImuReading, flow_reading
 from autopilot_bridge.modes import CopterMode
 from autopilot_bridge.param_specs import PARAM_SPECS
 from autopilot_bridge.params import ParameterStore
-from scenenav.core.rotations import heading_from_quat
+from scenenav.core.rotations import heading_from_quat, quat_to_rotation_matrix
 from sitl.config import SimConfig, WindConfig
 from sitl.core import SimulatorCore, TickOutput
 
@@ -120,6 +120,11 @@ class CoreFlight:
         self.vision_offset_m = np.zeros(2)
         self.vision_cov_m2 = np.eye(2) * 0.5
         self.rng = np.random.default_rng(seed + 1000)
+        #: every 10th tick the camera's flow over the last 10 ticks is handed to the core (as a
+        #: perception node's VisionFix carries it) with this white noise (rad/s; None: no camera flow)
+        self.camera_flow_std_rad_s: float | None = None
+        self._flow_sum = np.zeros(2)
+        self._flow_n = 0
         self.cmd = np.zeros(4)
         self.k = 0
 
@@ -159,10 +164,28 @@ class CoreFlight:
                 hdg_std = self.vision_heading_std_rad
                 hdg = heading_from_quat(self.plant.q) + float(self.rng.normal(0.0, hdg_std))
             c.on_vision_fix(t - 0.05, xy, self.vision_cov_m2, True, True, "test", hdg, hdg_std)
+        if self.camera_flow_std_rad_s is not None:
+            self._camera_flow(t)
         self.k += 1
         imu = out.imu
         self.cmd = c.step(imu.dt_s, ImuReading(imu.accel_flu_m_s2, imu.gyro_flu_rad_s), t)
         self.plant.advance(self.cmd)
+
+    def _camera_flow(self, t: float) -> None:
+        """Accumulate this tick's true image flow at the image centre over flat ground (FlowSample's
+        convention, the body rotation in it); hand the 10-tick mean to the core every 10th tick."""
+        st = self.plant.core.state()
+        rot = quat_to_rotation_matrix(np.asarray(st.q_wxyz, dtype=float))
+        vb = rot.T @ np.asarray(st.velocity_enu_m_s, dtype=float)
+        w = np.asarray(st.angular_velocity_flu_rad_s, dtype=float)
+        r = max(float(st.position_enu_m[2]), 0.1) / max(float(rot[2, 2]), 0.1)
+        self._flow_sum += (-vb[1] / r - w[0], vb[0] / r - w[1])
+        self._flow_n += 1
+        if self._flow_n == 10:
+            flow = self._flow_sum / 10 + self.rng.normal(0.0, float(self.camera_flow_std_rad_s), 2)
+            self.core.on_camera_flow(CameraFlowReading(t, (float(flow[0]), float(flow[1])), 10 * DT, 0.9))
+            self._flow_sum[:] = 0.0
+            self._flow_n = 0
 
     def run(self, seconds: float, until=None) -> bool:
         """Tick for ``seconds`` (or until ``until()`` is true: then True)."""

@@ -102,19 +102,27 @@ def test_camera_header_states_shape_and_encoding():
     assert len(raw) - 4 - n == 4 * 5 * 3
 
 
-def test_vision_fix_version_1_is_still_read():
-    """VisionFix version 2 added the measured heading; a version-1 message (an outside node written
-    against the earlier interface) decodes with NaN there. Other versions and a v2 message missing
-    the new fields are refused."""
+def test_vision_fix_versions_1_and_2_are_still_read():
+    """VisionFix version 2 added the measured heading, version 3 the camera flow; a message of an
+    older version (an outside node written against the earlier interface) decodes with NaN (and a
+    0 flow interval) there. Other versions, and a message missing a field its own version has, are
+    refused."""
     fix = sample(c.VisionFix)
     obj = json.loads(c.encode(fix))
-    assert obj["version"] == 2 and obj["heading_rad"] == fix.heading_rad
-    v1 = {k: v for k, v in obj.items() if k not in ("heading_rad", "heading_std_rad")}
+    assert obj["version"] == 3 and obj["heading_rad"] == fix.heading_rad
+    flow_fields = ("flow_flu_rad_s", "flow_interval_us", "flow_quality")
+    v2 = {k: v for k, v in obj.items() if k not in flow_fields}
+    v2["version"] = 2
+    old2 = c.decode(c.VisionFix, json.dumps(v2).encode())
+    assert old2.heading_rad == fix.heading_rad and old2.flow_interval_us == 0
+    assert all(math.isnan(v) for v in (*old2.flow_flu_rad_s, old2.flow_quality))
+    v1 = {k: v for k, v in v2.items() if k not in ("heading_rad", "heading_std_rad")}
     v1["version"] = 1
     old = c.decode(c.VisionFix, json.dumps(v1).encode())
     assert math.isnan(old.heading_rad) and math.isnan(old.heading_std_rad)
     assert old.position_xy_enu_m == fix.position_xy_enu_m and old.frame_seq == fix.frame_seq
-    for bad in (dict(v1, version=2), dict(v1, version=3), dict(v1, version=True), dict(v1, version="1")):
+    for bad in (dict(v1, version=2), dict(v1, version=3), dict(v2, version=3), dict(v1, version=4),
+                dict(v1, version=True), dict(v1, version="1")):
         with pytest.raises(c.DecodeError):
             c.decode(c.VisionFix, json.dumps(bad).encode())
     # a version-1 message still has to carry every version-1 field
