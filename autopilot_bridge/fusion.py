@@ -68,6 +68,8 @@ CAMERA_FLOW_RANGE_STD_FRACTION = 0.1
 #: (docs/realism.md "The camera as a flow sensor"): the camera flow's forward bias against the truth
 #: fell from +0.36 m/s (height above home) to +0.08 m/s
 CAMERA_FLOW_RANGE_WINDOW_S = 3.0
+#: a camera flow over a longer interval is not one (VisionFix.flow_interval_us: consecutive frames)
+CAMERA_FLOW_MAX_INTERVAL_S = 1.0
 #: fewer valid ranges than this in the window: height above home / cos(tilt) instead
 CAMERA_FLOW_RANGE_MIN_SAMPLES = 5
 #: body rates kept for the camera flow's rotation (s): the frame interval plus the fix's delivery lag
@@ -237,8 +239,8 @@ class SensorFusionMixin:
         """The followed perception node's camera flow for one frame (buffered; fused after the next
         predict with SN_CAM_FLOW 1, ``_camera_flow_fusion``)."""
         if not (all_finite(reading.t_s, reading.interval_s, reading.quality, *reading.flow_flu_rad_s)
-                and reading.interval_s > 0.0):
-            self.stats["camera_flow_nan"] += 1
+                and 0.0 < reading.interval_s <= CAMERA_FLOW_MAX_INTERVAL_S and 0.0 <= reading.quality <= 1.0):
+            self.stats["camera_flow_nan"] += 1       # not finite, or an interval or quality out of range
             return
         if self.nav.aligned:
             self._camera_flow.append(reading)

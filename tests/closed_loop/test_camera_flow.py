@@ -71,7 +71,9 @@ def test_low_quality_and_missing_flows_are_not_fused():
     from autopilot_bridge.fusion import CameraFlowReading
     f.core.on_camera_flow(CameraFlowReading(0.1, (math.nan, 0.0), 0.1, 0.9))
     f.core.on_camera_flow(CameraFlowReading(0.1, (0.0, 0.0), 0.0, 0.9))
-    assert f.core.stats["camera_flow_nan"] == 2
+    f.core.on_camera_flow(CameraFlowReading(0.1, (0.0, 0.0), 1e6, 0.9))       # not consecutive frames
+    f.core.on_camera_flow(CameraFlowReading(0.1, (0.0, 0.0), 0.1, 1.5))       # quality beyond 1
+    assert f.core.stats["camera_flow_nan"] == 4
     f.vision = True
     f.camera_flow_std_rad_s = 0.01          # quality 0.9 < SN_CAM_FLOW_QMIN 0.95
     f.core.set_vision_available(True)
