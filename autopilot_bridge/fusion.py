@@ -64,9 +64,9 @@ FLOW_RANGE_STD_FRACTION = 0.01
 #: the track only, and height above home / cos(tilt) not at all
 CAMERA_FLOW_RANGE_STD_FRACTION = 0.1
 #: the range finder's ranges of this many seconds are averaged (harmonically: the flow scales with
-#: 1 / range) into the camera flow's range; at 10 m/s, 30 m of track. Measured on a realistic flight
-#: (docs/realism.md "The camera as a flow sensor"): the camera flow's forward bias against the truth
-#: fell from +0.36 m/s (height above home) to +0.08 m/s
+#: 1 / range) into the camera flow's range; at 10 m/s, 30 m of track. Measured on realistic flights
+#: (docs/perception.md "The camera as a flow sensor"): the camera flow's forward bias against the
+#: truth fell from +0.27-0.36 m/s (height above home) to -0.03-+0.08 m/s
 CAMERA_FLOW_RANGE_WINDOW_S = 3.0
 #: a camera flow over a longer interval is not one (VisionFix.flow_interval_us: consecutive frames)
 CAMERA_FLOW_MAX_INTERVAL_S = 1.0
@@ -455,8 +455,8 @@ class SensorFusionMixin:
 
     def _camera_flow_fusion(self) -> None:
         """The buffered camera flows (SN_CAM_FLOW 1): each with the body rotation over its frame
-        interval removed (this autopilot's gyro minus the EKF's bias), over the range height above
-        home / cos(tilt), as two scalar flow measurements (``NavFilter.fuse_optical_flow``)."""
+        interval removed (this autopilot's gyro minus the EKF's bias), over ``_camera_flow_range``,
+        as two scalar flow measurements (``NavFilter.fuse_optical_flow``)."""
         flows, self._camera_flow = self._camera_flow, []
         p = self.params
         if not flows or p.get_int("SN_CAM_FLOW") == 0 or not self._armed or self.fc.landed:

@@ -303,3 +303,37 @@ def test_a_backlog_drops_the_oldest_frames_and_never_blocks_the_receive_thread(w
         assert FRAME_BACKLOG <= len(answered) <= FRAME_BACKLOG + 2         # the rest dropped, oldest first
         assert answered == sorted(answered)
         assert node.stats["dropped_backlog"] == n - len(answered)
+
+
+def test_camera_flow_rides_with_the_fixes_of_fixed_mount_frames(world):
+    """perception.camera_flow: the second of two fixed-mount frames, captured 0.1 s and 1 m further
+    north by a level camera heading north at 100 m, carries the image motion as flow (VisionFix
+    version 3): (0, vx / r) = (0, +0.1) rad/s over 100 000 us; the first has none. Gimbal frames
+    get none (their image axes are not the body's)."""
+    from scenenav.core.rotations import quat_from_aviation_euler
+    from sitl.camera import GroundCamera
+    from sitl.config import CameraConfig, CameraMount
+    q = np.array(quat_from_aviation_euler(0.0, 0.0, 0.0))
+    cfg = CameraConfig(mount=CameraMount.FIXED, relief=False)
+    with GroundCamera(-1, world.orthophoto, world.m_per_px, cfg, optics_rng=np.random.default_rng(0)) as cam:
+        images = [cam.render_capture(0.0, np.array([0.0, y, 100.0]), q) for y in (0.0, 1.0)]
+
+    def frame(seq, mount):
+        return CameraFrame(1000 + 100_000 * seq, seq, 200, 200, "rgb8", 60.0, mount,
+                           intrinsics_px(200, 200, 60.0), NO_DISTORTION, np.ascontiguousarray(images[seq]))
+
+    with _live_node(world, camera_flow=True) as (hub, keys, node, fixes, acks):
+        for seq in (0, 1):
+            hub.publish(keys.camera, frame(seq, "fixed"))
+            _wait_for(acks, seq + 1)
+        stats = dict(node.stats)
+    with _live_node(world, camera_flow=True) as (hub, keys, node, gimbal_fixes, acks):
+        for seq in (0, 1):
+            hub.publish(keys.camera, frame(seq, "gimbal"))
+            _wait_for(acks, seq + 1)
+    first, second = sorted(fixes, key=lambda f: f.frame_seq)
+    assert first.flow_interval_us == 0 and all(math.isnan(v) for v in first.flow_flu_rad_s)
+    assert second.flow_interval_us == 100_000 and second.flow_quality > 0.5
+    assert second.flow_flu_rad_s == pytest.approx((0.0, 0.1), abs=0.01)
+    assert stats["camera_flows"] == 1
+    assert all(f.flow_interval_us == 0 for f in gimbal_fixes) and len(gimbal_fixes) == 2
