@@ -489,10 +489,11 @@ def _added_fields(cls: type) -> frozenset[str]:
 _ADDED: dict[type, frozenset[str]] = {}
 
 
-def _added_in(cls: type, name: str) -> int:
+def _added_in(cls: type[Any], name: str) -> int:
     """The version that added the defaulted field ``name`` (``FIELD_VERSIONS``; without it: the
     class's current version, so that every older version may lack it)."""
-    return int(getattr(cls, "FIELD_VERSIONS", {}).get(name, cls.VERSION))  # type: ignore[attr-defined]
+    versions: dict[str, int] = getattr(cls, "FIELD_VERSIONS", {})
+    return int(versions.get(name, cls.VERSION))
 
 
 def _from_json_obj(cls: type[Any], obj: Any) -> Any:
@@ -506,11 +507,12 @@ def _from_json_obj(cls: type[Any], obj: Any) -> Any:
         raise DecodeError(f"{cls.__name__}: unsupported version {version!r} "
                           f"(this node speaks version {cls.VERSION})")
     kwargs: dict[str, Any] = {}
+    version_n: int = version if type(version) is int else cls.VERSION      # an int when older
     for (name, tp), (_, kind) in zip(_schema(cls), _enc_spec(cls), strict=False):
         try:
             value = obj[name]
         except KeyError:
-            if older and name in _added_fields(cls) and _added_in(cls, name) > version:
+            if older and name in _added_fields(cls) and _added_in(cls, name) > version_n:
                 continue                    # a field a later version added: its default
             raise DecodeError(f"{cls.__name__}: missing field {name!r}") from None
         if kind == _KIND_FLOAT and type(value) is float:              # fast path
