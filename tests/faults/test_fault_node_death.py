@@ -233,5 +233,5 @@ def test_the_autopilot_dying_in_flight_stops_the_run(runs, tmp_path):
     assert s["aborted"] is True and s["end_reason"].startswith("stopped the run: the autopilot died at t=")
     assert s["failed_nodes"] == ["autopilot"]
     t_died = float(s["end_reason"].split("t=")[1].split(" s")[0])
-    assert t_died >= killed_after
+    assert t_died + 0.05 >= killed_after          # the reason gives the time to 0.1 s (17.1 for 17.15)
     assert (last_sim_time(r.run_dir) or 0.0) < t_died + 30.0, "the run flew on without its autopilot"
