@@ -15,9 +15,7 @@ import math
 
 import numpy as np
 import pytest
-from support.sim_flight import CoreFlight, sim_config
-
-from autopilot_bridge.vehicle_interface import AltFrame
+from support.sim_flight import CoreFlight, sim_config, vision_cruise
 
 WIND_ENU_M_S = (4.0, 3.0, 0.0)
 DRAG = {"EK3_DRAG_MCOEF": 0.17, "EK3_DRAG_BCOEF_X": 29, "EK3_DRAG_BCOEF_Y": 29}
@@ -26,21 +24,9 @@ GAP_S = 20.0
 
 def _fly_gap(seed: int, cam_flow: int, flow_std: float | None = 0.01) -> tuple[float, float, CoreFlight]:
     """Horizontal estimate error (m) at the start and at the end of the fix gap, and the flight."""
-    f = CoreFlight(seed, gps=False, sim=sim_config(WIND_ENU_M_S, 0.7, gps=False),
-                   EK3_SRC1_POSXY=6, EK3_SRC1_VELXY=0, SN_VIS_MIN_ALT=10, SN_VIS_TIMEOUT=0,
-                   WPNAV_SPEED=1000, SN_CAM_FLOW=cam_flow, **DRAG)
-    f.vision = True
-    f.camera_flow_std_rad_s = flow_std
+    f = vision_cruise(seed, sim=sim_config(WIND_ENU_M_S, 0.7, gps=False), height_m=30.0, cruise_s=10.0,
+                      camera_flow_std_rad_s=flow_std, SN_VIS_TIMEOUT=0, SN_CAM_FLOW=cam_flow, **DRAG)
     c = f.core
-    c.set_vision_available(True)
-    f.arm_in_guided()
-    assert c.takeoff(30.0).ok
-    assert f.run(60.0, until=lambda: f.p[2] > 29.0), "the climb did not reach 29 m"
-    est = c.estimate()
-    lat, lon = c.geo.to_geodetic(float(est.position_enu_m[0]), float(est.position_enu_m[1]) + 600.0)
-    assert c.reposition(lat, lon, 30.0, AltFrame.RELATIVE_HOME, None, None).ok
-    f.run(10.0)
-    assert math.hypot(float(f.v[0]), float(f.v[1])) > 7.0         # cruising
 
     def err() -> float:
         return float(np.linalg.norm(np.asarray(c.estimate().position_enu_m[:2]) - f.p[:2]))

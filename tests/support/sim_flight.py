@@ -210,28 +210,33 @@ class CoreFlight:
 
 
 def vision_cruise(seed: int = 6, *, compass_bias_rad: float = 0.0,
-                  vision_heading_std_rad: float | None = None, **params) -> CoreFlight:
+                  vision_heading_std_rad: float | None = None, sim: SimConfig | None = None,
+                  height_m: float = 20.0, cruise_s: float = 15.0,
+                  camera_flow_std_rad_s: float | None = None, **params) -> CoreFlight:
     """A GPS-denied flight on vision fixes (EK3_SRC1_POSXY 6, fixes used from 10 m, SN_VIS_TIMEOUT
-    3 s, SN_VIS_FS_LAND 5 s, WPNAV_SPEED 10 m/s; ``params`` over these): take off to 20 m and
-    cruise north in GUIDED towards a point 600 m away for 15 s; the fixes still on. The compass
-    reads ``compass_bias_rad`` too much; the fixes carry a heading when ``vision_heading_std_rad``
-    is given (``CoreFlight.vision_heading_std_rad``)."""
+    3 s, SN_VIS_FS_LAND 5 s, WPNAV_SPEED 10 m/s; ``params`` over these) on ``sim`` (None: the
+    simulator's defaults): take off to ``height_m`` and cruise north in GUIDED towards a point 600 m
+    away for ``cruise_s``; the fixes still on. The compass reads ``compass_bias_rad`` too much; the
+    fixes carry a heading when ``vision_heading_std_rad`` is given (``CoreFlight.vision_heading_std_rad``);
+    the camera flow is handed over with ``camera_flow_std_rad_s`` (``CoreFlight.camera_flow_std_rad_s``)."""
     from autopilot_bridge.vehicle_interface import AltFrame
-    f = CoreFlight(seed, gps=False, **{"EK3_SRC1_POSXY": 6, "EK3_SRC1_VELXY": 0, "SN_VIS_MIN_ALT": 10,
-                                       "SN_VIS_TIMEOUT": 3, "SN_VIS_FS_LAND": 5, "WPNAV_SPEED": 1000,
-                                       **params})
+    f = CoreFlight(seed, gps=False, sim=sim, **{"EK3_SRC1_POSXY": 6, "EK3_SRC1_VELXY": 0, "SN_VIS_MIN_ALT": 10,
+                                                "SN_VIS_TIMEOUT": 3, "SN_VIS_FS_LAND": 5, "WPNAV_SPEED": 1000,
+                                                **params})
     f.vision = True
     f.vision_heading_std_rad = vision_heading_std_rad
+    f.camera_flow_std_rad_s = camera_flow_std_rad_s
     if compass_bias_rad:
         f.compass_error = lambda _height_m: compass_bias_rad
     c = f.core
     c.set_vision_available(True)
     f.arm_in_guided()
-    assert c.takeoff(20.0).ok
-    assert f.run(40.0, until=lambda: f.p[2] > 19.0), "the climb did not reach 19 m"
+    assert c.takeoff(height_m).ok
+    assert f.run(2.0 * height_m, until=lambda: f.p[2] > height_m - 1.0), \
+        f"the climb did not reach {height_m - 1.0:g} m"
     est = c.estimate()
     lat, lon = c.geo.to_geodetic(float(est.position_enu_m[0]), float(est.position_enu_m[1]) + 600.0)
-    assert c.reposition(lat, lon, 20.0, AltFrame.RELATIVE_HOME, None, None).ok
-    f.run(15.0)
+    assert c.reposition(lat, lon, height_m, AltFrame.RELATIVE_HOME, None, None).ok
+    f.run(cruise_s)
     assert math.hypot(float(f.v[0]), float(f.v[1])) > 7.0         # cruising
     return f
