@@ -48,7 +48,7 @@ def test_camera_flow_bounds_the_drift_of_a_fix_gap(seed):
     assert s["camera_flow_rejected"] < 0.05 * s["camera_flow_fused"], s
     assert off.core.stats["camera_flow_fused"] == 0
     assert before_on < 3.0 and before_off < 3.0
-    assert after_on < 0.75 * after_off, (after_on, after_off)     # seeds 1, 2: 4.1 against 7.8, 1.7 against 4.9 m
+    assert after_on < 0.75 * after_off, (after_on, after_off)     # seeds 1, 2: 3.5 against 7.8, 1.3 against 4.9 m
 
 
 def test_low_quality_and_missing_flows_are_not_fused():
