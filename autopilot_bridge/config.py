@@ -50,7 +50,7 @@ def _non_negative(value: float) -> bool:
 
 @dataclass(frozen=True)
 class EkfConfig:
-    """Navigation filter (17-state error-state EKF) noise, gates and limits."""
+    """Navigation filter (18-state error-state EKF) noise, gates and limits."""
 
     # --- process noise: continuous-time spectral densities (variance added per predict = density^2 * dt)
     # Gyro white noise; ArduPilot EK3_GYRO_P_NSE is the per-step equivalent (0.015 rad/s).
@@ -67,6 +67,14 @@ class EkfConfig:
     # --- measurement noise (floors; the caller's own std/covariance is used when larger)
     baro_noise_m: float = 0.4               # EK3_ALT_M_NSE (ArduPilot default 2 m; our baro ~0.3 m)
     compass_noise_rad: float = 0.03         # EK3_YAW_M_NSE (set from the parameter in a flight; ArduPilot's default 0.5 rad)
+    # The compass heading's bias state (NavFilter.set_compass_bias_model; SN_MAG_BIAS_SD, SN_MAG_BIAS_TURN):
+    # the prior 1-sigma and cap of the bias (0 = no bias state, the heading fused as white noise), how
+    # much it may change per radian turned (1-sigma over one radian; variance grows with the angle), and
+    # a slow random walk in time (the motor-current term with throttle, anomalies with position: under
+    # realism: realistic about 0.1 deg over a minute of level flight, docs/realism.md "The compass's bias").
+    compass_bias_std_rad: float = 0.0
+    compass_bias_turn_std_rad: float = 0.07
+    compass_bias_noise_rad_per_rt_s: float = 1.0e-3
     gps_position_noise_min_m: float = 0.3   # EK3_POSNE_M_NSE (0.5 m) used as a floor
     gps_velocity_noise_min_m_s: float = 0.1  # EK3_VELNE_M_NSE (0.3 m/s) used as a floor
     vision_position_noise_min_m: float = 0.3  # floor on sqrt of each vision covariance diagonal
@@ -152,7 +160,8 @@ class EkfConfig:
             value = getattr(self, name)
             check(_positive(value), name, value, "a positive number")
         for name in ("drag_ballistic_coef_x_kg_m2", "drag_ballistic_coef_y_kg_m2", "drag_momentum_coef_per_s",
-                     "vision_reset_max_m"):
+                     "vision_reset_max_m", "compass_bias_std_rad", "compass_bias_turn_std_rad",
+                     "compass_bias_noise_rad_per_rt_s"):
             value = getattr(self, name)
             check(_non_negative(value), name, value, "a number >= 0 (0 = off)")
         check(math.isfinite(self.learned_gyro_bias_ratio) and self.learned_gyro_bias_ratio > 1.0,

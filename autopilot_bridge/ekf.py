@@ -1,10 +1,10 @@
-"""Navigation filter: a 17-state error-state extended Kalman filter (ESKF) for the autopilot.
+"""Navigation filter: an 18-state error-state extended Kalman filter (ESKF) for the autopilot.
 
 Nominal state (kept outside the covariance): position p (ENU m), velocity v (ENU m/s), attitude q_wxyz
 (body FLU -> world ENU), gyro bias b_g (rad/s, FLU), accelerometer bias b_a (m/s^2, FLU), horizontal
-wind w (ENU m/s).
+wind w (ENU m/s), compass heading bias b_c (rad).
 
-Error state (17, the covariance ``P``; order used by ``covariance()``):
+Error state (18, the covariance ``P``; order used by ``covariance()``):
 
     0:3   dp      position error, ENU m
     3:6   dv      velocity error, ENU m/s
@@ -12,6 +12,7 @@ Error state (17, the covariance ``P``; order used by ``covariance()``):
     9:12  db_g    gyro bias error, rad/s
     12:15 db_a    accel bias error, m/s^2
     15:17 dw      horizontal wind error (east, north), m/s; a random walk, observed only by drag fusion
+    17    db_c    compass heading bias error, rad (measured heading = true heading + b_c + noise)
 
 Prediction (every IMU tick, tick-averaged specific force f and rate w):
     q <- q * Exp((w - b_g) dt)
@@ -26,6 +27,17 @@ update the error is injected into the nominal state and reset to zero; the covar
 (I - [dtheta/2]x) is taken as identity, which is accurate for the small corrections of a healthy filter.
 The covariance prediction and updates are compiled kernels (``autopilot_bridge.ekf_kernels``, numba): one
 call each instead of a dozen small numpy calls.
+
+Compass bias (``set_compass_bias_model``, SN_MAG_BIAS_SD / SN_MAG_BIAS_TURN): a compass whose
+magnetometer has residual hard- and soft-iron errors and a motor-current term is off by a bias that
+depends on the heading (a ship's compass deviation), not by white noise; fused as white noise at
+the compass rate, that bias becomes the heading, and at cruise speed every degree of it is 0.17 m/s
+of velocity error wherever a body-frame velocity (drag, flow) holds the estimate. With a prior
+1-sigma > 0 the bias is a state: the compass measures heading + b_c, and the body-frame velocity
+measurements together with position fixes observe the heading itself, so that the bias is learnt
+on a straight leg. It is a random walk in the angle turned (variance ``turn_std^2`` per radian,
+because the deviation changes with the heading) plus a slow one in time, capped at its prior. With
+a prior of 0 (the default) the state is never corrected and the filter is the 17-state one.
 
 Drag fusion (``fuse_drag``, ArduPilot EKF3's FuseDragForces with EK3_DRAG_BCOEF_X/Y, EK3_DRAG_MCOEF,
 EK3_DRAG_M_NSE): thrust acts along body z, so the body x, y specific force of a multicopter is the air's
@@ -101,18 +113,19 @@ logger = logging.getLogger(__name__)
 
 __all__ = ["NavFilter", "NavState", "FusionResult", "PositionSource", "NUM_ERROR_STATES"]
 
-NUM_ERROR_STATES = 17
+NUM_ERROR_STATES = 18
 _POS = slice(0, 3)
 _VEL = slice(3, 6)
 _ATT = slice(6, 9)
 _BG = slice(9, 12)
 _BA = slice(12, 15)
 _WIND = slice(15, 17)
+_MAG_BIAS = 17
 _TWO_PI = 2.0 * math.pi
 # States the barometer and the compass correct (see fuse_baro / fuse_compass): height, vertical velocity
-# and vertical accelerometer bias; heading and vertical gyro bias.
+# and vertical accelerometer bias; heading, vertical gyro bias and the compass's own bias.
 _BARO_STATES = np.array([2, 5, 14])
-_COMPASS_STATES = np.array([8, 11])
+_COMPASS_STATES = np.array([8, 11, _MAG_BIAS])
 _EXT_HEIGHT_STATES = np.array([2, 5])     # external-navigation height: height, vertical velocity
 
 
@@ -174,10 +187,12 @@ class NavState:
     heading_rad: float              # compass, clockwise from north, [0, 2 pi)
     # (2,) horizontal wind east, north (zero unless drag fusion is on)
     wind_enu_m_s: np.ndarray = field(default_factory=lambda: np.zeros(2))
+    # the compass heading's estimated bias (measured minus true heading), rad; 0 without the bias state
+    compass_bias_rad: float = 0.0
 
 
 class NavFilter:
-    """17-state error-state EKF; see the module docstring for the model and the conventions."""
+    """18-state error-state EKF; see the module docstring for the model and the conventions."""
 
     def __init__(self, cfg: EkfConfig | None = None) -> None:
         self._cfg = cfg if cfg is not None else EkfConfig()
@@ -192,6 +207,9 @@ class NavFilter:
         self._w_flu = (0.0, 0.0, 0.0)   # the last body rate, bias removed (rad/s, FLU)
         self._ba = [0.0, 0.0, 0.0]
         self._wind = [0.0, 0.0]
+        self._mag_bias = 0.0            # compass heading bias, rad (measured minus true)
+        # the states the kernels work on: 17, or 18 with the compass-bias state (ekf_kernels)
+        self._n = NUM_ERROR_STATES if c.compass_bias_std_rad > 0.0 else _MAG_BIAS
         self._P = np.zeros((NUM_ERROR_STATES, NUM_ERROR_STATES))
         warm_up()           # the compiled kernels load now, not in the first control tick
         # work arrays of the compiled kernels (ekf_kernels)
@@ -234,13 +252,15 @@ class NavFilter:
 
     def _set_q_density(self) -> None:
         """Process noise densities^2 of every error state from the config (the wind's only while drag
-        fusion is on: unobserved, its variance would otherwise grow without end)."""
+        fusion is on: unobserved, its variance would otherwise grow without end; the compass bias's
+        only while it is a state)."""
         c = self._cfg
         wind = c.wind_noise_m_s2_per_rt_hz ** 2 if c.drag_fusion else 0.0
+        mag = c.compass_bias_noise_rad_per_rt_s ** 2 if c.compass_bias_std_rad > 0.0 else 0.0
         self._q_density[:] = ([0.0] * 3 + [c.accel_noise_m_s2_per_rt_hz ** 2] * 3
                               + [c.gyro_noise_rad_s_per_rt_hz ** 2] * 3
                               + [c.gyro_bias_noise_rad_s2_per_rt_hz ** 2] * 3
-                              + [c.accel_bias_noise_m_s3_per_rt_hz ** 2] * 3 + [wind] * 2)
+                              + [c.accel_bias_noise_m_s3_per_rt_hz ** 2] * 3 + [wind] * 2 + [mag])
         self._qd_dt = math.nan
 
     def initialise(self, accel_flu_m_s2, heading_rad: float, baro_alt_m: float, *,
@@ -285,6 +305,7 @@ class NavFilter:
         self._clamp_biases()
         self._ba = [0.0, 0.0, 0.0]
         self._wind = [0.0, 0.0]
+        self._mag_bias = 0.0
 
         # The gyro bias seeded from the average rate at rest is known far better than an unknown one;
         # treating it as unknown makes the tilt (and, without position aiding, the position) uncertainty
@@ -301,6 +322,7 @@ class NavFilter:
                      + [bg_std ** 2] * 2 + [c.initial_gyro_bias_std_rad_s ** 2]
                      + [sa ** 2] * 3)
         variances += [c.initial_wind_std_m_s ** 2 if c.drag_fusion else 0.0] * 2
+        variances += [c.compass_bias_std_rad ** 2]
         P = np.diag(np.array(variances, dtype=float))
         # Levelling on the measured specific force absorbs the horizontal accelerometer bias into the
         # tilt: with w = R b_a (world), the levelled tilt error is dtheta_x = -w_y / g, dtheta_y = w_x / g
@@ -364,6 +386,31 @@ class NavFilter:
         """Change the compass heading's measurement noise (``EK3_YAW_M_NSE``); from the next fusion on.
         A larger value lets position fixes and drag correct a biased compass heading."""
         self._cfg = dataclasses.replace(self._cfg, compass_noise_rad=float(std_rad))
+
+    def set_compass_bias_model(self, std_rad: float, turn_std_rad: float) -> None:
+        """The compass heading's bias state (module docstring; SN_MAG_BIAS_SD, SN_MAG_BIAS_TURN):
+        prior 1-sigma and cap ``std_rad`` (0 = no bias state: the estimate is kept at zero and
+        uncorrelated) and the 1-sigma change per radian turned. Switching it on opens the bias at
+        zero with its prior; from the next step on. Raises ValueError for values the config refuses."""
+        was = self._cfg.compass_bias_std_rad
+        self._cfg = dataclasses.replace(self._cfg, compass_bias_std_rad=float(std_rad),
+                                        compass_bias_turn_std_rad=float(turn_std_rad))
+        self._set_q_density()
+        now = self._cfg.compass_bias_std_rad
+        self._n = NUM_ERROR_STATES if now > 0.0 else _MAG_BIAS
+        if now == was:
+            return
+        self._rev += 1
+        P = self._P
+        P[_MAG_BIAS, :] = 0.0
+        P[:, _MAG_BIAS] = 0.0
+        if now > 0.0 and was == 0.0:
+            self._mag_bias = 0.0
+            P[_MAG_BIAS, _MAG_BIAS] = now * now if self.aligned else 0.0
+        elif now == 0.0:
+            self._mag_bias = 0.0
+        else:
+            P[_MAG_BIAS, _MAG_BIAS] = now * now
 
     def set_drag_model(self, *, ballistic_x_kg_m2: float, ballistic_y_kg_m2: float, momentum_per_s: float,
                        noise_m_s2: float, wind_noise_m_s2_per_rt_hz: float) -> None:
@@ -440,7 +487,14 @@ class NavFilter:
             self._qd = self._q_density * dt
         # P <- F P F' + Q: F = I + dt blocks, d(dv)/d(dtheta) = -[f_world]x dt, -R dt on the biases
         P = self._P
-        predict_covariance(P, self._tmp, dt, fx, fy, fz, rot, self._qd)
+        predict_covariance(P, self._tmp, dt, fx, fy, fz, rot, self._qd, self._n)
+        bias_std = self._cfg.compass_bias_std_rad
+        if self._n == NUM_ERROR_STATES:
+            # the deviation changes with the heading: a random walk in the angle turned (world z rate)
+            turned = abs(r[2][0] * wx + r[2][1] * wy + r[2][2] * wz) * dt
+            P[_MAG_BIAS, _MAG_BIAS] += self._cfg.compass_bias_turn_std_rad ** 2 * turned
+            if P[_MAG_BIAS, _MAG_BIAS] > bias_std * bias_std:
+                self._clamp_variance((_MAG_BIAS,), bias_std * bias_std)
         if P[0, 0] > self._max_pos_var or P[1, 1] > self._max_pos_var or P[2, 2] > self._max_pos_var:
             self._clamp_variance(range(0, 3), self._max_pos_var)
         if P[3, 3] > self._max_vel_var or P[4, 4] > self._max_vel_var or P[5, 5] > self._max_vel_var:
@@ -468,7 +522,7 @@ class NavFilter:
             return FusionResult(False, innov, float("nan"))
         ratio = update_scalar(self._P, h, float(r), float(innovation), float(gate_sd),
                               _ALL_MASK if mask is None else mask, mask is not None, True,
-                              self._u, self._dx)
+                              self._u, self._dx, self._n)
         if ratio == math.inf:
             logger.warning("NavFilter: singular innovation covariance; measurement skipped")
             return FusionResult(False, innov, ratio)
@@ -488,7 +542,7 @@ class NavFilter:
                                     np.zeros((NUM_ERROR_STATES, m)))
         nu = np.ascontiguousarray(innovation, dtype=float)
         ratio = update_direct(self._P, states, np.ascontiguousarray(R, dtype=float), nu, float(gate_sd),
-                              bool(apply), *work, self._dx)
+                              bool(apply), *work, self._dx, self._n)
         if ratio == math.inf:
             logger.warning("NavFilter: singular innovation covariance; measurement skipped")
             return FusionResult(False, innovation, ratio)
@@ -500,8 +554,12 @@ class NavFilter:
     def _update_rows(self, innovation: np.ndarray, H: np.ndarray, R: np.ndarray, gate_sd: float,
                      apply: bool) -> FusionResult:
         """A gated update with measurement rows ``H`` (m x N) and noise covariance ``R``, every state
-        corrected (``P <- P - K H P``), in numpy (a vision fix with its tilt rows: a few a second)."""
-        P = self._P
+        corrected (``P <- P - K H P``), in numpy (a vision fix with its tilt rows: a few a second).
+        On the first ``self._n`` states (a contiguous copy: the 17-state filter's arithmetic while
+        the compass-bias state is off)."""
+        n = self._n
+        P = np.ascontiguousarray(self._P[:n, :n])
+        H = np.ascontiguousarray(H[:, :n])
         pht = P @ H.T
         S = H @ pht + R
         try:
@@ -515,11 +573,12 @@ class NavFilter:
         if not (apply and ratio <= 1.0):
             return FusionResult(False, innovation, ratio)
         K = pht @ s_inv
-        self._dx[:] = K @ innovation
+        self._dx[:n] = K @ innovation
         P -= K @ pht.T
         P[:] = 0.5 * (P + P.T)
-        idx = np.arange(NUM_ERROR_STATES)
+        idx = np.arange(n)
         P[idx, idx] = np.maximum(P[idx, idx], VARIANCE_FLOOR)
+        self._P[:n, :n] = P
         self._inject(self._dx)
         return FusionResult(True, innovation, ratio)
 
@@ -533,6 +592,8 @@ class NavFilter:
             self._ba[i] += d[12 + i]
         self._wind[0] += d[15]
         self._wind[1] += d[16]
+        if self._n == NUM_ERROR_STATES:
+            self._mag_bias += d[_MAG_BIAS]
         self._q = quat_normalise(quat_multiply(quat_from_rotation_vector(d[6], d[7], d[8]), self._q))
         self._clamp_biases()
 
@@ -568,7 +629,7 @@ class NavFilter:
     def fuse_compass(self, heading_rad: float) -> FusionResult:
         """Compass heading (clockwise from north, rad) -> yaw."""
         self._require_aligned("fuse_compass")
-        return self._fuse_heading(heading_rad, self._cfg.compass_noise_rad, "the compass")
+        return self._fuse_heading(heading_rad, self._cfg.compass_noise_rad, "the compass", compass=True)
 
     def fuse_ext_nav_yaw(self, heading_rad: float, std_rad: float, age_s: float = 0.0) -> FusionResult:
         """External-navigation heading (EK3_SRCn_YAW = 6: ArduPilot fuses the ExtNav yaw instead of
@@ -610,7 +671,9 @@ class NavFilter:
             return FusionResult(True, innov, result.test_ratio, reset=True)
         return result
 
-    def _fuse_heading(self, heading_rad: float, std_rad: float, what: str) -> FusionResult:
+    def _fuse_heading(self, heading_rad: float, std_rad: float, what: str, compass: bool = False) -> FusionResult:
+        """A heading (clockwise from north, rad) -> yaw; a ``compass`` heading measures the heading
+        plus the compass bias state."""
         c = self._cfg
         # Body x axis in the world (a, b, c); d(yaw) = dtheta_z - (a c dtheta_x + b c dtheta_y)/(a^2+b^2);
         # heading = pi/2 - yaw.
@@ -620,7 +683,9 @@ class NavFilter:
         h[6] = a * cz / h2
         h[7] = b * cz / h2
         h[8] = -1.0
-        result = self._update_scalar(wrap_pi(float(heading_rad) - heading_from_quat(self._q)), h,
+        bias = self._mag_bias if compass else 0.0
+        h[_MAG_BIAS] = 1.0 if compass else 0.0
+        result = self._update_scalar(wrap_pi(float(heading_rad) - bias - heading_from_quat(self._q)), h,
                                      std_rad ** 2, c.heading_gate_sd, _COMPASS_MASK)
         innov = result.innovation
         if result.accepted:
@@ -634,7 +699,7 @@ class NavFilter:
         """Set the heading to a compass reading (ArduPilot EKF3's in-flight yaw alignment,
         ``controlMagYawReset``); returns the jump, rad."""
         self._require_aligned("reset_heading_to_compass")
-        jump = wrap_pi(float(heading_rad) - heading_from_quat(self._q))
+        jump = wrap_pi(float(heading_rad) - self._mag_bias - heading_from_quat(self._q))
         if math.isfinite(jump):
             self._reset_heading(jump, self._cfg.compass_noise_rad, "the compass (in-flight alignment)")
         return jump
@@ -962,14 +1027,15 @@ class NavFilter:
         return NavState(position_enu_m=np.array(self._p), velocity_enu_m_s=np.array(self._v),
                         q_wxyz=np.array(self._q), gyro_bias=np.array(self._bg), accel_bias=np.array(self._ba),
                         position_std_m=np.array(d[0:3]), velocity_std_m_s=np.array(d[3:6]),
-                        heading_rad=heading_from_quat(self._q), wind_enu_m_s=np.array(self._wind))
+                        heading_rad=heading_from_quat(self._q), wind_enu_m_s=np.array(self._wind),
+                        compass_bias_rad=self._mag_bias)
 
     def position_std_m(self) -> np.ndarray:
         """1-sigma position uncertainty (x, y, z), m."""
         return np.sqrt(np.maximum(self._P[[0, 1, 2], [0, 1, 2]], 0.0))
 
     def covariance(self) -> np.ndarray:
-        """Copy of the 17x17 error-state covariance (order: dp, dv, dtheta_world, db_g, db_a, dw)."""
+        """Copy of the 18x18 error-state covariance (order: dp, dv, dtheta_world, db_g, db_a, dw, db_c)."""
         return self._P.copy()
 
     def attitude_std_rad(self) -> np.ndarray:

@@ -85,6 +85,8 @@ class ParamBindingMixin:
             self.nav.set_accel_noise(accel_noise_density(value))
         if name == "EK3_YAW_M_NSE":
             self.nav.set_compass_noise(value)
+        if name in ("SN_MAG_BIAS_SD", "SN_MAG_BIAS_TURN"):
+            self.nav.set_compass_bias_model(self.params.get("SN_MAG_BIAS_SD"), self.params.get("SN_MAG_BIAS_TURN"))
         if name == "EK3_POS_I_GATE":
             self.nav.set_position_gate(value / 100.0)
         if name == "VISO_POS_M_NSE":

@@ -53,6 +53,16 @@ SN_PARAM_SPECS: tuple[ParamSpec, ...] = (
               "autopilot's gyro over the frame interval, over the range finder's recent mean range "
               "(FLOW_TYPE > 0) or else height above home / cos(tilt); in the air above SN_VIS_MIN_ALT, "
               "gated at EK3_FLOW_I_GATE. 0: ignored"),
+    ParamSpec("SN_MAG_BIAS_SD", ParamType.REAL32, 0.0, 0.0, 0.5, "rad",
+              "Prior 1-sigma (and cap) of the compass heading's bias, a state of the EKF: a compass "
+              "whose residual hard- and soft-iron errors make it a few degrees off at each heading is "
+              "then corrected by the position fixes and the body-frame velocity (drag, flow) instead "
+              "of being taken for the heading; 0 = no bias state (the heading fused as white noise)",
+              safe_min=0.0),
+    ParamSpec("SN_MAG_BIAS_TURN", ParamType.REAL32, 0.07, 0.0, 0.5, "rad",
+              "How much the compass heading's bias may change per radian the vehicle turns (1-sigma "
+              "over one radian; the variance grows with the angle turned): the deviation depends on "
+              "the heading (SN_MAG_BIAS_SD > 0)", safe_min=0.0),
     ParamSpec("SN_CAM_FLOW_NSE", ParamType.REAL32, 0.01, 0.001, 1.0, "rad/s",
               "Camera-flow measurement noise the EKF assumes (SN_CAM_FLOW 1) for a flow of quality 1, "
               "per axis and frame; a flow of quality q is fused with this / q^2"),
