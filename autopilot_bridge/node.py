@@ -51,6 +51,7 @@ from __future__ import annotations
 import dataclasses
 import json
 import logging
+import math
 import threading
 import time
 from collections import Counter, deque
@@ -598,6 +599,15 @@ class AutopilotNode:
         self._event(Severity.INFO, "auto start: armed, mission started")
 
     # ------------------------------------------------------------------ lifecycle
+    def _ekf_at_exit(self) -> dict[str, Any]:
+        """What the EKF learnt, at the end of the run: the wind (drag fusion) and the compass
+        heading's bias (SN_MAG_BIAS_SD); empty if it never aligned."""
+        est = self.core.estimate()
+        if est is None:
+            return {}
+        return {"wind_enu_m_s": [round(float(w), 3) for w in est.wind_enu_m_s],
+                "compass_bias_deg": round(math.degrees(float(est.compass_bias_rad)), 3)}
+
     def close(self) -> dict:
         self._stop.set()
         self._worker.join(timeout=5.0)
@@ -615,7 +625,8 @@ class AutopilotNode:
                                  "bus_dropped": dict(self.bus.dropped),
                                  "mavlink": dict(self.server.stats),
                                  "mission_state": MissionState(self.core.mission_state).name,
-                                 "armed": self.core.armed, "mode": self.core.mode.name}
+                                 "armed": self.core.armed, "mode": self.core.mode.name,
+                                 "ekf_at_exit": self._ekf_at_exit()}
         self.presence.close()
         self.bus.close()
         if self.run_dir is not None:

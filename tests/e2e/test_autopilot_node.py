@@ -105,6 +105,8 @@ def test_gps_mission_lands_at_the_last_waypoint(gps_runs):
     stats = json.loads((run_dir / "autopilot_stats.json").read_text())
     assert stats["node"].get("ticks_without_imu", 0) == 0
     assert stats["mission_state"] == "COMPLETE" and stats["armed"] is False
+    assert stats["ekf_at_exit"]["compass_bias_deg"] == 0.0        # no SN_MAG_BIAS_SD: no bias state
+    assert len(stats["ekf_at_exit"]["wind_enu_m_s"]) == 2
 
 
 def test_identical_runs_give_identical_truth(gps_runs):
