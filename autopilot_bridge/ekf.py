@@ -488,9 +488,9 @@ class NavFilter:
         # P <- F P F' + Q: F = I + dt blocks, d(dv)/d(dtheta) = -[f_world]x dt, -R dt on the biases
         P = self._P
         predict_covariance(P, self._tmp, dt, fx, fy, fz, rot, self._qd, self._n)
-        bias_std = self._cfg.compass_bias_std_rad
         if self._n == NUM_ERROR_STATES:
             # the deviation changes with the heading: a random walk in the angle turned (world z rate)
+            bias_std = self._cfg.compass_bias_std_rad
             turned = abs(r[2][0] * wx + r[2][1] * wy + r[2][2] * wz) * dt
             P[_MAG_BIAS, _MAG_BIAS] += self._cfg.compass_bias_turn_std_rad ** 2 * turned
             if P[_MAG_BIAS, _MAG_BIAS] > bias_std * bias_std:

@@ -85,6 +85,7 @@ from autopilot_bridge.motor_test import MotorTestMixin
 from autopilot_bridge.param_binding import (
     ParamBindingMixin,
     accel_noise_density,
+    compass_bias_model,
     drag_model,
     gyro_bias_noise_density,
 )
@@ -154,7 +155,7 @@ class FlightCore(SensorFusionMixin, ArmingMixin, GuidedMixin, AutoMissionMixin,
         self.nav.set_drag_model(**drag_model(params))
         self.nav.set_accel_noise(accel_noise_density(params.get("EK3_ACC_P_NSE")))
         self.nav.set_compass_noise(params.get("EK3_YAW_M_NSE"))
-        self.nav.set_compass_bias_model(params.get("SN_MAG_BIAS_SD"), params.get("SN_MAG_BIAS_TURN"))
+        self.nav.set_compass_bias_model(**compass_bias_model(params))
         self.nav.set_position_gate(params.get("EK3_POS_I_GATE") / 100.0)
         self.nav.set_vision_noise_floor(params.get("VISO_POS_M_NSE"))
         self.nav.set_vision_reset_max(params.get("SN_VIS_RST_MAX"))

@@ -61,6 +61,11 @@ def drag_model(params) -> dict[str, float]:
             "wind_noise_m_s2_per_rt_hz": process_noise_density(params.get("EK3_WIND_P_NSE"))}
 
 
+def compass_bias_model(params) -> dict[str, float]:
+    """``NavFilter.set_compass_bias_model`` arguments from SN_MAG_BIAS_SD and SN_MAG_BIAS_TURN."""
+    return {"std_rad": params.get("SN_MAG_BIAS_SD"), "turn_std_rad": params.get("SN_MAG_BIAS_TURN")}
+
+
 class ParamBindingMixin:
     """Part of ``FlightCore`` (``autopilot_bridge.flight_core``); works on its state."""
 
@@ -86,7 +91,7 @@ class ParamBindingMixin:
         if name == "EK3_YAW_M_NSE":
             self.nav.set_compass_noise(value)
         if name in ("SN_MAG_BIAS_SD", "SN_MAG_BIAS_TURN"):
-            self.nav.set_compass_bias_model(self.params.get("SN_MAG_BIAS_SD"), self.params.get("SN_MAG_BIAS_TURN"))
+            self.nav.set_compass_bias_model(**compass_bias_model(self.params))
         if name == "EK3_POS_I_GATE":
             self.nav.set_position_gate(value / 100.0)
         if name == "VISO_POS_M_NSE":
